@@ -1,0 +1,52 @@
+"""tvcid.models: the actuator hypotheses of the papers as fast closed- and open-loop simulators.
+
+This package never fits anything; :mod:`discovery` does.
+"""
+from .experiments import CONTROLLER_A, CONTROLLER_B, ClosedLoop, OpenLoop
+from .features import InsufficientPeriodsError, LimitCycleFeatures, limit_cycle_features
+from .hypotheses import (
+    HYPOTHESES,
+    M000,
+    M001f,
+    M001i,
+    M002,
+    ActuatorParams,
+    DeadZonePosition,
+    DelayPosition,
+    UnknownHypothesisError,
+    hypothesis,
+)
+from .simulate import (
+    DEFAULT_DT,
+    BatchResult,
+    SimulationDiverged,
+    Trajectory,
+    simulate,
+    simulate_batch,
+)
+
+__all__ = [
+    "ActuatorParams",
+    "BatchResult",
+    "CONTROLLER_A",
+    "CONTROLLER_B",
+    "ClosedLoop",
+    "DEFAULT_DT",
+    "DeadZonePosition",
+    "DelayPosition",
+    "HYPOTHESES",
+    "InsufficientPeriodsError",
+    "LimitCycleFeatures",
+    "M000",
+    "M001f",
+    "M001i",
+    "M002",
+    "OpenLoop",
+    "SimulationDiverged",
+    "Trajectory",
+    "UnknownHypothesisError",
+    "hypothesis",
+    "limit_cycle_features",
+    "simulate",
+    "simulate_batch",
+]

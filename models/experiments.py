@@ -1,0 +1,188 @@
+"""Experiments the actuator can be put through: the HWIL closed loop and open-loop commands.
+
+The HWIL loop (paper 002 section 3, Fig. 2): vehicle ``theta'' = mu * delta``, PD controller with
+null reference ``u = -Kp*(theta + Kd*theta')``. The HWIL ran vehicle and controller at 200 Hz;
+``sample_rate`` holds the controller output between samples (zero-order hold), off by default.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "ClosedLoop",
+    "OpenLoop",
+    "CONTROLLER_A",
+    "CONTROLLER_B",
+    "OPEN_LOOP_WAVEFORMS",
+]
+
+
+def _finite(name, value, positive=False):
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number (got {value!r})") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite (got {value})")
+    if positive and value <= 0:
+        raise ValueError(f"{name} must be > 0 (got {value})")
+    return value
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    """The HWIL limit-cycle test: vehicle ``mu/s^2`` and PD controller with null reference.
+
+    Parameters
+    ----------
+    kp : float
+        Proportional gain ``Kp`` (rad of command per rad of attitude).
+    kd : float
+        Derivative time ``Kd`` (s): ``u = -Kp*(theta + Kd*theta')``.
+    mu : float
+        Vehicle control effectiveness ``mu`` (1/s^2): ``theta'' = mu*delta``.
+    sample_rate : float or None
+        Controller rate (Hz) for a zero-order hold of ``u``; ``None`` (default) is continuous.
+    theta0, thetad0 : float
+        Initial attitude (rad) and rate (rad/s).
+    """
+
+    kp: float
+    kd: float
+    mu: float
+    sample_rate: float | None = None
+    theta0: float = 0.0
+    thetad0: float = 0.0
+
+    kind = "closed"
+
+    def __post_init__(self):
+        for name in ("kp", "kd", "mu", "theta0", "thetad0"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        if self.sample_rate is not None:
+            object.__setattr__(self, "sample_rate", _finite("sample_rate", self.sample_rate, True))
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind,
+            "kp": self.kp,
+            "kd": self.kd,
+            "mu": self.mu,
+            "sample_rate": self.sample_rate,
+            "theta0": self.theta0,
+            "thetad0": self.thetad0,
+        }
+
+
+#: Paper 002 section 6 (HWIL limit cycle 4.89e-3 rad at 8.57 rad/s).
+CONTROLLER_A = ClosedLoop(kp=5.84, kd=0.062, mu=12.3)
+#: Paper 002 section 3, Fig. 3.
+CONTROLLER_B = ClosedLoop(kp=9.8, kd=0.06, mu=4.5)
+
+OPEN_LOOP_WAVEFORMS = ("step", "square", "sine", "samples")
+
+
+@dataclass(frozen=True, eq=False)
+class OpenLoop:
+    """An open-loop test: the actuator driven by a given command ``u(t)`` (rad).
+
+    Build one with :meth:`step`, :meth:`square`, :meth:`sine` or :meth:`from_samples`.
+
+    Parameters
+    ----------
+    waveform : str
+        One of ``step``, ``square``, ``sine``, ``samples``.
+    amplitude : float
+        Command amplitude (rad).
+    frequency : float
+        Frequency of square and sine commands (Hz).
+    start : float
+        Time of the step (s).
+    offset : float
+        Constant added to the command (rad).
+    t_samples, u_samples : numpy.ndarray
+        A sampled command for ``waveform='samples'``, linearly interpolated and held after its end.
+    from_rest : bool
+        Start the actuator at rest (``y = y' = x = 0``), as a bench test does, whatever initial
+        conditions the hypothesis carries for its closed-loop runs. Default True.
+    """
+
+    waveform: str
+    amplitude: float = 0.0
+    frequency: float = 0.0
+    start: float = 0.0
+    offset: float = 0.0
+    t_samples: np.ndarray | None = field(default=None, repr=False)
+    u_samples: np.ndarray | None = field(default=None, repr=False)
+    from_rest: bool = True
+
+    kind = "open"
+
+    def __post_init__(self):
+        if self.waveform not in OPEN_LOOP_WAVEFORMS:
+            raise ValueError(
+                f"unknown open-loop waveform {self.waveform!r}; choose one of "
+                f"{', '.join(OPEN_LOOP_WAVEFORMS)}"
+            )
+        for name in ("amplitude", "frequency", "start", "offset"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        if self.waveform in ("square", "sine") and self.frequency <= 0:
+            raise ValueError(f"frequency must be > 0 for a {self.waveform} command")
+        if self.waveform == "samples":
+            t = np.asarray(self.t_samples, dtype=float)
+            u = np.asarray(self.u_samples, dtype=float)
+            if t.ndim != 1 or t.shape != u.shape or t.size < 2:
+                raise ValueError("t_samples and u_samples must be 1-D of equal length >= 2")
+            if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
+                raise ValueError("the sampled command holds NaN or infinite values")
+            if np.any(np.diff(t) <= 0):
+                raise ValueError("t_samples must be strictly increasing")
+            object.__setattr__(self, "t_samples", t)
+            object.__setattr__(self, "u_samples", u)
+
+    @classmethod
+    def step(cls, amplitude, start=0.0):
+        """``u = amplitude`` for ``t >= start``, else 0."""
+        return cls("step", amplitude=amplitude, start=start)
+
+    @classmethod
+    def square(cls, amplitude, frequency, offset=0.0):
+        """Square wave ``+-amplitude`` at ``frequency`` Hz, positive half first."""
+        return cls("square", amplitude=amplitude, frequency=frequency, offset=offset)
+
+    @classmethod
+    def sine(cls, amplitude, frequency, offset=0.0):
+        """``u = amplitude * sin(2 pi frequency t) + offset``."""
+        return cls("sine", amplitude=amplitude, frequency=frequency, offset=offset)
+
+    @classmethod
+    def from_samples(cls, t, u):
+        """Any sampled command, linearly interpolated (held constant after the last sample)."""
+        return cls("samples", t_samples=t, u_samples=u)
+
+    def command(self, t):
+        """The command ``u(t)`` (rad) at the times ``t`` (s)."""
+        t = np.asarray(t, dtype=float)
+        if self.waveform == "step":
+            return np.where(t >= self.start, self.amplitude, 0.0)
+        if self.waveform == "square":
+            phase = np.mod(t * self.frequency, 1.0)
+            return np.where(phase < 0.5, self.amplitude, -self.amplitude) + self.offset
+        if self.waveform == "sine":
+            return self.amplitude * np.sin(2 * np.pi * self.frequency * t) + self.offset
+        return np.interp(t, self.t_samples, self.u_samples)
+
+    def to_dict(self) -> dict:
+        out = {
+            "kind": self.kind,
+            "waveform": self.waveform,
+            "amplitude": self.amplitude,
+            "frequency": self.frequency,
+            "start": self.start,
+            "offset": self.offset,
+            "from_rest": self.from_rest,
+        }
+        return out

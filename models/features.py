@@ -1,0 +1,166 @@
+"""Limit-cycle features of a sampled output: what the papers measured, and a little more.
+
+Amplitude is ``(max - min)/2`` and frequency comes from mean crossings, as MODELS.md measures its
+reference numbers. Harmonics are Fourier coefficients over the whole periods between the first and
+last upward mean crossing; those of ``delta'`` are ``k*w0`` times those of ``delta`` (no numerical
+differentiation; paper 001 section 3 analyses the derivative's spectrum).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = [
+    "InsufficientPeriodsError",
+    "LimitCycleFeatures",
+    "limit_cycle_features",
+    "upward_mean_crossings",
+]
+
+#: Hysteresis of the crossing detector, as a fraction of the half peak-to-peak amplitude.
+CROSSING_HYSTERESIS = 0.1
+
+
+class InsufficientPeriodsError(ValueError):
+    """The record does not hold the two whole periods a limit-cycle feature needs."""
+
+
+@dataclass(frozen=True)
+class LimitCycleFeatures:
+    """Features of one limit cycle.
+
+    Attributes
+    ----------
+    amplitude : float
+        ``(max - min)/2`` over the window (rad).
+    mean : float
+        Mean over the whole periods (rad).
+    frequency : float
+        Fundamental (rad/s) from the mean period between upward mean crossings.
+    period_jitter : float
+        Standard deviation of the periods over their mean.
+    harmonics : tuple of float
+        Amplitudes of harmonics 1..n of ``delta`` (rad).
+    derivative_harmonics : tuple of float
+        Amplitudes of harmonics 1..n of ``delta'`` (rad/s).
+    amplitude_drift : float
+        ``(A2 - A1)/A`` between the second and first halves of the window.
+    n_periods : int
+        Whole periods used.
+    """
+
+    amplitude: float
+    mean: float
+    frequency: float
+    period_jitter: float
+    harmonics: tuple
+    derivative_harmonics: tuple
+    amplitude_drift: float
+    n_periods: int
+
+    @property
+    def frequency_hz(self) -> float:
+        return self.frequency / (2 * np.pi)
+
+    def harmonic_ratio(self, k, derivative=True) -> float:
+        """Amplitude of harmonic ``k`` over the fundamental (of ``delta'`` by default)."""
+        h = self.derivative_harmonics if derivative else self.harmonics
+        return h[k - 1] / h[0]
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["harmonics"] = list(self.harmonics)
+        d["derivative_harmonics"] = list(self.derivative_harmonics)
+        d["frequency_hz"] = self.frequency_hz
+        return d
+
+    def to_json(self, **kwargs) -> str:
+        return json.dumps(self.to_dict(), **kwargs)
+
+
+def upward_mean_crossings(t, x, level, hysteresis):
+    """Times where ``x`` crosses ``level`` upwards, with a Schmitt-trigger ``hysteresis``.
+
+    A crossing counts once ``x`` has risen above ``level + hysteresis`` after being below
+    ``level - hysteresis``; its time is the last linear-interpolated crossing of ``level`` before
+    that, so noise near the level does not add crossings.
+    """
+    below = x < level - hysteresis
+    above = x > level + hysteresis
+    times = []
+    armed = False
+    last_up = None
+    for k in range(1, x.size):
+        if x[k - 1] < level <= x[k]:
+            frac = (level - x[k - 1]) / (x[k] - x[k - 1])
+            last_up = t[k - 1] + frac * (t[k] - t[k - 1])
+        if below[k]:
+            armed = True
+            last_up = None
+        elif above[k] and armed and last_up is not None:
+            times.append(last_up)
+            armed = False
+    return np.asarray(times)
+
+
+def limit_cycle_features(t, delta, n_harmonics=11) -> LimitCycleFeatures:
+    """Features of the limit cycle in ``delta(t)``.
+
+    Parameters
+    ----------
+    t : array_like
+        Uniformly sampled, increasing times (s).
+    delta : array_like
+        Output (rad).
+    n_harmonics : int
+        Number of harmonics reported (default 11, as issue 2 asks).
+
+    Raises
+    ------
+    InsufficientPeriodsError
+        When the window holds fewer than two whole periods (or no oscillation at all).
+    """
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(delta, dtype=float)
+    if t.shape != x.shape or t.ndim != 1:
+        raise ValueError("t and delta must be 1-D arrays of equal length")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(x))):
+        raise ValueError("t or delta holds NaN or infinite values")
+    span = t[-1] - t[0] if t.size else 0.0
+    amplitude = 0.5 * (np.max(x) - np.min(x)) if x.size else 0.0
+    if amplitude <= 0:
+        raise InsufficientPeriodsError("no oscillation: the signal is constant over the window")
+    level = float(np.mean(x))
+    ups = upward_mean_crossings(t, x, level, CROSSING_HYSTERESIS * amplitude)
+    if ups.size < 3:
+        raise InsufficientPeriodsError(
+            f"the window of {span:.4g} s holds {max(ups.size - 1, 0)} whole period(s) of the "
+            "cycle; at least two are needed"
+        )
+    periods = np.diff(ups)
+    period = float(np.mean(periods))
+    w0 = 2 * np.pi / period
+    sel = (t >= ups[0]) & (t < ups[-1])
+    ts, xs = t[sel], x[sel]
+    dt = np.diff(t).mean()
+    length = ts.size * dt
+    mean = float(np.mean(xs))
+    k = np.arange(1, n_harmonics + 1)
+    basis = np.exp(-1j * np.outer(k, w0 * (ts - ts[0])))
+    coeffs = 2.0 / length * (basis @ (xs - mean)) * dt
+    harmonics = np.abs(coeffs)
+    half = x.size // 2
+    a1 = 0.5 * (np.max(x[:half]) - np.min(x[:half]))
+    a2 = 0.5 * (np.max(x[half:]) - np.min(x[half:]))
+    return LimitCycleFeatures(
+        amplitude=float(amplitude),
+        mean=mean,
+        frequency=float(w0),
+        period_jitter=float(np.std(periods) / period),
+        harmonics=tuple(float(h) for h in harmonics),
+        derivative_harmonics=tuple(float(h) for h in harmonics * k * w0),
+        amplitude_drift=float((a2 - a1) / amplitude),
+        n_periods=int(ups.size - 1),
+    )

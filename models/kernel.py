@@ -1,0 +1,230 @@
+"""The fixed-step numba kernel: classic RK4 with an exact transport delay and a play operator.
+
+The kernel is a pure function of packed arrays; :mod:`models.simulate` packs the dataclasses and
+unpacks the result. Conventions are those of MODELS.md:
+
+* the transport delay outputs 0 before ``t = Td`` and interpolates its stored input linearly
+  between grid points (the input is stored on the step grid, so ``Td >= dt`` is required);
+* the play operator's memory is updated once per step; the RK4 stages clamp the memory of the
+  step start to their own ``x`` (the rate-independent operator evaluated along the stage);
+* ``sign(0) = 0`` in the friction offset.
+
+The slots of the packed vectors are named by the module constants below; nothing outside this
+module and :mod:`models.simulate` should index them.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+# -- packed actuator parameters ---------------------------------------------------------------
+P_GAIN, P_DAMPING, P_STIFFNESS, P_FEEDBACK = 0, 1, 2, 3
+P_DEAD_ZONE, P_DZ_ON_VELOCITY, P_BACKLASH, P_FRICTION = 4, 5, 6, 7
+P_DELAY_STEPS, P_DELAY_WHERE, P_BP_GAIN, P_BP_SAT = 8, 9, 10, 11
+P_Y0, P_YD0, P_X0, P_N_BP, P_NOISE_RATE = 12, 13, 14, 15, 16
+N_PARAMS = 17
+
+#: values of the P_DELAY_WHERE slot
+DELAY_NONE, DELAY_OUTPUT, DELAY_BEFORE_INTEGRATOR, DELAY_BEFORE_FIRST_INTEGRATOR = 0, 1, 2, 3
+
+# -- packed experiment ------------------------------------------------------------------------
+C_CLOSED, C_KP, C_KD, C_MU, C_HOLD_STEPS, C_THETA0, C_THETAD0, C_BOUND = 0, 1, 2, 3, 4, 5, 6, 7
+N_CONTROL = 8
+
+#: rows of the output array
+SIGNALS = ("t", "u", "delta", "theta", "x", "y", "w", "backlash")
+N_SIGNALS = len(SIGNALS)
+
+#: status codes
+OK, NON_FINITE, OUT_OF_BOUND = 0, 1, 2
+
+N_CORE_STATES = 5  # theta, theta', y, y', x
+
+
+@njit(cache=True)
+def _dead_zone(q, z):
+    if q > z:
+        return q - z
+    if q < -z:
+        return q + z
+    return 0.0
+
+
+@njit(cache=True)
+def simulate_kernel(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation, out):
+    """Integrate one run; fill ``out[N_SIGNALS, n_steps // decimation + 1]``.
+
+    Parameters
+    ----------
+    p : float64[N_PARAMS]
+        Packed actuator parameters; the delay is given in steps (``Td/dt``, may be fractional).
+    ctrl : float64[N_CONTROL]
+        Packed experiment.
+    bp_a, bp_b, bp_c : float64 arrays
+        Band-pass state space (only the first ``p[P_N_BP]`` states are used).
+    u_cmd : float64[2*n_steps + 1]
+        Open-loop command on the half-step grid (ignored in closed loop).
+    noise : float64[:]
+        Output noise held over samples of rate ``p[P_NOISE_RATE]`` (ignored when that is 0).
+    dt : float
+    n_steps, decimation : int
+    out : float64[N_SIGNALS, :]
+
+    Returns
+    -------
+    status : int
+        ``OK``, ``NON_FINITE`` or ``OUT_OF_BOUND``.
+    step : int
+        Step at which the run was stopped (``n_steps`` when it finished).
+    """
+    k1g, k2, k3, kfb = p[P_GAIN], p[P_DAMPING], p[P_STIFFNESS], p[P_FEEDBACK]
+    z, dz_vel, r, off = p[P_DEAD_ZONE], p[P_DZ_ON_VELOCITY] > 0.5, p[P_BACKLASH], p[P_FRICTION]
+    delay_steps, where = p[P_DELAY_STEPS], int(p[P_DELAY_WHERE])
+    bp_gain, bp_sat, nbp = p[P_BP_GAIN], p[P_BP_SAT], int(p[P_N_BP])
+    noise_rate = p[P_NOISE_RATE]
+    closed = ctrl[C_CLOSED] > 0.5
+    kp, kd, mu = ctrl[C_KP], ctrl[C_KD], ctrl[C_MU]
+    hold = int(ctrl[C_HOLD_STEPS])
+    bound = ctrl[C_BOUND]
+
+    ns = N_CORE_STATES + nbp
+    s = np.zeros(ns)
+    ss = np.zeros(ns)
+    kk = np.zeros((4, ns))
+    s[0], s[1] = ctrl[C_THETA0], ctrl[C_THETAD0]
+    s[2], s[3], s[4] = p[P_Y0], p[P_YD0], p[P_X0]
+    memory = min(max(0.0, s[4] - r), s[4] + r)
+
+    # Delay line on the step grid: for the stage times t_k + c*dt (c = 0, 1/2, 1) the delayed
+    # time is t_{k+shift} + frac*dt with a constant shift and fraction.
+    hist_len = int(math.ceil(delay_steps)) + 3
+    hist = np.zeros(hist_len)
+    shift = np.zeros(3, dtype=np.int64)
+    frac = np.zeros(3)
+    for ci in range(3):
+        q = 0.5 * ci - delay_steps
+        fq = math.floor(q)
+        shift[ci] = int(fq)
+        frac[ci] = q - fq
+
+    u_held = 0.0
+    n_noise = noise.shape[0]
+    stage_c = (0, 1, 1, 2)  # half-step index of each RK4 stage
+    for k in range(n_steps + 1):
+        if closed and hold > 0 and k % hold == 0:
+            u_held = -kp * (s[0] + kd * s[1])
+        last_stage = 0 if k == n_steps else 3
+        for stage in range(last_stage + 1):
+            if stage == 0:
+                for i in range(ns):
+                    ss[i] = s[i]
+            else:
+                h = 0.5 * dt if stage < 3 else dt
+                for i in range(ns):
+                    ss[i] = s[i] + h * kk[stage - 1, i]
+            ci = stage_c[stage]
+            if closed:
+                u = u_held if hold > 0 else -kp * (ss[0] + kd * ss[1])
+            else:
+                u = u_cmd[2 * k + ci]
+            xs = ss[4]
+            b = min(max(memory, xs - r), xs + r)
+            e = u - kfb * b
+            g = e if dz_vel else _dead_zone(e, z)
+            ydd = k1g * g - k2 * ss[3] - k3 * ss[2]
+            v = ss[2]
+            xd = xs
+            if where != DELAY_NONE:
+                if stage == 0:
+                    if where == DELAY_OUTPUT:
+                        hist[k % hist_len] = xs
+                    elif where == DELAY_BEFORE_INTEGRATOR:
+                        hist[k % hist_len] = v
+                    else:
+                        hist[k % hist_len] = ydd
+                j = k + shift[ci]
+                fr = frac[ci]
+                delayed = 0.0
+                if j >= 0:
+                    delayed = (1.0 - fr) * hist[j % hist_len]
+                    if fr > 0.0:
+                        delayed += fr * hist[(j + 1) % hist_len]
+                if where == DELAY_OUTPUT:
+                    xd = delayed
+                elif where == DELAY_BEFORE_INTEGRATOR:
+                    v = delayed
+                else:
+                    ydd = delayed
+            pfb = 0.0
+            if bp_gain > 0.0:
+                acc = 0.0
+                for i in range(nbp):
+                    acc += bp_c[i] * ss[N_CORE_STATES + i]
+                pfb = min(max(bp_gain * acc, -bp_sat), bp_sat)
+            q = v + pfb
+            if dz_vel:
+                q = _dead_zone(q, z)
+            w = q
+            if q > 0.0:
+                w = q + off
+            elif q < 0.0:
+                w = q - off
+            delta = xd
+            if noise_rate > 0.0:
+                idx = int((k + 0.5 * ci) * dt * noise_rate + 1e-9)
+                if idx >= n_noise:
+                    idx = n_noise - 1
+                delta += noise[idx]
+            kk[stage, 0] = ss[1]
+            kk[stage, 1] = mu * delta if closed else 0.0
+            kk[stage, 2] = ss[3]
+            kk[stage, 3] = ydd
+            kk[stage, 4] = w
+            for i in range(nbp):
+                acc = bp_b[i] * w
+                for jj in range(nbp):
+                    acc += bp_a[i, jj] * ss[N_CORE_STATES + jj]
+                kk[stage, N_CORE_STATES + i] = acc
+            if stage == 0 and k % decimation == 0:
+                col = k // decimation
+                out[0, col] = k * dt
+                out[1, col] = u
+                out[2, col] = delta
+                out[3, col] = ss[0]
+                out[4, col] = xs
+                out[5, col] = ss[2]
+                out[6, col] = w
+                out[7, col] = b
+        if k == n_steps:
+            break
+        total = 0.0
+        for i in range(ns):
+            s[i] += dt / 6.0 * (kk[0, i] + 2.0 * kk[1, i] + 2.0 * kk[2, i] + kk[3, i])
+            total += s[i]
+        memory = min(max(memory, s[4] - r), s[4] + r)
+        if not math.isfinite(total):
+            return NON_FINITE, k + 1
+        if abs(s[4]) > bound or abs(s[0]) > bound:
+            return OUT_OF_BOUND, k + 1
+    return OK, n_steps
+
+
+@njit(cache=True, parallel=True)
+def simulate_batch_kernel(
+    p, ctrl, bp_a, bp_b, bp_c, u_cmd, exp_index, noise, dt, n_steps, decimation, out, status
+):
+    """Run ``simulate_kernel`` for every row of ``p`` in parallel over all cores.
+
+    ``ctrl[i]``, ``bp_*[i]``, ``noise[i]`` belong to parameter set ``i``; ``u_cmd`` rows are
+    shared through ``exp_index[i]``. ``status[i] = (code, step)``.
+    """
+    n = p.shape[0]
+    for i in prange(n):
+        code, step = simulate_kernel(
+            p[i], ctrl[i], bp_a[i], bp_b[i], bp_c[i], u_cmd[exp_index[i]], noise[i],
+            dt, n_steps, decimation, out[i],
+        )
+        status[i, 0] = code
+        status[i, 1] = step

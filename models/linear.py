@@ -1,0 +1,35 @@
+"""Linear blocks: the Butterworth band-pass of the feedback loop, as a state-space model.
+
+Paper 001 section 4 ("a 4th order Butterworth design, with frequencies between 9 and 10 Hz");
+MODELS.md fixes it as ``scipy.signal.butter(2, [2*pi*9, 2*pi*10], 'bandpass', analog=True)``.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+__all__ = ["bandpass_transfer_function", "bandpass_state_space", "MAX_BANDPASS_STATES"]
+
+#: Largest band-pass state the kernel carries (order 4 -> 8 states).
+MAX_BANDPASS_STATES = 8
+
+
+def bandpass_transfer_function(low_hz, high_hz, order=2):
+    """Analog Butterworth band-pass ``(num, den)`` in ``s``; ``2*order`` poles."""
+    return signal.butter(order, [2 * np.pi * low_hz, 2 * np.pi * high_hz], "bandpass", analog=True)
+
+
+def bandpass_state_space(low_hz, high_hz, order=2):
+    """Band-pass as ``(A, B, C)`` with ``D = 0`` (the filter is strictly proper).
+
+    Returns
+    -------
+    a : ndarray, shape (n, n)
+    b : ndarray, shape (n,)
+    c : ndarray, shape (n,)
+    """
+    num, den = bandpass_transfer_function(low_hz, high_hz, order)
+    a, b, c, d = signal.tf2ss(num, den)
+    if abs(float(np.ravel(d)[0])) > 1e-12:
+        raise ValueError("band-pass filter is not strictly proper")
+    return a, b.ravel(), c.ravel()

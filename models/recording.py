@@ -1,0 +1,261 @@
+"""The recording format: a CSV of samples plus a JSON sidecar, and its one validating loader.
+
+Format (documented in ``data/README.md``): ``NAME.csv`` with a header row naming at least the
+columns ``t, u, delta`` (s, rad, rad; more columns allowed) and ``NAME.json`` beside it with at least
+``{"kind": "closed" | "open"}``; closed-loop recordings also need ``kp``, ``kd``, ``mu``. Every other
+part of tvcid reads recordings through :func:`load_recording`.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .experiments import ClosedLoop
+
+__all__ = [
+    "RecordingError",
+    "Recording",
+    "load_recording",
+    "save_recording",
+    "recording_from_trajectory",
+    "REQUIRED_COLUMNS",
+    "KINDS",
+    "TOOL_VERSION",
+]
+
+REQUIRED_COLUMNS = ("t", "u", "delta")
+KINDS = ("closed", "open")
+DEFAULT_UNITS = {"t": "s", "u": "rad", "delta": "rad"}
+
+
+def _tool_version():
+    try:
+        from importlib.metadata import version
+
+        return version("tvcid")
+    except Exception:  # not installed: running from a checkout
+        return "unknown"
+
+
+TOOL_VERSION = _tool_version()
+
+
+class RecordingError(ValueError):
+    """A recording (CSV or sidecar) is malformed; the message names the file and the culprit."""
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """A validated recording.
+
+    Attributes
+    ----------
+    columns : dict of str -> ndarray
+        Every CSV column by name, ``t``, ``u`` and ``delta`` among them.
+    meta : dict
+        The sidecar, with ``sample_rate`` (Hz) and ``units`` filled in when absent.
+    path : Path or None
+    """
+
+    columns: dict
+    meta: dict = field(default_factory=dict)
+    path: Path | None = None
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.columns["t"]
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.columns["u"]
+
+    @property
+    def delta(self) -> np.ndarray:
+        return self.columns["delta"]
+
+    @property
+    def kind(self) -> str:
+        return self.meta["kind"]
+
+    @property
+    def sample_rate(self) -> float:
+        return float(self.meta["sample_rate"])
+
+    def experiment(self):
+        """The :class:`ClosedLoop` of a closed-loop recording, or an ``OpenLoop`` replaying ``u``."""
+        from .experiments import OpenLoop
+
+        if self.kind == "closed":
+            return ClosedLoop(
+                kp=self.meta["kp"],
+                kd=self.meta["kd"],
+                mu=self.meta["mu"],
+                sample_rate=self.meta.get("controller_rate"),
+            )
+        return OpenLoop.from_samples(self.t, self.u)
+
+    def window(self, seconds):
+        """``(t, delta)`` over the last ``seconds`` (all of it for ``None``)."""
+        if seconds is None:
+            return self.t, self.delta
+        sel = self.t >= self.t[-1] - seconds
+        return self.t[sel], self.delta[sel]
+
+    def features(self, window=None, **kwargs):
+        """Limit-cycle features of ``delta`` over the last ``window`` seconds."""
+        from .features import limit_cycle_features
+
+        return limit_cycle_features(*self.window(window), **kwargs)
+
+
+def _fail(path, message):
+    raise RecordingError(f"{path}: {message}")
+
+
+def _validate_meta(meta, path):
+    if not isinstance(meta, dict):
+        _fail(path, "sidecar must be a JSON object")
+    kind = meta.get("kind")
+    if kind not in KINDS:
+        _fail(path, f"sidecar 'kind' must be one of {', '.join(KINDS)} (got {kind!r})")
+    if kind == "closed":
+        for key in ("kp", "kd", "mu"):
+            value = meta.get(key)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                _fail(path, f"closed-loop sidecar needs a finite number '{key}' (got {value!r})")
+
+
+def _validate_columns(columns, path):
+    for name in REQUIRED_COLUMNS:
+        if name not in columns:
+            _fail(path, f"missing column '{name}' (columns: {', '.join(columns) or 'none'})")
+    n = columns["t"].size
+    if n < 2:
+        _fail(path, f"recording is empty or has a single sample ({n} rows)")
+    for name, values in columns.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            _fail(
+                path,
+                f"column '{name}' holds NaN or infinite values ({bad.size} of them, first at "
+                f"data row {bad[0] + 1})",
+            )
+    steps = np.diff(columns["t"])
+    if np.any(steps <= 0):
+        k = int(np.flatnonzero(steps <= 0)[0])
+        _fail(path, f"column 't' is not strictly increasing (data row {k + 2})")
+
+
+def _read_csv(path):
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read ({exc.strerror})") from None
+    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    if not rows:
+        _fail(path, "file is empty")
+    header = [h.strip() for h in rows[0]]
+    if len(set(header)) != len(header):
+        _fail(path, "header repeats a column name")
+    data = np.empty((len(rows) - 1, len(header)))
+    for i, row in enumerate(rows[1:]):
+        if len(row) != len(header):
+            _fail(path, f"data row {i + 1} has {len(row)} fields, the header has {len(header)}")
+        for j, cell in enumerate(row):
+            try:
+                data[i, j] = float(cell)
+            except ValueError:
+                _fail(path, f"data row {i + 1}, column '{header[j]}': not a number ({cell!r})")
+    return {name: data[:, j].copy() for j, name in enumerate(header)}
+
+
+def sidecar_path(path) -> Path:
+    """``NAME.json`` beside ``NAME.csv``."""
+    return Path(path).with_suffix(".json")
+
+
+def load_recording(path) -> Recording:
+    """Load and validate a recording.
+
+    Checks: the sidecar exists and names a known ``kind`` (and ``kp``, ``kd``, ``mu`` in closed
+    loop); the columns ``t, u, delta`` exist, have equal length, hold no NaN; ``t`` is strictly
+    increasing. Fills ``sample_rate`` (from the median step) and default ``units`` when absent.
+
+    Raises
+    ------
+    RecordingError
+        Naming the file and what is wrong with it.
+    """
+    path = Path(path)
+    side = sidecar_path(path)
+    if not path.exists():
+        raise RecordingError(f"{path}: no such recording")
+    if not side.exists():
+        raise RecordingError(
+            f"{path}: missing sidecar {side.name} (a JSON object with at least 'kind')"
+        )
+    try:
+        meta = json.loads(side.read_text())
+    except json.JSONDecodeError as exc:
+        raise RecordingError(f"{side}: invalid JSON ({exc.msg} at line {exc.lineno})") from None
+    _validate_meta(meta, side)
+    columns = _read_csv(path)
+    _validate_columns(columns, path)
+    meta = dict(meta)
+    meta.setdefault("units", dict(DEFAULT_UNITS))
+    measured = 1.0 / float(np.median(np.diff(columns["t"])))
+    meta.setdefault("sample_rate", measured)
+    return Recording(columns=columns, meta=meta, path=path)
+
+
+def save_recording(path, columns: dict, meta: dict) -> Path:
+    """Write ``columns`` to ``path`` (CSV) and ``meta`` to its sidecar, after validating both."""
+    path = Path(path)
+    columns = {k: np.asarray(v, dtype=float) for k, v in columns.items()}
+    _validate_meta(meta, sidecar_path(path))
+    _validate_columns(columns, path)
+    lengths = {v.size for v in columns.values()}
+    if len(lengths) != 1:
+        raise RecordingError(f"{path}: columns have unequal lengths {sorted(lengths)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    names = list(columns)
+    with open(path, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(names)
+        for row in zip(*(columns[n] for n in names)):
+            writer.writerow([repr(float(v)) for v in row])
+    sidecar_path(path).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def recording_from_trajectory(trajectory, seed=None, extra=None):
+    """Columns and sidecar for a simulated trajectory (provenance: hypothesis, parameters, seed)."""
+    exp = trajectory.experiment
+    meta = dict(exp.to_dict())
+    if meta["kind"] == "closed":
+        meta["controller_rate"] = meta.pop("sample_rate")
+    meta.update(
+        {
+            "source": "simulated",
+            "hypothesis": trajectory.params.name,
+            "parameters": trajectory.params.to_dict(),
+            "seed": trajectory.params.noise_seed if seed is None else seed,
+            "dt": trajectory.dt,
+            "sample_rate": trajectory.rate,
+            "tool": "tvcid",
+            "tool_version": TOOL_VERSION,
+            "units": {
+                "t": "s", "u": "rad", "delta": "rad", "theta": "rad", "x": "rad",
+                "y": "rad/s", "w": "rad/s", "backlash": "rad",
+            },
+        }
+    )
+    if extra:
+        meta.update(extra)
+    return trajectory.signals(), meta

@@ -1,0 +1,4 @@
+"""Subcommands of ``tvcid``; add a module here and to :data:`COMMAND_MODULES`."""
+from . import features, simulate
+
+COMMAND_MODULES = (simulate, features)
