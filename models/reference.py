@@ -1,0 +1,179 @@
+"""Reference simulator in plain Python, written apart from the numba kernel to cross-check it.
+
+It composes the element functions of :mod:`models.nonlinearities`, a :class:`DelayLine` object and
+a generic RK4 stepper over a state dictionary, where the kernel fuses everything into one loop over
+packed arrays. Both discretise the same way (RK4 on a fixed grid, the delay line interpolated
+linearly between grid points, the play memory updated once per step), so they agree to round-off on
+periodic cycles; it is ~500x slower and meant for tests and the benchmark only.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .experiments import ClosedLoop, OpenLoop
+from .hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+from .linear import bandpass_state_space
+from .noise import band_limited_white_noise
+from .nonlinearities import dead_zone, friction_offset, play_step, saturation
+from .simulate import DEFAULT_BOUND, DEFAULT_DT, SimulationDiverged, Trajectory, _check_grid
+
+__all__ = ["DelayLine", "simulate_reference"]
+
+
+class DelayLine:
+    """Pure transport delay of a signal stored on a uniform grid.
+
+    ``read(t)`` returns the stored signal at ``t - delay``: 0 before ``t = delay``, linear
+    interpolation between the stored samples otherwise.
+    """
+
+    def __init__(self, delay, dt):
+        self.delay = delay
+        self.dt = dt
+        self.values = []
+
+    def write(self, value):
+        self.values.append(value)
+
+    def read(self, t):
+        tau = (t - self.delay) / self.dt
+        if abs(tau - round(tau)) < 1e-9:
+            tau = float(round(tau))
+        if tau < 0:
+            return 0.0
+        j = int(math.floor(tau))
+        frac = tau - j
+        value = (1.0 - frac) * self.values[j]
+        if frac > 0:
+            value += frac * self.values[j + 1]
+        return value
+
+
+def _scalar(fn, *args):
+    return float(fn(*args))
+
+
+def simulate_reference(
+    params: ActuatorParams,
+    experiment,
+    t_end: float,
+    dt: float = DEFAULT_DT,
+    rate: float | None = None,
+    bound: float = DEFAULT_BOUND,
+) -> Trajectory:
+    """Plain-Python counterpart of :func:`models.simulate.simulate` (same arguments and output)."""
+    n_steps, decimation = _check_grid(t_end, dt, rate)
+    closed = isinstance(experiment, ClosedLoop)
+    if not closed and not isinstance(experiment, OpenLoop):
+        raise TypeError("experiment must be a ClosedLoop or an OpenLoop")
+    at_rest = not closed and experiment.from_rest
+    r = params.backlash
+    has_delay = params.delay > 0
+    if has_delay and params.delay < dt * (1 - 1e-9):
+        raise ValueError(f"delay ({params.delay} s) is shorter than the step dt ({dt} s)")
+    line = DelayLine(params.delay, dt) if has_delay else None
+    where = params.delay_position if has_delay else None
+
+    if params.has_bandpass_loop:
+        bp_a, bp_b, bp_c = bandpass_state_space(
+            params.bandpass_low_hz, params.bandpass_high_hz, params.bandpass_order
+        )
+    else:
+        bp_a, bp_b, bp_c = np.zeros((0, 0)), np.zeros(0), np.zeros(0)
+    noise = None
+    if params.noise_power > 0:
+        noise = band_limited_white_noise(
+            params.noise_power, params.noise_band, t_end, np.random.default_rng(params.noise_seed)
+        )
+        noise_rate = 2.0 * params.noise_band
+
+    state = {
+        "theta": experiment.theta0 if closed else 0.0,
+        "thetad": experiment.thetad0 if closed else 0.0,
+        "y": 0.0 if at_rest else params.y0,
+        "yd": 0.0 if at_rest else params.yd0,
+        "x": 0.0 if at_rest else params.x0,
+        "bp": np.zeros(bp_a.shape[0]),
+    }
+    memory = play_step(0.0, state["x"], r)
+    hold = None
+    if closed and experiment.sample_rate is not None:
+        hold = int(round(1.0 / (experiment.sample_rate * dt)))
+    u_held = 0.0
+
+    def command(t, st):
+        if not closed:
+            return float(experiment.command(t))
+        if hold is not None:
+            return u_held
+        return -experiment.kp * (st["theta"] + experiment.kd * st["thetad"])
+
+    def evaluate(t, st, store):
+        """Derivatives and the recorded signals at time ``t`` and state ``st``."""
+        u = command(t, st)
+        b = play_step(memory, st["x"], r)
+        e = u - params.feedback_gain * b
+        if params.dead_zone_position is DeadZonePosition.ERROR:
+            e = _scalar(dead_zone, e, params.dead_zone)
+        accel = params.gain * e - params.damping * st["yd"] - params.stiffness * st["y"]
+        if store and line is not None:
+            line.write({DelayPosition.OUTPUT: st["x"], DelayPosition.BEFORE_INTEGRATOR: st["y"],
+                        DelayPosition.BEFORE_FIRST_INTEGRATOR: accel}[where])
+        v, out = st["y"], st["x"]
+        if where is DelayPosition.BEFORE_FIRST_INTEGRATOR:
+            accel = line.read(t)
+        elif where is DelayPosition.BEFORE_INTEGRATOR:
+            v = line.read(t)
+        elif where is DelayPosition.OUTPUT:
+            out = line.read(t)
+        p = 0.0
+        if params.has_bandpass_loop:
+            p = _scalar(saturation, params.bandpass_gain * float(bp_c @ st["bp"]),
+                        params.bandpass_saturation)
+        q = v + p
+        if params.dead_zone_position is DeadZonePosition.VELOCITY:
+            q = _scalar(dead_zone, q, params.dead_zone)
+        w = _scalar(friction_offset, q, params.friction_offset)
+        delta = out
+        if noise is not None:
+            delta += noise[min(int(t * noise_rate + 1e-9), noise.size - 1)]
+        deriv = {
+            "theta": st["thetad"],
+            "thetad": experiment.mu * delta if closed else 0.0,
+            "y": st["yd"],
+            "yd": accel,
+            "x": w,
+            "bp": bp_a @ st["bp"] + bp_b * w,
+        }
+        return deriv, (t, u, delta, st["theta"], st["x"], st["y"], w, b)
+
+    def advance(st, deriv, h):
+        return {key: st[key] + h * deriv[key] for key in st}
+
+    rows = []
+    for k in range(n_steps + 1):
+        # stage times as the kernel forms them (command edges land on the same side)
+        t, t_half, t_full = 0.5 * dt * (2 * k), 0.5 * dt * (2 * k + 1), 0.5 * dt * (2 * k + 2)
+        if hold is not None and k % hold == 0:
+            u_held = -experiment.kp * (state["theta"] + experiment.kd * state["thetad"])
+        k1, record = evaluate(t, state, store=True)
+        if k % decimation == 0:
+            rows.append(record)
+        if k == n_steps:
+            break
+        k2, _ = evaluate(t_half, advance(state, k1, dt / 2), store=False)
+        k3, _ = evaluate(t_half, advance(state, k2, dt / 2), store=False)
+        k4, _ = evaluate(t_full, advance(state, k3, dt), store=False)
+        state = {
+            key: state[key] + dt / 6 * (k1[key] + 2 * k2[key] + 2 * k3[key] + k4[key])
+            for key in state
+        }
+        memory = play_step(memory, state["x"], r)
+        if not all(np.all(np.isfinite(v)) for v in state.values()):
+            raise SimulationDiverged(f"{params.name} (reference) became non-finite at t = {t:.4g} s")
+        if abs(state["x"]) > bound or abs(state["theta"]) > bound:
+            raise SimulationDiverged(f"{params.name} (reference) exceeded the bound at t = {t:.4g} s")
+    columns = np.array(rows).T
+    return Trajectory(*columns, params=params, experiment=experiment, dt=dt)

@@ -1,0 +1,21 @@
+"""Shared fixtures: long closed-loop runs are simulated once per session."""
+import functools
+
+import pytest
+
+from models import CONTROLLER_A, hypothesis, simulate
+
+
+@functools.lru_cache(maxsize=None)
+def _cycle(name, t_end=40.0, dt=2e-4, **overrides):
+    return simulate(hypothesis(name, **overrides), CONTROLLER_A, t_end, dt=dt)
+
+
+@pytest.fixture(scope="session")
+def cycle_at_a():
+    """``cycle_at_a(name, **overrides)``: a 40 s controller-A run (cached), for features."""
+
+    def get(name, **overrides):
+        return _cycle(name, **overrides)
+
+    return get

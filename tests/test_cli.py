@@ -1,0 +1,54 @@
+"""The ``tvcid simulate`` and ``tvcid features`` commands."""
+import json
+
+import pytest
+
+from studies.cli import main
+
+
+def test_simulate_then_features_json(tmp_path, capsys):
+    out = tmp_path / "m002.csv"
+    assert main(["simulate", "m002", "--t-end", "20", "--out", str(out)]) == 0
+    assert out.exists() and out.with_suffix(".json").exists()
+    capsys.readouterr()
+    assert main(["features", str(out), "--window", "10", "--json"]) == 0
+    feats = json.loads(capsys.readouterr().out)
+    assert feats["amplitude"] == pytest.approx(5.0e-3, rel=0.03)
+    assert feats["frequency"] == pytest.approx(8.57, rel=0.01)
+
+
+def test_simulate_open_loop_with_overrides(tmp_path):
+    out = tmp_path / "sq.csv"
+    args = ["simulate", "M001f", "--open-loop", "square", "--amplitude", "0.01", "--frequency", "2",
+            "--set", "delay_position=output", "--set", "bandpass_gain=0", "--t-end", "2", "--out", str(out)]
+    assert main(args) == 0
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["kind"] == "open" and meta["waveform"] == "square"
+    assert meta["parameters"]["delay_position"] == "output"
+    assert meta["parameters"]["bandpass_gain"] == 0.0
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["simulate", "M9", "--out", "x.csv"], "unknown hypothesis 'M9'"),
+        (["simulate", "M002", "--set", "backlash=-1", "--out", "x.csv"], "backlash must be >= 0"),
+        (["simulate", "M002", "--dt", "0", "--out", "x.csv"], "dt must be"),
+    ],
+)
+def test_cli_errors_name_the_culprit(tmp_path, capsys, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_every_command_has_help(capsys):
+    from studies.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    for name in sub.choices:
+        with pytest.raises(SystemExit) as exc:
+            main([name, "--help"])
+        assert exc.value.code == 0
+        assert "usage" in capsys.readouterr().out

@@ -1,0 +1,50 @@
+"""Limit-cycle features on signals whose answer is known."""
+import numpy as np
+import pytest
+
+from models import InsufficientPeriodsError, limit_cycle_features
+
+W0 = 8.57
+
+
+def _signal(t, noise=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    x = 4e-3 * np.sin(W0 * t) + 1e-3 * np.sin(3 * W0 * t + 0.3) + 2e-4 * np.sin(7 * W0 * t) + 1e-4
+    return x + noise * rng.standard_normal(t.size)
+
+
+def test_known_harmonics_and_frequency():
+    t = np.arange(0, 20, 1e-3)
+    f = limit_cycle_features(t, _signal(t))
+    assert f.frequency == pytest.approx(W0, rel=1e-4)
+    assert f.mean == pytest.approx(1e-4, abs=2e-6)
+    h = np.array(f.harmonics)
+    np.testing.assert_allclose(h[[0, 2, 6]], [4e-3, 1e-3, 2e-4], rtol=5e-3)
+    assert np.max(h[[1, 3, 4, 5, 7, 8, 9, 10]]) < 2e-5
+    assert f.derivative_harmonics[6] == pytest.approx(7 * W0 * 2e-4, rel=5e-3)
+    assert len(f.harmonics) == 11
+    assert f.period_jitter < 1e-3
+    assert abs(f.amplitude_drift) < 1e-3
+
+
+def test_noise_does_not_add_crossings():
+    t = np.arange(0, 20, 1e-3)
+    f = limit_cycle_features(t, _signal(t, noise=2e-4))
+    assert f.frequency == pytest.approx(W0, rel=2e-3)
+    cycles = 20 * W0 / (2 * np.pi)  # 27.3 cycles: 26 or 27 whole periods between crossings
+    assert int(cycles) - 1 <= f.n_periods <= int(cycles)
+
+
+def test_drift_of_a_growing_cycle():
+    t = np.arange(0, 20, 1e-3)
+    f = limit_cycle_features(t, (1 + 0.05 * t) * np.sin(W0 * t))
+    # halves peak at 1.5 and 2.0, over an amplitude of 2.0
+    assert f.amplitude_drift == pytest.approx(0.25, abs=0.01)
+
+
+def test_fewer_than_two_periods_is_a_clear_error():
+    t = np.arange(0, 1.2, 1e-3)  # 1.6 periods
+    with pytest.raises(InsufficientPeriodsError, match="at least two are needed"):
+        limit_cycle_features(t, np.sin(W0 * t))
+    with pytest.raises(InsufficientPeriodsError, match="no oscillation"):
+        limit_cycle_features(t, np.zeros_like(t))

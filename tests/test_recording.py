@@ -1,0 +1,56 @@
+"""The recording format and its one loader."""
+import json
+
+import numpy as np
+import pytest
+
+from models import CONTROLLER_B, hypothesis, simulate
+from models.recording import RecordingError, load_recording, recording_from_trajectory, save_recording
+
+
+def _write(tmp_path, text, meta={"kind": "open"}):
+    path = tmp_path / "rec.csv"
+    path.write_text(text)
+    if meta is not None:
+        path.with_suffix(".json").write_text(json.dumps(meta))
+    return path
+
+
+def test_round_trip_keeps_samples_and_provenance(tmp_path):
+    tr = simulate(hypothesis("M002", noise_power=1e-11, noise_seed=7), CONTROLLER_B, 3.0)
+    path = save_recording(tmp_path / "m002.csv", *recording_from_trajectory(tr))
+    rec = load_recording(path)
+    np.testing.assert_array_equal(rec.delta, tr.delta)
+    np.testing.assert_array_equal(rec.columns["theta"], tr.theta)
+    assert rec.kind == "closed" and rec.meta["kp"] == 9.8 and rec.meta["mu"] == 4.5
+    assert rec.meta["hypothesis"] == "M002" and rec.meta["seed"] == 7
+    assert rec.meta["parameters"]["dead_zone"] == 1.2e-3
+    assert rec.sample_rate == pytest.approx(1000.0)
+    assert rec.experiment().kp == 9.8
+
+
+def test_minimal_hand_written_sidecar(tmp_path):
+    path = _write(tmp_path, "t,u,delta\n0,0,0\n0.005,0.1,0.01\n0.01,0.1,0.02\n")
+    rec = load_recording(path)
+    assert rec.sample_rate == pytest.approx(200.0)
+    assert rec.meta["units"]["delta"] == "rad"
+
+
+@pytest.mark.parametrize(
+    "text, meta, message",
+    [
+        ("t,u\n0,0\n1,1\n", {"kind": "open"}, "missing column 'delta'"),
+        ("t,u,delta\n0,0,0\n1,1,nan\n", {"kind": "open"}, "column 'delta' holds NaN"),
+        ("t,u,delta\n0,0,0\n0,1,1\n", {"kind": "open"}, "not strictly increasing"),
+        ("t,u,delta\n0,0,0\n1,1\n", {"kind": "open"}, "data row 2 has 2 fields"),
+        ("t,u,delta\n0,0,0\n1,x,1\n", {"kind": "open"}, "column 'u': not a number"),
+        ("t,u,delta\n", {"kind": "open"}, "empty"),
+        ("t,u,delta\n0,0,0\n1,1,1\n", {"kind": "hwil"}, "'kind' must be one of closed, open"),
+        ("t,u,delta\n0,0,0\n1,1,1\n", {"kind": "closed", "kp": 1}, "needs a finite number 'kd'"),
+        ("t,u,delta\n0,0,0\n1,1,1\n", None, "missing sidecar"),
+    ],
+)
+def test_malformed_recordings_name_the_culprit(tmp_path, text, meta, message):
+    path = _write(tmp_path, text, meta)
+    with pytest.raises(RecordingError, match=message):
+        load_recording(path)
