@@ -5,6 +5,8 @@ MODELS.md fixes it as ``scipy.signal.butter(2, [2*pi*9, 2*pi*10], 'bandpass', an
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy import signal
 
@@ -19,8 +21,11 @@ def bandpass_transfer_function(low_hz, high_hz, order=2):
     return signal.butter(order, [2 * np.pi * low_hz, 2 * np.pi * high_hz], "bandpass", analog=True)
 
 
+@lru_cache(maxsize=64)
 def bandpass_state_space(low_hz, high_hz, order=2):
     """Band-pass as ``(A, B, C)`` with ``D = 0`` (the filter is strictly proper).
+
+    Cached (batches pack the same filter many times); the arrays are read-only.
 
     Returns
     -------
@@ -32,4 +37,7 @@ def bandpass_state_space(low_hz, high_hz, order=2):
     a, b, c, d = signal.tf2ss(num, den)
     if abs(float(np.ravel(d)[0])) > 1e-12:
         raise ValueError("band-pass filter is not strictly proper")
-    return a, b.ravel(), c.ravel()
+    a, b, c = a.copy(), b.ravel().copy(), c.ravel().copy()
+    for arr in (a, b, c):
+        arr.setflags(write=False)
+    return a, b, c
