@@ -1,4 +1,4 @@
 """Subcommands of ``tvcid``; add a module here and to :data:`COMMAND_MODULES`."""
-from . import features, simulate
+from . import features, simulate, study
 
-COMMAND_MODULES = (simulate, features)
+COMMAND_MODULES = (simulate, features, study)

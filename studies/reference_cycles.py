@@ -1,0 +1,114 @@
+"""Study ``reference_cycles``: do the four reconstructed hypotheses reproduce the papers' cycles?
+
+Hypothesis: M002, M001i, M001f and M000 (as MODELS.md reconstructs them from papers 002, 001 and
+000) each produce a limit cycle at controller A (Kp 5.84, Kd 0.062, mu 12.3) close to the HWIL
+measurement of paper 002 (4.89e-3 rad at 8.57 rad/s), and at controller B (Kp 9.8, Kd 0.06,
+mu 4.5) the cycles MODELS.md lists.
+
+Deciding figure: ``cycles.png``, the last two seconds of each hypothesis' output at controllers A
+and B, with the HWIL amplitude marked; ``summary.json`` holds amplitude, frequency and the
+derivative's H7/H1 of every run beside the reference numbers.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from models import CONTROLLER_A, CONTROLLER_B, HYPOTHESES, hypothesis, simulate
+
+NAME = "reference_cycles"
+
+#: MODELS.md "Reference numbers" (reconstruction column): (amplitude rad, frequency rad/s)
+REFERENCE = {
+    ("M002", "A"): (4.991e-3, 8.597),
+    ("M001i", "A"): (5.60e-3, 8.535),
+    ("M001f", "A"): (5.73e-3, 8.589),
+    ("M000", "A"): (5.43e-3, 8.49),
+    ("M002", "B"): (6.73e-3, 6.67),
+    ("M001i", "B"): (7.40e-3, 6.57),
+    ("M000", "B"): (7.02e-3, 6.54),
+}
+HWIL_A = (4.89e-3, 8.57)  # paper 002 section 6
+
+
+@dataclass(frozen=True)
+class Config:
+    t_end: float = 40.0
+    window: float = 20.0
+
+
+QUICK = Config(t_end=12.0, window=6.0)
+
+
+def run(config: Config, seed: int, out_dir: Path) -> dict:
+    """Simulate every hypothesis at both controllers; write json, npz and png; return the summary."""
+    controllers = {"A": CONTROLLER_A, "B": CONTROLLER_B}
+    rows, traces = [], {}
+    for name in HYPOTHESES:
+        for label, ctrl in controllers.items():
+            tr = simulate(hypothesis(name, noise_seed=seed), ctrl, config.t_end)
+            f = tr.features(window=config.window)
+            ref = REFERENCE.get((name, label))
+            rows.append({
+                "hypothesis": name, "controller": label, "amplitude": f.amplitude,
+                "frequency": f.frequency, "h7_over_h1_derivative": f.harmonic_ratio(7),
+                "period_jitter": f.period_jitter,
+                "reference_amplitude": ref[0] if ref else None,
+                "reference_frequency": ref[1] if ref else None,
+                "amplitude_error_pct": 100 * (f.amplitude / ref[0] - 1) if ref else None,
+                "frequency_error_pct": 100 * (f.frequency / ref[1] - 1) if ref else None,
+            })
+            keep = tr.t >= tr.t[-1] - 2.0
+            traces[f"{name}_{label}_t"] = tr.t[keep]
+            traces[f"{name}_{label}_delta"] = tr.delta[keep]
+    summary = {"study": NAME, "config": asdict(config), "seed": seed, "hwil_controller_a": HWIL_A,
+               "runs": rows}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    np.savez_compressed(out_dir / "cycles.npz", **traces)
+    plot(traces, out_dir / "cycles.png")
+    return summary
+
+
+def plot(traces, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=False)
+    for ax, label in zip(axes, ("A", "B")):
+        for name in HYPOTHESES:
+            t = traces[f"{name}_{label}_t"]
+            ax.plot(t - t[0], 1e3 * traces[f"{name}_{label}_delta"], label=name)
+        if label == "A":
+            for sign in (1, -1):
+                ax.axhline(sign * 1e3 * HWIL_A[0], color="k", ls=":", lw=1)
+        ax.set_title(f"controller {label}" + (" (dotted: HWIL amplitude, paper 002)" if label == "A" else ""))
+        ax.set_ylabel("delta (mrad)")
+    axes[-1].set_xlabel("t (s), last two seconds")
+    axes[0].legend(ncol=4, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="short runs for CI")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed (no noise by default)")
+    parser.add_argument("--out", default=f"results/{NAME}", help="output directory")
+    args = parser.parse_args(argv)
+    summary = run(QUICK if args.quick else Config(), args.seed, Path(args.out))
+    for r in summary["runs"]:
+        ref = f"  ref {r['reference_amplitude']:.3e} at {r['reference_frequency']:.3f}" if r["reference_amplitude"] else ""
+        print(f"{r['hypothesis']:6s} {r['controller']}  {r['amplitude']:.3e} rad at {r['frequency']:.3f} rad/s  H7/H1 {r['h7_over_h1_derivative']:.2f}{ref}")
+    return summary
+
+
+if __name__ == "__main__":
+    main()

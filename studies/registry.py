@@ -1,0 +1,10 @@
+"""The studies ``tvcid study`` knows, in the order ``tvcid study all`` runs them.
+
+Each study module exposes ``NAME``, a frozen ``Config``, ``QUICK`` and
+``run(config, seed, out_dir) -> dict``.
+"""
+from __future__ import annotations
+
+from . import reference_cycles
+
+STUDIES = {module.NAME: module for module in (reference_cycles,)}

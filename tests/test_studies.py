@@ -1,0 +1,30 @@
+"""Every study runs in --quick mode and writes its outputs."""
+import json
+
+import pytest
+
+from studies.cli import main
+from studies.registry import STUDIES
+
+
+@pytest.mark.parametrize("name", sorted(STUDIES))
+def test_study_quick_writes_outputs(tmp_path, name):
+    assert main(["study", name, "--quick", "--results", str(tmp_path)]) == 0
+    out = tmp_path / name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["study"] == name
+    assert any(p.suffix == ".png" and p.stat().st_size > 10_000 for p in out.iterdir())
+
+
+def test_reference_cycles_within_one_percent_of_models_md(tmp_path):
+    summary = STUDIES["reference_cycles"].run(STUDIES["reference_cycles"].Config(), 0, tmp_path)
+    checked = [r for r in summary["runs"] if r["reference_amplitude"]]
+    assert len(checked) == 7
+    for r in checked:
+        assert abs(r["amplitude_error_pct"]) < 1.0, r
+        assert abs(r["frequency_error_pct"]) < 0.5, r
+
+
+def test_unknown_study_is_named(capsys):
+    assert main(["study", "h9_nothing"]) == 2
+    assert "unknown study 'h9_nothing'" in capsys.readouterr().err
