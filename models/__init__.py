@@ -15,6 +15,7 @@ from .hypotheses import (
     DelayPosition,
     UnknownHypothesisError,
     hypothesis,
+    params_from_dict,
 )
 from .simulate import (
     DEFAULT_DT,
@@ -47,6 +48,7 @@ __all__ = [
     "UnknownHypothesisError",
     "hypothesis",
     "limit_cycle_features",
+    "params_from_dict",
     "simulate",
     "simulate_batch",
 ]

@@ -34,6 +34,7 @@ __all__ = [
     "UnknownHypothesisError",
     "hypothesis",
     "gains_from_abc",
+    "params_from_dict",
 ]
 
 
@@ -380,3 +381,18 @@ def hypothesis(name: str, **overrides) -> ActuatorParams:
             f"unknown hypothesis {name!r}; choose one of {', '.join(HYPOTHESES)}"
         )
     return cls().replace(**overrides) if overrides else cls()
+
+
+def params_from_dict(name: str, parameters: dict) -> ActuatorParams:
+    """Rebuild a parameter object from a name and :meth:`ActuatorParams.to_dict` output.
+
+    ``name`` is a hypothesis name or ``"custom"`` (the general :class:`ActuatorParams`); this is how
+    a recording's sidecar (keys ``hypothesis`` and ``parameters``) is turned back into a model.
+    """
+    if str(name).lower() == ActuatorParams.name:
+        known = set(ActuatorParams.parameter_names())
+        unknown = sorted(set(parameters) - known)
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for custom")
+        return ActuatorParams(**parameters)
+    return hypothesis(name, **parameters)

@@ -1,6 +1,6 @@
 """Reference simulator in plain Python, written apart from the numba kernel to cross-check it.
 
-It composes the element functions of :mod:`models.nonlinearities`, a :class:`DelayLine` object and
+It composes the element functions of :mod:`models.nonlinearities`, a :class:`models.delay.DelayLine` and
 a generic RK4 stepper over a state dictionary, where the kernel fuses everything into one loop over
 packed arrays. Both discretise the same way (RK4 on a fixed grid, the delay line interpolated
 linearly between grid points, the play memory updated once per step), so they agree to round-off on
@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from .delay import DelayLine
 from .experiments import ClosedLoop, OpenLoop
 from .hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 from .linear import bandpass_state_space
@@ -19,36 +20,7 @@ from .noise import band_limited_white_noise
 from .nonlinearities import dead_zone, friction_offset, play_step, saturation
 from .simulate import DEFAULT_BOUND, DEFAULT_DT, SimulationDiverged, Trajectory, _check_grid
 
-__all__ = ["DelayLine", "simulate_reference"]
-
-
-class DelayLine:
-    """Pure transport delay of a signal stored on a uniform grid.
-
-    ``read(t)`` returns the stored signal at ``t - delay``: 0 before ``t = delay``, linear
-    interpolation between the stored samples otherwise.
-    """
-
-    def __init__(self, delay, dt):
-        self.delay = delay
-        self.dt = dt
-        self.values = []
-
-    def write(self, value):
-        self.values.append(value)
-
-    def read(self, t):
-        tau = (t - self.delay) / self.dt
-        if abs(tau - round(tau)) < 1e-9:
-            tau = float(round(tau))
-        if tau < 0:
-            return 0.0
-        j = int(math.floor(tau))
-        frac = tau - j
-        value = (1.0 - frac) * self.values[j]
-        if frac > 0:
-            value += frac * self.values[j + 1]
-        return value
+__all__ = ["simulate_reference"]
 
 
 def _scalar(fn, *args):

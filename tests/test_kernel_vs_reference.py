@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from models import CONTROLLER_A, ClosedLoop, OpenLoop, hypothesis, simulate, simulate_batch
-from models.reference import DelayLine, simulate_reference
+from models.delay import DelayLine, transport_delay
+from models.reference import simulate_reference
 
 
 @pytest.mark.parametrize("name", ["M002", "M001i", "M001f", "M000"])
@@ -40,6 +41,10 @@ def test_delay_line_outputs_zero_before_td_and_interpolates():
     assert line.read(0.2) == 0.0
     assert line.read(0.25) == pytest.approx(1.0)
     assert line.read(0.30) == pytest.approx(1.5)
+    t = np.arange(4) * 0.1
+    np.testing.assert_allclose(transport_delay(t, [1.0, 2.0, 3.0, 4.0], 0.15), [0, 0, 1.5, 2.5])
+    with pytest.raises(ValueError, match="delay must be"):
+        transport_delay(t, t, -0.1)
 
 
 def test_transport_delay_in_kernel_shifts_the_output_exactly():

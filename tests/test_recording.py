@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from models import CONTROLLER_B, hypothesis, simulate
+from models import CONTROLLER_B, ActuatorParams, hypothesis, params_from_dict, simulate
 from models.recording import RecordingError, load_recording, recording_from_trajectory, save_recording
 
 
@@ -27,6 +27,9 @@ def test_round_trip_keeps_samples_and_provenance(tmp_path):
     assert rec.meta["parameters"]["dead_zone"] == 1.2e-3
     assert rec.sample_rate == pytest.approx(1000.0)
     assert rec.experiment().kp == 9.8
+    assert params_from_dict(rec.meta["hypothesis"], rec.meta["parameters"]) == tr.params
+    custom = ActuatorParams(**rec.meta["parameters"])
+    assert params_from_dict("custom", rec.meta["parameters"]) == custom
 
 
 def test_minimal_hand_written_sidecar(tmp_path):
