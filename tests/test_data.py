@@ -1,5 +1,6 @@
 """The bundled recordings: rebuilt byte for byte by the generator, readable, labelled synthetic."""
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,7 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 def _generator():
     spec = importlib.util.spec_from_file_location("data_generate", DATA / "generate.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
