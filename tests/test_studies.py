@@ -28,3 +28,12 @@ def test_reference_cycles_within_one_percent_of_models_md(tmp_path):
 def test_unknown_study_is_named(capsys):
     assert main(["study", "h9_nothing"]) == 2
     assert "unknown study 'h9_nothing'" in capsys.readouterr().err
+
+
+def test_h3_inner_integrators_select_the_small_cycle_and_x0_alone_does_not(tmp_path):
+    module = STUDIES["h3_initial_conditions"]
+    summary = module.run(module.QUICK, 0, tmp_path)
+    assert summary["small_basin_off_x_axis"]
+    assert not summary["x0_alone_reaches_small"]
+    assert summary["x0_alone_classes"]["large"] == sum(summary["x0_alone_classes"].values())
+    assert summary["small_cycle"]["amplitude"] < 0.1 * summary["large_cycle"]["amplitude"]
