@@ -11,14 +11,16 @@ absent from the x(0) axis. ``phase_planes.png`` shows the two coexisting cycles.
 """
 from __future__ import annotations
 
-import argparse
 import json
+import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from models import CONTROLLER_A, hypothesis, simulate, simulate_batch
+
+from .common import pyplot, study_main
 
 NAME = "h3_initial_conditions"
 
@@ -122,10 +124,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
 
 
 def plot_basins(arrays, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.colors import ListedColormap
 
     cmap = ListedColormap(["#dddddd", "#d62728", "#1f77b4", "#000000"])
@@ -145,10 +144,7 @@ def plot_basins(arrays, path):
 
 
 def plot_phase_planes(arrays, summary, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for ax, label in zip(axes, ("large", "small")):
@@ -162,15 +158,17 @@ def plot_phase_planes(arrays, summary, path):
     plt.close(fig)
 
 
+def describe(summary):
+    for s in summary["slices"]:
+        print(f"slice {s['title']:10s} {s['counts']}")
+    print(f"x(0) alone: {summary['x0_alone_classes']}")
+    for label in ("large", "small"):
+        c = summary[f"{label}_cycle"]
+        print(f"{label} cycle: {c['amplitude']:.3e} rad at {c['frequency']:.3f} rad/s")
+
+
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="coarse grid for CI")
-    parser.add_argument("--seed", type=int, default=0, help="unused: the study draws nothing")
-    parser.add_argument("--out", default=f"results/{NAME}", help="output directory")
-    args = parser.parse_args(argv)
-    summary = run(QUICK if args.quick else Config(), args.seed, Path(args.out))
-    print(json.dumps({k: summary[k] for k in ("slices", "x0_alone_classes", "large_cycle", "small_cycle")}, indent=1))
-    return summary
+    return study_main(sys.modules[__name__], argv)
 
 
 if __name__ == "__main__":

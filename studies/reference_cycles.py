@@ -11,14 +11,16 @@ derivative's H7/H1 of every run beside the reference numbers.
 """
 from __future__ import annotations
 
-import argparse
 import json
+import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from models import CONTROLLER_A, CONTROLLER_B, HYPOTHESES, hypothesis, simulate
+
+from .common import pyplot, study_main
 
 NAME = "reference_cycles"
 
@@ -75,10 +77,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
 
 
 def plot(traces, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=False)
     for ax, label in zip(axes, ("A", "B")):
@@ -97,17 +96,17 @@ def plot(traces, path):
     plt.close(fig)
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="short runs for CI")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed (no noise by default)")
-    parser.add_argument("--out", default=f"results/{NAME}", help="output directory")
-    args = parser.parse_args(argv)
-    summary = run(QUICK if args.quick else Config(), args.seed, Path(args.out))
+def describe(summary):
     for r in summary["runs"]:
-        ref = f"  ref {r['reference_amplitude']:.3e} at {r['reference_frequency']:.3f}" if r["reference_amplitude"] else ""
-        print(f"{r['hypothesis']:6s} {r['controller']}  {r['amplitude']:.3e} rad at {r['frequency']:.3f} rad/s  H7/H1 {r['h7_over_h1_derivative']:.2f}{ref}")
-    return summary
+        ref = ""
+        if r["reference_amplitude"]:
+            ref = f"  ref {r['reference_amplitude']:.3e} at {r['reference_frequency']:.3f}"
+        print(f"{r['hypothesis']:6s} {r['controller']}  {r['amplitude']:.3e} rad at "
+              f"{r['frequency']:.3f} rad/s  H7/H1 {r['h7_over_h1_derivative']:.2f}{ref}")
+
+
+def main(argv=None):
+    return study_main(sys.modules[__name__], argv)
 
 
 if __name__ == "__main__":
