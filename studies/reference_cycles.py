@@ -18,7 +18,19 @@ from pathlib import Path
 
 import numpy as np
 
-from models import CONTROLLER_A, CONTROLLER_B, HYPOTHESES, hypothesis, simulate
+from models import (
+    CONTROLLER_A,
+    CONTROLLER_B,
+    HYPOTHESES,
+    M000,
+    ClosedLoop,
+    M001f,
+    M001i,
+    SimulationDiverged,
+    hypothesis,
+    simulate,
+)
+from models.hypotheses import gains_from_abc
 
 from .common import pyplot, study_main
 
@@ -68,12 +80,43 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
             traces[f"{name}_{label}_t"] = tr.t[keep]
             traces[f"{name}_{label}_delta"] = tr.delta[keep]
     summary = {"study": NAME, "config": asdict(config), "seed": seed, "hwil_controller_a": HWIL_A,
-               "runs": rows}
+               "runs": rows, "paper_numbers": paper_numbers(rows, config, seed)}
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     np.savez_compressed(out_dir / "cycles.npz", **traces)
     plot(traces, out_dir / "cycles.png")
     return summary
+
+
+def paper_numbers(rows, config, seed):
+    """The papers' printed numbers this study reproduces, keyed as in ``data/papers.json``."""
+    run = {(r["hypothesis"], r["controller"]): r for r in rows}
+    m002, m000, m001f = run[("M002", "A")], run[("M000", "A")], run[("M001f", "A")]
+    sampled = simulate(hypothesis("M002", noise_seed=seed),
+                       ClosedLoop(CONTROLLER_A.kp, CONTROLLER_A.kd, CONTROLLER_A.mu, sample_rate=200.0),
+                       config.t_end).features(window=config.window)
+    raise_pct = 100 * (sampled.amplitude / m002["amplitude"] - 1)
+    a, _, c = M000().abc
+    try:
+        simulate(hypothesis("M000", **dict(zip(("gain", "damping", "stiffness"),
+                                               gains_from_abc(15116.0, 202.1, 0.0475)))),
+                 CONTROLLER_A, 5.0)
+        printed_a = "the printed 15116 runs without diverging"
+    except SimulationDiverged as exc:
+        printed_a = f"the printed 15116 diverges ({exc})"
+    k_k1 = M001i().feedback_gain * M001i().gain
+    return {
+        "p002_sim_amplitude_A": {"value": m002["amplitude"], "how": "M002 simulated at controller A"},
+        "p002_sim_frequency_A": {"value": m002["frequency"], "how": "M002 simulated at controller A"},
+        "p002_hwil_amplitude_A": {"value": m000["amplitude"], "how": "M000 (paper 000's final model) simulated at controller A"},
+        "p002_hwil_frequency_A": {"value": m000["frequency"], "how": "M000 simulated at controller A"},
+        "p002_hwil_rate": {"value": 200.0, "how": f"ClosedLoop(sample_rate=200) option: raises the M002 cycle by {raise_pct:.1f} % (the paper calls it negligible)"},
+        "p001_h7_frequency": {"value": 7 * m001f["frequency"] / (2 * np.pi), "how": f"7th harmonic of M001f at controller A (H7/H1 of delta' = {m001f['h7_over_h1_derivative']:.2f})"},
+        "p001_tf_s0": {"value": k_k1, "how": "K*K1 of M001i (K = 1.0697 as printed)"},
+        "p001_bandpass_order": {"value": 2 * M001f().bandpass_order, "how": "poles of butter(2, band, 'bandpass')"},
+        "p000_gain_A": {"value": a, "how": f"M000 uses 1511.6 (= 305500/202.1): {printed_a}"},
+        "p000_gain_C": {"value": c, "how": "K3/K1 of M000"},
+    }
 
 
 def plot(traces, path):

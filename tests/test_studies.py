@@ -16,6 +16,21 @@ def test_study_quick_writes_outputs(tmp_path, name):
     assert any(p.suffix == ".png" and p.stat().st_size > 10_000 for p in out.iterdir())
 
 
+def test_report_has_a_row_for_every_paper_number(tmp_path):
+    from studies.report import load_papers
+
+    assert main(["study", "all", "--quick", "--results", str(tmp_path)]) == 0
+    report = (tmp_path / "report.md").read_text()
+    ids = [e["id"] for e in load_papers()["numbers"]]
+    table = [line for line in report.splitlines() if line.startswith("| p0")]
+    assert [line.split("|")[1].strip() for line in table] == ids
+    # gain A is reproduced as the corrected 1511.6, with the erratum stated
+    row = next(line for line in table if line.startswith("| p000_gain_A "))
+    assert "| 1511.6 |" in row and "diverges" in row
+    for name in STUDIES:
+        assert f"## {name}" in report
+
+
 def test_reference_cycles_within_one_percent_of_models_md(tmp_path):
     summary = STUDIES["reference_cycles"].run(STUDIES["reference_cycles"].Config(), 0, tmp_path)
     checked = [r for r in summary["runs"] if r["reference_amplitude"]]

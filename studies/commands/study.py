@@ -3,7 +3,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from tqdm import tqdm
+
 from ..registry import STUDIES
+from ..report import write_report
 
 
 def register(sub):
@@ -26,10 +29,12 @@ def run(args) -> int:
         names = [args.name]
     else:
         raise ValueError(f"unknown study {args.name!r}; choose 'all' or one of {', '.join(STUDIES)}")
-    for name in names:
+    for name in tqdm(names, desc="studies", unit="study", disable=len(names) == 1):
         module = STUDIES[name]
         config = module.QUICK if args.quick else module.Config()
         out = Path(args.results) / name
         module.run(config, args.seed, out)
-        print(f"study {name}: wrote {out}")
+        tqdm.write(f"study {name}: wrote {out}")
+    report = write_report(args.results)
+    print(f"wrote {report}")
     return 0
