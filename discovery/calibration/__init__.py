@@ -1,0 +1,41 @@
+"""tvcid.discovery.calibration: Bayesian calibration of a hypothesis with emcee (issue 5).
+
+* :class:`Calibration` -- sklearn-style estimator: posterior over any subset of a hypothesis'
+  parameters (plus the sensor-noise sd ``sigma``) given closed-loop and open-loop recordings,
+  with a phase-aligned waveform or a limit-cycle-features likelihood;
+* :func:`run_ensemble` -- the small sampling core (emcee, HDF checkpoints, resume, stopping at
+  ``N > 50 tau``), usable with any log-probability;
+* :class:`Posterior`, :class:`PosteriorPredictive`, :func:`compare` -- summaries, corner/trace/
+  predictive plots, ArviZ export, WAIC and BIC;
+* :mod:`.ridge` -- the dead-zone/backlash ridge of a single limit cycle and its shrinkage.
+"""
+from .calibration import Calibration, load_recordings
+from .likelihood import DEFAULT_FEATURES, LIKELIHOODS, cycle_features, estimate_noise
+from .priors import SIGMA, LogUniform, Prior, Uniform, default_prior, parse_prior
+from .results import ModelComparison, Posterior, PosteriorPredictive, compare
+from .runner import ConvergenceReport, ConvergenceWarning, default_moves, run_ensemble
+from .synthetic import synthetic_recording
+
+__all__ = [
+    "Calibration",
+    "ConvergenceReport",
+    "ConvergenceWarning",
+    "DEFAULT_FEATURES",
+    "LIKELIHOODS",
+    "LogUniform",
+    "ModelComparison",
+    "Posterior",
+    "PosteriorPredictive",
+    "Prior",
+    "SIGMA",
+    "Uniform",
+    "compare",
+    "cycle_features",
+    "default_moves",
+    "default_prior",
+    "estimate_noise",
+    "load_recordings",
+    "parse_prior",
+    "run_ensemble",
+    "synthetic_recording",
+]

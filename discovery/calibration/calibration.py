@@ -1,0 +1,326 @@
+"""``Calibration``: the Bayesian calibration of a hypothesis on recordings (issue 5).
+
+sklearn-style: ``__init__`` only stores its arguments; :meth:`Calibration.fit` validates them,
+builds the likelihood terms and the log posterior, runs (or resumes) the ensemble and returns
+``self``; what it learns ends in ``_`` (``posterior_``, ``report_``, ``sampler_``, ...).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from models.hypotheses import ActuatorParams, hypothesis as get_hypothesis
+from models.recording import Recording, load_recording
+
+from .likelihood import DEFAULT_FEATURES, LIKELIHOODS, make_term
+from .posterior import LogPosterior, check_parameter_names
+from .priors import SIGMA, Prior, default_prior
+from .results import Posterior
+from .runner import run_ensemble
+
+__all__ = ["Calibration", "load_recordings", "truths_from_recordings"]
+
+_H5_GROUP = "tvcid"
+
+
+def load_recordings(recordings):
+    """Paths or :class:`Recording` objects -> list of Recording (through ``load_recording``)."""
+    if isinstance(recordings, (str, Path, Recording)):
+        recordings = [recordings]
+    out = [r if isinstance(r, Recording) else load_recording(r) for r in recordings]
+    if not out:
+        raise ValueError("no recording given")
+    return out
+
+
+def truths_from_recordings(recordings, names, hypothesis_name):
+    """Parameter values a simulated recording was made with (``None`` where unknown)."""
+    truths = {}
+    for rec in recordings:
+        meta = rec.meta
+        if meta.get("source") != "simulated":
+            continue
+        params = meta.get("parameters") or {}
+        same = str(meta.get("hypothesis", "")).lower() == str(hypothesis_name).lower()
+        for n in names:
+            if n == SIGMA and "sensor_noise_sd" in meta:
+                truths.setdefault(n, float(meta["sensor_noise_sd"]))
+            elif same and n in params:
+                truths.setdefault(n, float(params[n]))
+    return {n: truths.get(n) for n in names}
+
+
+class Calibration:
+    """Posterior over chosen parameters of a hypothesis, given one or more recordings.
+
+    Parameters
+    ----------
+    hypothesis : str or ActuatorParams
+        A hypothesis name (``models.hypothesis``) or a parameter object; every parameter not
+        sampled keeps its value (after ``fixed``).
+    params : sequence of str
+        Sampled parameters: fields of the hypothesis and/or ``"sigma"`` (sensor-noise sd, rad).
+    priors : dict name -> Prior, optional
+        Declared priors; the rest get :func:`.priors.default_prior` around their start value.
+    fixed : dict, optional
+        Overrides of non-sampled fields (and ``"sigma"`` when it is not sampled; default: the
+        noise level estimated from the recordings).
+    start : dict, optional
+        Starting values (default: the hypothesis' values, the estimated noise for sigma).
+    likelihood : {"waveform", "features"}
+    features : sequence of str
+        Features of the features likelihood (``frequency``, ``amplitude``, ``Hk``).
+    window : float or None
+        Seconds of each closed-loop recording used (its end); ``None`` for all of it.
+    transient : float
+        Seconds simulated before the compared window (after the warm start).
+    dt : float
+        RK4 step; 5e-4 keeps log-likelihood errors below 0.1 (MODELS.md).
+    n_walkers, max_steps, check_every, tau_factor
+        Ensemble size, step cap, convergence-check interval, ``N > tau_factor * tau``.
+    moves : emcee moves, optional
+        Default: DEMove/DESnookerMove mix.
+    pool : object with ``.map``, optional
+        Walker batches are mapped over it (multiprocessing, MPI, Dask executors).
+    backend : str, Path or None
+        HDF5 file (emcee ``HDFBackend``) to checkpoint to and resume from.
+    seed : int
+    progress : bool
+    warm_start : bool
+        Start closed-loop runs on a scaled reference cycle.
+    optimize_start : bool
+        Find the maximum a posteriori (Nelder-Mead) before placing the walkers around it.
+    stop_when_converged : bool
+        False runs every chain to ``max_steps`` (e.g. to map a ridge).
+    """
+
+    def __init__(self, hypothesis="M002", params=("backlash", "dead_zone", "delay", SIGMA),
+                 priors=None, fixed=None, start=None, likelihood="waveform",
+                 features=DEFAULT_FEATURES, window=10.0, transient=6.0, dt=5e-4, n_walkers=16,
+                 max_steps=4000, check_every=100, tau_factor=50.0, moves=None, pool=None,
+                 backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
+                 stop_when_converged=True):
+        self.hypothesis = hypothesis
+        self.params = params
+        self.priors = priors
+        self.fixed = fixed
+        self.start = start
+        self.likelihood = likelihood
+        self.features = features
+        self.window = window
+        self.transient = transient
+        self.dt = dt
+        self.n_walkers = n_walkers
+        self.max_steps = max_steps
+        self.check_every = check_every
+        self.tau_factor = tau_factor
+        self.moves = moves
+        self.pool = pool
+        self.backend = backend
+        self.seed = seed
+        self.progress = progress
+        self.warm_start = warm_start
+        self.optimize_start = optimize_start
+        self.stop_when_converged = stop_when_converged
+
+    # -- set-up ---------------------------------------------------------------------------------
+    def _base(self):
+        h = self.hypothesis
+        if isinstance(h, ActuatorParams):
+            base = h
+        else:
+            base = get_hypothesis(h)
+        fixed = dict(self.fixed or {})
+        fixed.pop(SIGMA, None)
+        return base.replace(**fixed) if fixed else base
+
+    def _config(self):
+        return {
+            "hypothesis": self.base_.name,
+            "base": self.base_.to_dict(),
+            "params": list(self.names_),
+            "priors": {n: p.describe() for n, p in self.priors_.items()},
+            "likelihood": self.likelihood,
+            "features": list(self.features),
+            "window": self.window,
+            "transient": self.transient,
+            "dt": self.dt,
+            "n_walkers": self.n_walkers,
+            "recordings": [t.describe()["name"] for t in self.terms_],
+        }
+
+    def setup(self, recordings):
+        """Validate and build everything :meth:`fit` needs, without sampling; returns ``self``."""
+        if self.likelihood not in LIKELIHOODS:
+            raise ValueError(
+                f"unknown likelihood {self.likelihood!r}; choose one of {', '.join(LIKELIHOODS)}"
+            )
+        for name in ("n_walkers", "max_steps"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{name} must be a positive integer (got {v!r})")
+        if not (isinstance(self.dt, (int, float)) and self.dt > 0):
+            raise ValueError(f"dt must be > 0 (got {self.dt!r})")
+        if self.transient < 0:
+            raise ValueError(f"transient must be >= 0 (got {self.transient})")
+        base = self._base()
+        names = check_parameter_names(self.params, base)
+        priors = dict(self.priors or {})
+        unknown = sorted(set(priors) - set(names))
+        if unknown:
+            raise ValueError(f"priors given for parameters that are not sampled: {', '.join(unknown)}")
+        for n, p in priors.items():
+            if not isinstance(p, Prior):
+                raise TypeError(f"prior of {n!r} must be a Prior (Uniform/LogUniform), got {p!r}")
+        start = dict(self.start or {})
+        bad = sorted(set(start) - set(names))
+        if bad:
+            raise ValueError(f"start values given for parameters that are not sampled: {', '.join(bad)}")
+        if 2 * len(names) > self.n_walkers:
+            raise ValueError(
+                f"n_walkers ({self.n_walkers}) must be at least twice the number of sampled "
+                f"parameters ({len(names)})"
+            )
+        self.recordings_ = load_recordings(recordings)
+        rng = np.random.default_rng(self.seed)
+        self.terms_ = []
+        for i, rec in enumerate(self.recordings_):
+            name = rec.path.stem if rec.path is not None else f"recording{i}"
+            self.terms_.append(make_term(rec, self.likelihood, self.window, self.transient,
+                                         self.dt, name=name, features=self.features, rng=rng))
+        self.sigma_hat_ = float(np.sqrt(np.mean([t.sigma_hat**2 for t in self.terms_])))
+        sigma_fixed = float((self.fixed or {}).get(SIGMA, self.sigma_hat_))
+        start_values = {}
+        for n in names:
+            if n in start:
+                start_values[n] = float(start[n])
+            elif n == SIGMA:
+                start_values[n] = self.sigma_hat_
+            else:
+                start_values[n] = float(getattr(base, n))
+            if n not in priors:
+                priors[n] = default_prior(n, start_values[n], dt=self.dt)
+            p = priors[n]
+            if not p.low <= start_values[n] <= p.high:
+                raise ValueError(
+                    f"start value of {n} ({start_values[n]:g}) lies outside its prior "
+                    f"[{p.low:g}, {p.high:g}]"
+                )
+        self.base_ = base
+        self.names_ = names
+        self.priors_ = priors
+        self.start_ = start_values
+        start_params = base.replace(**{n: v for n, v in start_values.items() if n != SIGMA})
+        for term in self.terms_:
+            term.setup(start_params, warm_start=self.warm_start)
+        self.log_posterior_ = LogPosterior(base, names, priors, self.terms_, sigma_fixed)
+        self.truths_ = truths_from_recordings(self.recordings_, names, base.name)
+        return self
+
+    # -- initial positions ----------------------------------------------------------------------
+    def _initial(self, rng):
+        lp = self.log_posterior_
+        z0 = lp.internal(np.array([[self.start_[n] for n in self.names_]]))[0]
+        if self.optimize_start:
+            from scipy.optimize import minimize
+
+            res = minimize(lambda z: -lp(z) if np.isfinite(lp(z)) else 1e300, z0,
+                           method="Nelder-Mead",
+                           options={"maxfev": 150 * len(z0), "xatol": 1e-6, "fatol": 0.05,
+                                    "initial_simplex": _simplex(z0, lp)})
+            if np.isfinite(lp(res.x)):
+                z0 = res.x
+        self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
+        scale = _axis_scales(lp, z0)
+        ndim = len(z0)
+        out = np.empty((self.n_walkers, ndim))
+        filled = 0
+        for _ in range(100):
+            trial = z0 + 0.5 * scale * rng.standard_normal((self.n_walkers, ndim))
+            ok = np.isfinite(lp(trial))
+            take = trial[ok][: self.n_walkers - filled]
+            out[filled: filled + len(take)] = take
+            filled += len(take)
+            if filled == self.n_walkers:
+                return out
+        raise RuntimeError("could not place the walkers where the posterior is finite")
+
+    # -- fit ------------------------------------------------------------------------------------
+    def fit(self, recordings):
+        """Sample (or resume) the posterior; returns ``self``.
+
+        Learned attributes: ``posterior_`` (:class:`.results.Posterior`), ``report_``
+        (:class:`.runner.ConvergenceReport`), ``sampler_``, ``log_posterior_``, ``terms_``,
+        ``priors_``, ``truths_``, ``sigma_hat_``.
+        """
+        self.setup(recordings)
+        backend = None
+        if self.backend is not None:
+            import emcee
+            import h5py
+
+            path = Path(self.backend)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            config = json.dumps(self._config(), sort_keys=True)
+            if path.exists():
+                with h5py.File(path, "r") as f:
+                    old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
+                if old is not None and old != config:
+                    raise ValueError(
+                        f"{path} holds a run with a different set-up; use another output "
+                        f"(stored: {old}; now: {config})"
+                    )
+            backend = emcee.backends.HDFBackend(str(path), name="mcmc")
+            with h5py.File(path, "a") as f:
+                g = f.require_group(_H5_GROUP)
+                g.attrs["config"] = config
+        self.sampler_, self.report_ = run_ensemble(
+            self.log_posterior_, self._initial, self.n_walkers, len(self.names_),
+            self.max_steps, seed=self.seed, backend=backend, moves=self.moves, pool=self.pool,
+            vectorize=True, check_every=self.check_every, tau_factor=self.tau_factor,
+            progress=self.progress, stop_when_converged=self.stop_when_converged,
+        )
+        self.posterior_ = Posterior.from_sampler(self, self.sampler_, self.report_)
+        return self
+
+
+def _simplex(z0, lp):
+    scale = _axis_scales(lp, z0)
+    simplex = [z0]
+    for j in range(len(z0)):
+        z = z0.copy()
+        z[j] += scale[j]
+        simplex.append(z)
+    return np.array(simplex)
+
+
+def _axis_scales(lp, z0):
+    """Posterior sd along each internal axis from the curvature at ``z0`` (bounded guesses)."""
+    ndim = len(z0)
+    widths = np.array([hi - lo for lo, hi in (p.internal_bounds for p in lp.priors)])
+    scale = np.empty(ndim)
+    f0 = lp(z0)
+    for j in range(ndim):
+        h = 1e-3 * widths[j]
+        scale[j] = 1e-3 * widths[j]
+        for _ in range(6):
+            pts = np.array([z0, z0, z0])
+            pts[1, j] -= h
+            pts[2, j] += h
+            f = lp(pts)
+            if not np.all(np.isfinite(f)):
+                h *= 0.3
+                continue
+            d2 = (f[1] - 2 * f0 + f[2]) / h**2
+            if d2 < 0:
+                s = 1.0 / math.sqrt(-d2)
+                scale[j] = min(s, 0.1 * widths[j])
+                if 0.1 * s < h < 10 * s:
+                    break
+                h = s
+            else:
+                h *= 3.0
+    return scale

@@ -1,0 +1,198 @@
+"""Batch simulation for the sampler: the experiment packed once, warm starts on the cycle.
+
+:func:`models.simulate_batch` packs the experiment and builds every parameter set per call; an
+MCMC step calls it thousands of times with the same experiment, so :class:`BatchSimulator` packs the
+experiment, the command and the time grid once and calls :func:`models.kernel.simulate_batch_kernel`
+directly. Each row still goes through :meth:`models.ActuatorParams.replace` and the models' own
+packing, so every check and convention of :mod:`models` applies (nothing is re-implemented here).
+
+Warm start (MODELS.md, "Calibration facts"): the dead zone, the play operator and the linear parts
+are positively homogeneous, so a cycle state taken from one reference run, scaled by
+``dead_zone / dead_zone_ref``, lands each walker's run near its own cycle and a short transient
+(6 s at controller A) suffices. In-loop output noise is never simulated here: the sensor noise of a
+calibration is a likelihood parameter (``sigma``), not a forcing.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from models import kernel as K
+from models.experiments import ClosedLoop, OpenLoop
+from models.hypotheses import ActuatorParams
+from models.simulate import (
+    DEFAULT_BOUND,
+    SimulationDiverged,
+    _check_grid,
+    _initial_conditions,
+    _pack_experiment,
+    _pack_params,
+    simulate,
+)
+
+__all__ = ["WarmStart", "warm_start_state", "BatchSimulator"]
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """A state on a reference limit cycle: ``theta, theta', y, y', x`` and the reference scale.
+
+    Attributes
+    ----------
+    theta, thetad, y, yd, x : float
+        State at an upward crossing of the cycle's mean by ``x``.
+    dead_zone_ref : float
+        Dead zone of the reference run; a run with dead zone ``z`` starts from the state times
+        ``z / dead_zone_ref`` (1 when either is 0).
+    """
+
+    theta: float
+    thetad: float
+    y: float
+    yd: float
+    x: float
+    dead_zone_ref: float
+
+    def scale(self, params: ActuatorParams) -> float:
+        if self.dead_zone_ref > 0 and params.dead_zone > 0:
+            return params.dead_zone / self.dead_zone_ref
+        return 1.0
+
+
+def warm_start_state(params: ActuatorParams, experiment, dt, t_ref=20.0):
+    """Cycle state of ``params`` in the closed loop ``experiment`` after ``t_ref`` seconds.
+
+    Returns ``None`` for an open-loop experiment, a diverging run or one that does not oscillate
+    (the caller then starts from the hypothesis' own initial conditions).
+    """
+    if not isinstance(experiment, ClosedLoop):
+        return None
+    clean = params.replace(noise_power=0.0)
+    try:
+        tr = simulate(clean, experiment, t_ref, dt=dt, rate=None)
+    except (SimulationDiverged, ValueError):
+        return None
+    n = tr.t.size
+    tail = slice(n // 2, n - 2)
+    x = tr.x
+    level = float(np.mean(x[tail]))
+    amp = 0.5 * float(np.max(x[tail]) - np.min(x[tail]))
+    if not amp > 0:
+        return None
+    k = np.flatnonzero((x[:-1] < level) & (x[1:] >= level))
+    k = k[(k > n // 2) & (k < n - 2)]
+    if k.size == 0:
+        return None
+    i = int(k[-1])
+    return WarmStart(
+        theta=float(tr.theta[i]),
+        thetad=float((tr.theta[i + 1] - tr.theta[i - 1]) / (2 * dt)),
+        y=float(tr.y[i]),
+        yd=float((tr.y[i + 1] - tr.y[i - 1]) / (2 * dt)),
+        x=float(x[i]),
+        dead_zone_ref=float(params.dead_zone),
+    )
+
+
+class BatchSimulator:
+    """Simulate many parameter sets of one experiment on all cores, experiment packed once.
+
+    Parameters
+    ----------
+    experiment : ClosedLoop or OpenLoop
+    t_end, dt : float
+        Duration and RK4 step (s).
+    rate : float or None
+        Output rate (Hz), dividing ``1/dt``; ``None`` keeps every step.
+    warm_start : WarmStart or None
+        Start closed-loop runs on the reference cycle (scaled); ``None`` uses each parameter
+        set's own initial conditions.
+    bound : float
+        Divergence bound (rad).
+    """
+
+    def __init__(self, experiment, t_end, dt, rate=None, warm_start=None, bound=DEFAULT_BOUND):
+        self.experiment = experiment
+        self.t_end = float(t_end)
+        self.dt = float(dt)
+        self.rate = rate
+        self.warm_start = warm_start
+        self.bound = float(bound)
+        self.n_steps, self.decimation = _check_grid(self.t_end, self.dt, rate)
+        self._ctrl, u_cmd = _pack_experiment(experiment, self.dt, self.n_steps, self.bound)
+        self._u_cmd = np.ascontiguousarray(u_cmd[None, :])
+        self.n_out = self.n_steps // self.decimation + 1
+        self.t = self.dt * self.decimation * np.arange(self.n_out)
+
+    def __getstate__(self):  # picklable for process pools
+        return self.__dict__.copy()
+
+    def run(self, param_sets):
+        """Simulate ``param_sets`` (a list of ActuatorParams; ``None`` entries are skipped).
+
+        Returns
+        -------
+        delta : ndarray, shape (n, n_out)
+            Output; rows of skipped, invalid or diverged runs are NaN.
+        ok : ndarray of bool, shape (n,)
+        """
+        n = len(param_sets)
+        rows, keep = [], []
+        bp = None
+        for i, params in enumerate(param_sets):
+            if params is None:
+                continue
+            try:
+                p, bp_a, bp_b, bp_c = _pack_params(params, self.dt)
+            except ValueError:  # e.g. a delay shorter than the step
+                continue
+            p = _initial_conditions(p, self.experiment)
+            p[K.P_NOISE_RATE] = 0.0
+            ctrl = self._ctrl.copy()
+            if self.warm_start is not None and isinstance(self.experiment, ClosedLoop):
+                ws = self.warm_start
+                k = ws.scale(params)
+                p[K.P_Y0], p[K.P_YD0], p[K.P_X0] = k * ws.y, k * ws.yd, k * ws.x
+                ctrl[K.C_THETA0], ctrl[K.C_THETAD0] = k * ws.theta, k * ws.thetad
+            rows.append((p, ctrl, bp_a, bp_b, bp_c))
+            keep.append(i)
+        delta = np.full((n, self.n_out), np.nan)
+        ok = np.zeros(n, dtype=bool)
+        if not rows:
+            return delta, ok
+        m = len(rows)
+        p = np.array([r[0] for r in rows])
+        ctrl = np.array([r[1] for r in rows])
+        bp_a = np.array([r[2] for r in rows])
+        bp_b = np.array([r[3] for r in rows])
+        bp_c = np.array([r[4] for r in rows])
+        out = np.full((m, K.N_SIGNALS, self.n_out), np.nan)
+        status = np.zeros((m, 2), dtype=np.int64)
+        K.simulate_batch_kernel(
+            p, ctrl, bp_a, bp_b, bp_c, self._u_cmd, np.zeros(m, dtype=np.int64),
+            np.zeros((m, 1)), self.dt, self.n_steps, self.decimation, out, status,
+        )
+        idx = np.asarray(keep)
+        good = status[:, 0] == K.OK
+        delta[idx[good]] = out[good, K.SIGNALS.index("delta"), :]
+        ok[idx[good]] = True
+        return delta, ok
+
+
+def output_rate_for(dt, data_rate):
+    """The data rate when it divides ``1/dt``, else ``None`` (keep every step)."""
+    ratio = 1.0 / (data_rate * dt)
+    dec = int(round(ratio))
+    if dec >= 1 and abs(ratio - dec) <= 1e-6 * max(1.0, ratio):
+        return float(data_rate)
+    return None
+
+
+def is_open_loop(experiment) -> bool:
+    return isinstance(experiment, OpenLoop)
+
+
+def _finite(x):
+    return x is not None and math.isfinite(x)

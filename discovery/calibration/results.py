@@ -1,0 +1,364 @@
+"""Result objects of a calibration: posterior summaries, plots, predictive checks, comparison.
+
+Compute and plot are kept apart: every object here is computed once and has ``plot``-style
+methods taking an optional axes or figure.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .priors import SIGMA
+
+__all__ = ["Posterior", "PosteriorPredictive", "ModelComparison", "compare"]
+
+
+@dataclass(eq=False)
+class Posterior:
+    """Posterior samples of one calibration (burn-in discarded, thinned).
+
+    Attributes
+    ----------
+    names : tuple of str
+    samples : ndarray (n, ndim)
+        Natural units.
+    internal : ndarray (n, ndim)
+        Sampling coordinates (log for log-uniform priors).
+    log_prob : ndarray (n,)
+    chain : ndarray (n_steps, n_walkers, ndim)
+        The whole chain in natural units (for traces).
+    log_scale : tuple of bool
+        Which coordinates are sampled in log.
+    truths : dict name -> float or None
+    report : ConvergenceReport
+    burn, thin : int
+    """
+
+    names: tuple
+    samples: np.ndarray
+    internal: np.ndarray
+    log_prob: np.ndarray
+    chain: np.ndarray
+    log_scale: tuple
+    truths: dict
+    report: object
+    burn: int
+    thin: int
+    calibration: object = field(default=None, repr=False)
+
+    @classmethod
+    def from_sampler(cls, calibration, sampler, report, burn=None, thin=None):
+        lp = calibration.log_posterior_
+        it = sampler.iteration
+        tau = np.asarray(report.tau, dtype=float)
+        tmax = float(np.max(tau)) if np.all(np.isfinite(tau)) else it / 10.0
+        if burn is None:
+            burn = int(min(max(2 * tmax, 0), it // 2))
+        if thin is None:
+            tmin = float(np.min(tau)) if np.all(np.isfinite(tau)) else 1.0
+            thin = max(1, int(0.5 * tmin))
+        z = sampler.get_chain(discard=burn, thin=thin, flat=True)
+        logp = sampler.get_log_prob(discard=burn, thin=thin, flat=True)
+        full = sampler.get_chain()
+        nat_full = lp.natural(full.reshape(-1, full.shape[-1])).reshape(full.shape)
+        return cls(
+            names=tuple(calibration.names_),
+            samples=lp.natural(z),
+            internal=z,
+            log_prob=logp,
+            chain=nat_full,
+            log_scale=tuple(p.log for p in lp.priors),
+            truths=dict(calibration.truths_),
+            report=report,
+            burn=burn,
+            thin=thin,
+            calibration=calibration,
+        )
+
+    # -- numbers --------------------------------------------------------------------------------
+    def quantiles(self, q=(0.05, 0.5, 0.95)):
+        return np.quantile(self.samples, q, axis=0)
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """Correlation matrix in the sampling coordinates (``ln`` for log-uniform parameters)."""
+        if self.internal.shape[0] < 3:
+            return np.full((len(self.names),) * 2, np.nan)
+        return np.atleast_2d(np.corrcoef(self.internal, rowvar=False))
+
+    def interval(self, name, level=0.90):
+        j = self.names.index(name)
+        a = 0.5 * (1 - level)
+        lo, hi = np.quantile(self.samples[:, j], [a, 1 - a])
+        return float(lo), float(hi)
+
+    def z_scores(self):
+        """``(truth - mean)/sd`` per parameter whose truth is known."""
+        out = {}
+        for j, n in enumerate(self.names):
+            t = self.truths.get(n)
+            if t is not None:
+                col = self.samples[:, j]
+                out[n] = float((t - col.mean()) / col.std())
+        return out
+
+    @property
+    def map(self) -> dict:
+        """Highest-posterior sample of the whole chain (natural units)."""
+        s = self.calibration.sampler_
+        lp = s.get_log_prob()
+        i, w = np.unravel_index(int(np.argmax(lp)), lp.shape)
+        return dict(zip(self.names, self.chain[i, w].tolist()))
+
+    def summary(self) -> dict:
+        q05, q50, q95 = self.quantiles()
+        params = {}
+        for j, n in enumerate(self.names):
+            col = self.samples[:, j]
+            params[n] = {
+                "mean": float(col.mean()), "sd": float(col.std()),
+                "q05": float(q05[j]), "q50": float(q50[j]), "q95": float(q95[j]),
+                "truth": self.truths.get(n),
+            }
+        rep = self.report
+        corr = self.correlation
+        return {
+            "parameters": params,
+            "tau": dict(zip(self.names, [float(t) for t in rep.tau])),
+            "converged": bool(rep.converged),
+            "n_over_tau": rep.n_over_tau,
+            "tau_factor": rep.tau_factor,
+            "iterations": rep.iterations,
+            "acceptance": rep.acceptance,
+            "wall_time_this_call": rep.wall_time,
+            "burn": self.burn,
+            "thin": self.thin,
+            "n_samples": int(self.samples.shape[0]),
+            "correlation": {
+                "names": list(self.names),
+                "coordinates": ["log" if lg else "linear" for lg in self.log_scale],
+                "matrix": [[float(v) for v in row] for row in corr],
+            },
+            "map": self.map,
+        }
+
+    def to_json(self, path=None, **kwargs):
+        text = json.dumps(self.summary(), indent=2, sort_keys=True, default=_jsonable)
+        if path is not None:
+            with open(path, "w") as fh:
+                fh.write(text + "\n")
+        return text
+
+    # -- plots ----------------------------------------------------------------------------------
+    def plot_corner(self, fig=None, truths=True, **kwargs):
+        """Corner plot (``corner`` package) with the truths when known."""
+        import corner
+
+        tv = [self.truths.get(n) for n in self.names] if truths else None
+        if tv is not None and all(t is None for t in tv):
+            tv = None
+        return corner.corner(
+            self.samples, labels=list(self.names), truths=tv, fig=fig,
+            quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".3g", **kwargs,
+        )
+
+    def plot_traces(self, axes=None):
+        """Every walker's trace per parameter, burn-in marked."""
+        import matplotlib.pyplot as plt
+
+        ndim = len(self.names)
+        if axes is None:
+            _, axes = plt.subplots(ndim, 1, figsize=(8, 1.8 * ndim), sharex=True, squeeze=False)
+            axes = axes[:, 0]
+        for j, ax in enumerate(axes):
+            ax.plot(self.chain[:, :, j], lw=0.4, alpha=0.5)
+            ax.axvline(self.burn, color="k", ls="--", lw=0.8)
+            t = self.truths.get(self.names[j])
+            if t is not None:
+                ax.axhline(t, color="C3", lw=1)
+            ax.set_ylabel(self.names[j])
+        axes[-1].set_xlabel("step")
+        return axes
+
+    # -- ArviZ ----------------------------------------------------------------------------------
+    def to_inference_data(self, log_likelihood=False, n_draws=200, seed=0):
+        """ArviZ ``InferenceData`` (walkers as chains, post burn-in, natural units).
+
+        With ``log_likelihood=True`` a ``log_likelihood`` group holds the pointwise
+        log-likelihood of ``n_draws`` posterior draws (one pseudo-chain), for WAIC/LOO.
+        """
+        import arviz as az
+
+        c = self.chain[self.burn:: self.thin]  # (draw, walker, ndim)
+        posterior = {n: np.swapaxes(c[:, :, j], 0, 1) for j, n in enumerate(self.names)}
+        idata = az.from_dict(posterior=posterior)
+        if log_likelihood:
+            ll = self.pointwise_log_likelihood(n_draws=n_draws, seed=seed)
+            ll_idata = az.from_dict(
+                posterior={n: self._draws[None, :, j] for j, n in enumerate(self.names)},
+                log_likelihood={"delta": ll[None, :, :]},
+            )
+            return ll_idata
+        return idata
+
+    def draws(self, n_draws=100, seed=0):
+        """``n_draws`` posterior samples (internal coordinates), drawn with a seeded Generator."""
+        rng = np.random.default_rng(seed)
+        n = self.internal.shape[0]
+        idx = rng.choice(n, size=min(n_draws, n), replace=False)
+        return self.internal[idx]
+
+    def pointwise_log_likelihood(self, n_draws=200, seed=0):
+        """``(n_draws, n_obs)`` pointwise log-likelihood over every recording."""
+        z = self.draws(n_draws, seed)
+        self._draws = self.calibration.log_posterior_.natural(z)
+        return self.calibration.log_posterior_.pointwise(z)
+
+    def predictive(self, n_draws=50, seed=0):
+        """Posterior predictive limit cycles of every recording (:class:`PosteriorPredictive`)."""
+        lp = self.calibration.log_posterior_
+        z = self.draws(n_draws, seed)
+        x = lp.natural(z)
+        sets = [lp.params_for(row) for row in x]
+        sets_ok = [s for s in sets if s is not None]
+        curves = {}
+        for term in lp.terms:
+            if getattr(term, "kind", "") == "features":
+                from .likelihood import WaveformTerm
+
+                wt = WaveformTerm(term.recording, term.window, term.transient, term.dt,
+                                  name=term.name)
+                wt.setup(lp.base.replace(**{n: v for n, v in self.calibration.start_.items()
+                                            if n != SIGMA}),
+                         warm_start=term.warm_start is not None)
+                pred = wt.predict(sets_ok)
+            else:
+                pred = term.predict(sets_ok)
+            curves[term.name] = (term.tau, term.data, pred)
+        return PosteriorPredictive(curves=curves, label=self.calibration.base_.name)
+
+
+@dataclass(eq=False)
+class PosteriorPredictive:
+    """Simulated outputs of posterior draws against each recording.
+
+    ``curves[name] = (t, data, predictions (n_draws, n_t))``; predictions of closed-loop
+    recordings are phase-aligned to the data.
+    """
+
+    curves: dict
+    label: str = "model"
+
+    def band(self, name, level=0.90):
+        t, data, pred = self.curves[name]
+        a = 0.5 * (1 - level)
+        good = np.all(np.isfinite(pred), axis=1)
+        lo, med, hi = np.quantile(pred[good], [a, 0.5, 1 - a], axis=0)
+        return t, lo, med, hi
+
+    def rms_error(self, name):
+        """RMS of data minus the predictive median."""
+        t, data, _ = self.curves[name]
+        _, _, med, _ = self.band(name)
+        return float(np.sqrt(np.mean((data - med) ** 2)))
+
+    def plot(self, name=None, ax=None, seconds=2.0, color="C0", level=0.90):
+        """Data and the predictive band over the first ``seconds`` of one recording's window."""
+        import matplotlib.pyplot as plt
+
+        name = name or next(iter(self.curves))
+        if ax is None:
+            _, ax = plt.subplots(figsize=(8, 3))
+        t, lo, med, hi = self.band(name, level)
+        data = self.curves[name][1]
+        sel = t <= t[0] + seconds
+        ax.plot(t[sel], data[sel], "k.", ms=1.5, label="data")
+        ax.fill_between(t[sel], lo[sel], hi[sel], color=color, alpha=0.35,
+                        label=f"{self.label} {int(level * 100)} % band")
+        ax.plot(t[sel], med[sel], color=color, lw=1)
+        ax.set_xlabel("t in window (s)")
+        ax.set_ylabel("delta (rad)")
+        ax.set_title(name)
+        ax.legend(fontsize=7, loc="upper right")
+        return ax
+
+
+@dataclass(eq=False)
+class ModelComparison:
+    """Information criteria of several calibrations on the same data.
+
+    ``table`` rows: ``model``, ``k`` (sampled parameters), ``n`` (observations), ``max_loglike``
+    (highest log-likelihood over the chain, the MAP under flat priors), ``bic``, ``waic``
+    (ArviZ, deviance scale: lower is better), ``p_waic``, ``waic_se``.
+    """
+
+    table: list
+    predictive: dict
+
+    def best(self, criterion="waic"):
+        return min(self.table, key=lambda r: r[criterion])["model"]
+
+    def to_dict(self):
+        return {"table": self.table, "best_waic": self.best("waic"), "best_bic": self.best("bic")}
+
+    def plot(self, axes=None, seconds=2.0):
+        """Posterior predictive bands of every model on the first recording, one panel each."""
+        import matplotlib.pyplot as plt
+
+        names = list(self.predictive)
+        if axes is None:
+            _, axes = plt.subplots(len(names), 1, figsize=(8, 2.6 * len(names)), squeeze=False)
+            axes = axes[:, 0]
+        for k, (ax, name) in enumerate(zip(axes, names)):
+            self.predictive[name].plot(ax=ax, seconds=seconds, color=f"C{k}")
+            row = next(r for r in self.table if r["model"] == name)
+            ax.set_title(f"{name}: WAIC {row['waic']:.1f}, BIC {row['bic']:.1f}")
+        return axes
+
+
+def compare(calibrations, n_draws=200, seed=0) -> ModelComparison:
+    """WAIC (ArviZ, pointwise log-likelihoods) and BIC at the MAP of fitted calibrations.
+
+    ``calibrations`` is a dict label -> fitted :class:`Calibration` (or a list, labelled by the
+    hypothesis name); all must have been fitted on the same recordings with the same likelihood.
+    """
+    import warnings
+
+    import arviz as az
+
+    if not isinstance(calibrations, dict):
+        calibrations = {c.base_.name: c for c in calibrations}
+    rows, pred = [], {}
+    for label, cal in calibrations.items():
+        post = cal.posterior_
+        idata = post.to_inference_data(log_likelihood=True, n_draws=n_draws, seed=seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            w = az.waic(idata, scale="deviance")
+        ll_all = cal.sampler_.get_log_prob() - 0.0
+        chain = cal.sampler_.get_chain()
+        flat = chain.reshape(-1, chain.shape[-1])
+        lpost = ll_all.reshape(-1)
+        i = int(np.argmax(lpost))
+        max_ll = float(cal.log_posterior_.log_likelihood(flat[i:i + 1])[0])
+        n_obs = int(idata.log_likelihood["delta"].shape[-1])
+        k = len(cal.names_)
+        rows.append({
+            "model": label, "k": k, "n": n_obs, "max_loglike": max_ll,
+            "bic": k * math.log(n_obs) - 2 * max_ll,
+            "waic": float(w["elpd_waic"]) if "elpd_waic" in w else float(w.iloc[0]),
+            "p_waic": float(w["p_waic"]), "waic_se": float(w["se"]),
+        })
+        pred[label] = post.predictive(n_draws=min(n_draws, 40), seed=seed)
+    return ModelComparison(table=rows, predictive=pred)
+
+
+def _jsonable(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)

@@ -1,0 +1,233 @@
+"""The sampling core: an emcee ensemble run to convergence, checkpointed and resumable.
+
+Small on purpose, following emcee's design: any log-probability (vectorised or not), any emcee
+moves, any backend, any pool (an object with ``.map``). :func:`run_ensemble` adds four things to
+``EnsembleSampler.run_mcmc``:
+
+* reproducibility from one seed: the initial positions and the sampler's ``RandomState`` are drawn
+  from one ``numpy.random.Generator(seed)``; on resume emcee restores the ``RandomState`` the
+  backend saved with the last step, so a run killed and resumed gives the same chain as one run
+  straight through;
+* checkpoints: with an ``HDFBackend`` every step is written as it is taken;
+* a stopping rule: the run stops once ``N > tau_factor * tau`` for every parameter (integrated
+  autocorrelation time, checked every ``check_every`` steps at absolute step counts, so an
+  interrupted run checks at the same steps as an uninterrupted one), or at ``max_steps`` with a
+  :class:`ConvergenceWarning`;
+* a pool that maps *batches*: with ``vectorize=True`` and a pool, the walkers are split into one
+  batch per pool worker and each batch goes through the vectorised log-probability (the batch
+  kernel) on its worker.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import asdict, dataclass
+
+import emcee
+import numpy as np
+
+__all__ = [
+    "ConvergenceWarning",
+    "ConvergenceReport",
+    "default_moves",
+    "run_ensemble",
+    "convergence_report",
+    "PooledLogProb",
+]
+
+
+class ConvergenceWarning(UserWarning):
+    """The chain stopped at the step cap before ``N > tau_factor * tau``."""
+
+
+@dataclass(frozen=True)
+class ConvergenceReport:
+    """Convergence diagnostics of an ensemble run.
+
+    Attributes
+    ----------
+    iterations : int
+        Steps in the chain (all of them, resumed ones included).
+    tau : tuple of float
+        Integrated autocorrelation time per parameter (steps).
+    n_over_tau : float
+        ``iterations / max(tau)``.
+    tau_factor : float
+        The ``N > tau_factor * tau`` criterion.
+    converged : bool
+    acceptance : float
+        Mean acceptance fraction over the walkers.
+    new_steps : int
+        Steps taken by this call (0 when a finished run is reopened).
+    wall_time : float
+        Seconds spent sampling in this call.
+    """
+
+    iterations: int
+    tau: tuple
+    n_over_tau: float
+    tau_factor: float
+    converged: bool
+    acceptance: float
+    new_steps: int = 0
+    wall_time: float = 0.0
+
+    def to_dict(self):
+        d = asdict(self)
+        d["tau"] = [float(t) for t in self.tau]
+        return d
+
+
+def default_moves():
+    """Differential-evolution moves (80 % DEMove, 20 % DESnookerMove): they follow the narrow,
+    strongly correlated valleys of a limit-cycle fit far better than the stretch move."""
+    return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+
+
+class PooledLogProb:
+    """A vectorised log-probability whose batch is split over ``pool.map``.
+
+    Picklable as long as ``log_prob`` is; ``pool`` is any object with ``.map`` (multiprocessing,
+    ``concurrent.futures`` executors, mpi4py / schwimmbad / Dask pools).
+    """
+
+    def __init__(self, log_prob, pool, n_chunks=None):
+        self.log_prob = log_prob
+        self.pool = pool
+        self.n_chunks = n_chunks
+
+    def __call__(self, coords):
+        coords = np.atleast_2d(coords)
+        n_chunks = self.n_chunks or getattr(self.pool, "_processes", None) or 2
+        chunks = [c for c in np.array_split(coords, min(n_chunks, len(coords))) if len(c)]
+        parts = list(self.pool.map(self.log_prob, chunks))
+        return np.concatenate([np.atleast_1d(p) for p in parts])
+
+
+def convergence_report(sampler, tau_factor=50.0, new_steps=0, wall_time=0.0) -> ConvergenceReport:
+    it = int(sampler.iteration)
+    ndim = sampler.ndim
+    if it < 2:
+        tau = np.full(ndim, np.inf)
+    else:
+        tau = np.asarray(sampler.get_autocorr_time(tol=0, quiet=True), dtype=float)
+    tmax = float(np.max(tau)) if tau.size else math.inf
+    ok = bool(np.all(np.isfinite(tau)) and it > tau_factor * tmax)
+    acc = float(np.mean(sampler.acceptance_fraction)) if it > 0 else 0.0
+    return ConvergenceReport(
+        iterations=it,
+        tau=tuple(float(t) for t in tau),
+        n_over_tau=float(it / tmax) if tmax > 0 and math.isfinite(tmax) else 0.0,
+        tau_factor=float(tau_factor),
+        converged=ok,
+        acceptance=acc,
+        new_steps=int(new_steps),
+        wall_time=float(wall_time),
+    )
+
+
+def run_ensemble(
+    log_prob,
+    initial,
+    n_walkers,
+    ndim,
+    max_steps,
+    seed=0,
+    backend=None,
+    moves=None,
+    pool=None,
+    vectorize=True,
+    check_every=100,
+    tau_factor=50.0,
+    progress=False,
+    stop_when_converged=True,
+    warn=True,
+):
+    """Run (or resume) an ensemble until ``N > tau_factor * tau`` or ``max_steps``.
+
+    Parameters
+    ----------
+    log_prob : callable
+        ``log_prob(coords)``: with ``vectorize=True`` coords is ``(n, ndim)`` and the result
+        ``(n,)``; otherwise one point at a time.
+    initial : callable or array
+        ``initial(rng) -> (n_walkers, ndim)`` or the positions themselves; used only when the
+        backend holds no step yet.
+    n_walkers, ndim : int
+    max_steps : int
+        Step cap of the whole chain (resumed steps count).
+    seed : int
+        Seed of the ``numpy.random.Generator`` behind the initial positions and emcee's
+        ``RandomState``.
+    backend : emcee.backends.Backend or None
+        ``emcee.backends.HDFBackend(path)`` to checkpoint and resume.
+    moves : emcee moves or None
+        :func:`default_moves` when ``None``.
+    pool : object with ``.map`` or None
+    vectorize : bool
+    check_every : int
+        Steps between convergence checks.
+    tau_factor : float
+    progress : bool
+        emcee's tqdm progress bar.
+    stop_when_converged : bool
+        False runs to ``max_steps`` whatever the diagnostics (e.g. to map a ridge).
+
+    Returns
+    -------
+    sampler : emcee.EnsembleSampler
+    report : ConvergenceReport
+    """
+    import time
+
+    n_walkers, ndim, max_steps = int(n_walkers), int(ndim), int(max_steps)
+    check_every = max(1, int(check_every))
+    if max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1 (got {max_steps})")
+    fn = log_prob
+    emcee_pool = None
+    if pool is not None:
+        if not hasattr(pool, "map"):
+            raise TypeError(f"pool must have a .map method (got {type(pool).__name__})")
+        if vectorize:
+            fn = PooledLogProb(log_prob, pool)
+        else:
+            emcee_pool = pool
+    sampler = emcee.EnsembleSampler(
+        n_walkers, ndim, fn, moves=moves if moves is not None else default_moves(),
+        backend=backend, vectorize=vectorize, pool=emcee_pool,
+    )
+    rng = np.random.default_rng(seed)
+    state = None
+    if sampler.iteration == 0:
+        p0 = initial(rng) if callable(initial) else np.asarray(initial, dtype=float)
+        if p0.shape != (n_walkers, ndim):
+            raise ValueError(f"initial positions have shape {p0.shape}, expected {(n_walkers, ndim)}")
+        state = emcee.State(p0, random_state=np.random.RandomState(
+            int(rng.integers(0, 2**32 - 1))).get_state())
+        sampler.random_state = state.random_state
+    start_it = sampler.iteration
+    t0 = time.perf_counter()
+    report = convergence_report(sampler, tau_factor)
+    while sampler.iteration < max_steps:
+        if stop_when_converged and report.converged:
+            break
+        it = sampler.iteration
+        n = min(check_every - it % check_every, max_steps - it)
+        sampler.run_mcmc(state, n, progress=progress,
+                         progress_kwargs={"desc": f"steps {it}-{it + n} of <= {max_steps}"})
+        state = None  # continue from the sampler's (or backend's) last state
+        report = convergence_report(sampler, tau_factor)
+    report = convergence_report(
+        sampler, tau_factor, new_steps=sampler.iteration - start_it,
+        wall_time=time.perf_counter() - t0,
+    )
+    if warn and not report.converged:
+        warnings.warn(
+            f"NOT CONVERGED: {report.iterations} steps = {report.n_over_tau:.1f} tau "
+            f"(needs > {tau_factor:g} tau; tau = {', '.join(f'{t:.0f}' for t in report.tau)}); "
+            "raise max_steps and run again on the same backend to continue",
+            ConvergenceWarning,
+            stacklevel=2,
+        )
+    return sampler, report

@@ -1,0 +1,54 @@
+"""Synthetic recordings with known truth for tests, benchmarks and studies.
+
+A hypothesis is simulated with :func:`models.simulate` (no in-loop noise), independent Gaussian
+sensor noise of sd ``noise`` is added to the recorded ``delta`` from a seeded
+``numpy.random.Generator``, and the result is written with :func:`models.recording.save_recording`
+and read back with :func:`models.recording.load_recording` (the only way tvcid reads recordings).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from models import simulate
+from models.recording import load_recording, recording_from_trajectory, save_recording
+
+__all__ = ["synthetic_recording"]
+
+
+def synthetic_recording(params, experiment, t_end, noise, seed, path, keep_last=None, dt=None,
+                        rate=1000.0):
+    """Simulate, add sensor noise, save to ``path`` and return the loaded :class:`Recording`.
+
+    Parameters
+    ----------
+    params : models.ActuatorParams
+        The truth (its own ``noise_power`` is ignored: set to 0).
+    experiment : ClosedLoop or OpenLoop
+    t_end : float
+        Simulated duration (s).
+    noise : float
+        Sensor-noise sd (rad) added to ``delta`` only (not in the loop).
+    seed : int
+        Seed of the ``numpy.random.Generator`` drawing the noise.
+    path : str or Path
+        ``NAME.csv``; the sidecar ``NAME.json`` is written beside it.
+    keep_last : float or None
+        Keep only the last ``keep_last`` seconds (a limit-cycle record without its transient).
+    """
+    kwargs = {} if dt is None else {"dt": dt}
+    truth = params.replace(noise_power=0.0)
+    tr = simulate(truth, experiment, t_end, rate=rate, **kwargs)
+    columns, meta = recording_from_trajectory(
+        tr, seed=seed, extra={"sensor_noise_sd": float(noise), "noise_kind": "sensor, white"}
+    )
+    rng = np.random.default_rng(seed)
+    columns = {k: np.asarray(v, dtype=float).copy() for k, v in columns.items()}
+    columns["delta"] = columns["delta"] + noise * rng.standard_normal(columns["delta"].size)
+    if keep_last is not None:
+        sel = columns["t"] >= columns["t"][-1] - keep_last - 1e-9
+        columns = {k: v[sel] for k, v in columns.items()}
+        columns["t"] = columns["t"] - columns["t"][0]
+    path = save_recording(Path(path), columns, meta)
+    return load_recording(path)
