@@ -1,0 +1,205 @@
+"""The first-harmonic model of an actuator hypothesis in the HWIL closed loop.
+
+Every transfer function comes from the :class:`models.ActuatorParams` object (``linear_block()``,
+``feedback_gain``, ``delay``, ``delay_position``) and the :class:`models.ClosedLoop` controller;
+nothing here is specific to one hypothesis. With ``x = a sin(wt)`` the integrator output and
+``s = jw`` (paper 002 Figs. 5 and 7, eqs. 7-12; paper 001 section 2)::
+
+    vehicle + PD controller   Gp(s) = Kp mu (1 + Kd s)/s^2          (paper 002 eq. 7)
+    delays                    D(s) = exp(-s Td) at the chosen position, 1 elsewhere
+    second-order block        G2(s) = K1/(s^2 + K2 s + K3), or K1 D/(s^2 + D (K2 s + K3)) with
+                              the delay before the first integrator (paper 000 Fig. 8)
+    backlash feedback         F(a) = play-operator DF, half width r (paper 002 eqs. 4-5)
+    return path               P = Gp D_out + K F(a),  so  e = -P x
+    forward path              H = D_bi G2
+    loop equation             1 + H(jw) P(jw, a) N(q) / (jw) = 0
+
+``N`` is the dead zone's describing function (paper 002 eq. 3), or that of ``FRIC(DZ(.))`` when a
+friction offset acts (paper 001 section 3). Its input amplitude is ``q = a |P|`` with the dead
+zone on the error (paper 002) and ``q = a |H P|`` with it on the velocity-level signal (papers
+001 and 000). The band-pass feedback loop of papers 001 (final) and 000 is a second nonlinear
+loop (its saturation) whose effect is on the 7th harmonic, beyond a first-harmonic balance; paper
+001 section 4 itself says the describing-function analysis no longer applies there. Such
+hypotheses raise :class:`UnsupportedStructureError` (set ``bandpass_gain=0`` to analyse the rest).
+
+Known limit of the approximation (MODELS.md): for M002 at controller A it predicts 8.88 rad/s
+where the simulator gives 8.60, and 8.80 even with no backlash: the cycle is far from a sinusoid
+at the dead zone's output, so expect a few per cent in frequency and about 7 % in amplitude.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.experiments import ClosedLoop
+from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+
+from . import analytic
+from .errors import AmplitudeBelowDeadZoneError, UnsupportedStructureError
+from .harmonic_balance import HarmonicBalanceResult, solve_harmonic_balance
+
+__all__ = ["ActuatorDescribingLoop", "predict_limit_cycles", "DF_CAVEAT"]
+
+#: What a user should know before trusting a first-harmonic prediction of these loops.
+DF_CAVEAT = (
+    "first-harmonic approximation: for M002 at controller A it predicts 8.88 rad/s and a "
+    "first harmonic of 5.90e-3 rad against 8.60 rad/s and 5.52e-3 simulated (MODELS.md); use it "
+    "to draw families and as a starting guess, not as a likelihood"
+)
+
+
+def vehicle_controller_response(controller: ClosedLoop, frequency):
+    """``Gp(jw) = Kp mu (1 + Kd jw)/(jw)^2``: vehicle ``mu/s^2`` and PD controller (paper 002 eq. 7)."""
+    s = 1j * np.asarray(frequency, dtype=float)
+    return controller.kp * controller.mu * (1.0 + controller.kd * s) / (s * s)
+
+
+@dataclass(frozen=True)
+class ActuatorDescribingLoop:
+    """A hypothesis and a controller as a first-harmonic loop (see the module docstring).
+
+    Parameters
+    ----------
+    params : models.ActuatorParams
+    controller : models.ClosedLoop
+
+    Raises
+    ------
+    UnsupportedStructureError
+        For a band-pass feedback loop, a friction offset with the dead zone on the error, or a
+        sampled controller.
+    """
+
+    params: ActuatorParams
+    controller: ClosedLoop
+
+    def __post_init__(self):
+        p = self.params
+        if not isinstance(p, ActuatorParams):
+            raise TypeError(f"params must be an ActuatorParams, got {type(p).__name__}")
+        if not isinstance(self.controller, ClosedLoop):
+            raise TypeError(f"controller must be a ClosedLoop, got {type(self.controller).__name__}")
+        if p.has_bandpass_loop:
+            raise UnsupportedStructureError(
+                f"{p.name} has a band-pass feedback loop (bandpass_gain={p.bandpass_gain:g}, "
+                f"saturation {p.bandpass_saturation:g}): a second nonlinear loop that acts on the "
+                "7th harmonic, which a first-harmonic balance cannot treat (paper 001 section 4); "
+                "set bandpass_gain=0 to analyse the rest of the model"
+            )
+        if p.friction_offset != 0 and p.dead_zone_position is DeadZonePosition.ERROR:
+            raise UnsupportedStructureError(
+                f"{p.name}: a friction offset ({p.friction_offset:g}) with the dead zone on the "
+                "error puts two static nonlinearities at different points of the loop; the "
+                "describing-function loop treats FRIC(DZ(.)) only with the dead zone on the "
+                "velocity signal"
+            )
+        if self.controller.sample_rate is not None:
+            raise UnsupportedStructureError(
+                f"controller sample_rate={self.controller.sample_rate:g} Hz: the describing-function "
+                "loop is continuous; use sample_rate=None"
+            )
+
+    # -- linear parts ---------------------------------------------------------------------------
+    def delay_factor(self, frequency, position: DelayPosition):
+        """``exp(-jw Td)`` when the hypothesis's delay sits at ``position``, else 1."""
+        p = self.params
+        w = np.asarray(frequency, dtype=float)
+        if p.delay > 0 and p.delay_position is DelayPosition(position):
+            return np.exp(-1j * w * p.delay)
+        return np.ones_like(w, dtype=complex)
+
+    def second_order_response(self, frequency):
+        """``G2(jw)`` from :meth:`ActuatorParams.linear_block`, the delay folded in when it acts
+        before the first integrator (``y'' = [K1 g - K3 y - K2 y'](t - Td)``)."""
+        num, den = self.params.linear_block()
+        s = 1j * np.asarray(frequency, dtype=float)
+        den = np.asarray(den, dtype=float)
+        leading = den[0] * s ** (den.size - 1)
+        rest = np.polyval(den, s) - leading
+        d = self.delay_factor(frequency, DelayPosition.BEFORE_FIRST_INTEGRATOR)
+        return d * np.polyval(num, s) / (leading + d * rest)
+
+    def forward_response(self, frequency):
+        """``H = D_bi G2``: from the actuator error to the integrator's input (before the dead
+        zone when it acts on the velocity signal)."""
+        return self.delay_factor(frequency, DelayPosition.BEFORE_INTEGRATOR) * self.second_order_response(frequency)
+
+    def backlash_df(self, amplitude):
+        """Play-operator describing function at the integrator-output amplitude (paper 002 eqs. 4-5)."""
+        return analytic.backlash_df(amplitude, self.params.backlash)
+
+    def return_response(self, amplitude, frequency):
+        """``P = Gp D_out + K F(a)``, so that the actuator error is ``e = -P x``."""
+        gp = vehicle_controller_response(self.controller, frequency)
+        d_out = self.delay_factor(frequency, DelayPosition.OUTPUT)
+        return gp * d_out + self.params.feedback_gain * self.backlash_df(amplitude)
+
+    def dead_zone_input_amplitude(self, amplitude, frequency):
+        """Amplitude of the dead zone's input when ``x`` has amplitude ``amplitude``."""
+        p_ret = self.return_response(amplitude, frequency)
+        if self.params.dead_zone_position is DeadZonePosition.ERROR:
+            return amplitude * np.abs(p_ret)
+        return amplitude * np.abs(self.forward_response(frequency) * p_ret)
+
+    def nonlinearity_df(self, amplitude, frequency):
+        """``N(q)`` of the dead zone (and friction offset) at the cycle ``(a, w)``."""
+        q = self.dead_zone_input_amplitude(amplitude, frequency)
+        p = self.params
+        if p.friction_offset != 0:
+            return analytic.dead_zone_friction_df(q, p.dead_zone, p.friction_offset)
+        return analytic.dead_zone_df(q, p.dead_zone)
+
+    def open_loop_response(self, amplitude, frequency):
+        """``L = H P/(jw)``: everything but the dead zone's gain around the loop."""
+        w = np.asarray(frequency, dtype=float)
+        return self.forward_response(w) * self.return_response(amplitude, w) / (1j * w)
+
+    def characteristic(self, amplitude, frequency):
+        """``Phi(a, w) = 1 + L(jw, a) N(q(a, w))``; zero on a predicted limit cycle."""
+        return 1.0 + self.open_loop_response(amplitude, frequency) * self.nonlinearity_df(amplitude, frequency)
+
+    def balance_at(self, amplitude, frequency) -> complex:
+        """``Phi`` at a measured cycle (0 when the describing functions balance it exactly).
+
+        Raises
+        ------
+        AmplitudeBelowDeadZoneError
+            When the cycle leaves the dead zone's input inside the dead zone: the dead zone then
+            passes nothing and no cycle of that amplitude can be sustained.
+        """
+        for name, value in (("amplitude", amplitude), ("frequency", frequency)):
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0 (got {value!r})")
+        q = float(self.dead_zone_input_amplitude(amplitude, frequency))
+        z = self.params.dead_zone
+        if q <= z:
+            raise AmplitudeBelowDeadZoneError(
+                f"amplitude {amplitude:.4g} rad at {frequency:.4g} rad/s puts an amplitude of {q:.4g} on "
+                f"the dead zone's input ({self.params.dead_zone_position.value} signal), below its half "
+                f"width {z:.4g}: the dead zone passes nothing and {self.params.name} cannot sustain "
+                "this cycle"
+            )
+        return complex(self.characteristic(amplitude, frequency))
+
+    def limit_cycles(self, amplitude_range=(1e-6, 1.0), frequency_range=(0.1, 300.0), **kwargs) -> HarmonicBalanceResult:
+        """Every predicted limit cycle; amplitudes are first-harmonic amplitudes of ``delta``."""
+        c = self.controller
+        return solve_harmonic_balance(
+            self.characteristic,
+            amplitude_range,
+            frequency_range,
+            describing_function_at=self.nonlinearity_df,
+            label=f"{self.params.name}, Kp {c.kp:g}, Kd {c.kd:g}, mu {c.mu:g}",
+            caveat=DF_CAVEAT,
+            **kwargs,
+        )
+
+
+def predict_limit_cycles(params: ActuatorParams, controller: ClosedLoop, **kwargs) -> HarmonicBalanceResult:
+    """Limit cycles of ``params`` in the HWIL loop of ``controller`` by harmonic balance.
+
+    See :class:`ActuatorDescribingLoop` for the loop and
+    :func:`~discovery.describing.harmonic_balance.solve_harmonic_balance` for ``kwargs``.
+    """
+    return ActuatorDescribingLoop(params, controller).limit_cycles(**kwargs)
