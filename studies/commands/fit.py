@@ -1,0 +1,113 @@
+"""``tvcid fit``: Bayesian calibration of a hypothesis on recordings (emcee, resumable)."""
+from __future__ import annotations
+
+import sys
+import warnings
+from pathlib import Path
+
+from models.hypotheses import HYPOTHESES
+
+from ._common import parse_assignments
+
+
+def register(sub):
+    p = sub.add_parser(
+        "fit",
+        help="calibrate a hypothesis on recordings with MCMC (posterior, convergence, corner plot)",
+        description="Sample the posterior of chosen parameters of a hypothesis given one or more "
+        "recordings (closed loop at any controller setting, open-loop tests) with emcee. Writes "
+        "DIR/chain.h5 (checkpointed every step), DIR/summary.json, DIR/corner.png, "
+        "DIR/traces.png and DIR/predictive.png. Running it again on the same DIR resumes the "
+        "chain (raise --max-steps to continue a run that stopped at the cap).",
+    )
+    p.add_argument("files", nargs="+", metavar="FILE.csv", help="recordings (CSV + JSON sidecar)")
+    p.add_argument("--hypothesis", required=True, metavar="NAME",
+                   help=f"hypothesis: {', '.join(HYPOTHESES)} (case-insensitive)")
+    p.add_argument("--params", required=True, metavar="a,b,c",
+                   help="comma-separated parameters to sample: fields of the hypothesis (e.g. "
+                   "backlash,dead_zone,delay) and/or sigma (sensor-noise sd)")
+    p.add_argument("--likelihood", choices=("waveform", "features"), default="waveform",
+                   help="phase-aligned output error, or limit-cycle features as a Gaussian")
+    p.add_argument("--features", default="frequency,H1,H3,H5,H7",
+                   help="features of the features likelihood (frequency, amplitude, Hk)")
+    p.add_argument("--prior", action="append", default=[], metavar="NAME=LOW:HIGH[:log]",
+                   help="declare a prior (repeatable); default log-uniform x/5..5x for widths, "
+                   "uniform otherwise")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="fix a non-sampled parameter (repeatable; sigma=VALUE fixes the noise)")
+    p.add_argument("--walkers", type=int, default=16, help="ensemble size")
+    p.add_argument("--max-steps", type=int, default=4000, help="step cap of the whole chain")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    p.add_argument("--window", type=float, default=10.0, help="seconds of each closed-loop record used (its end)")
+    p.add_argument("--transient", type=float, default=6.0, help="seconds simulated before the window")
+    p.add_argument("--dt", type=float, default=5e-4, help="RK4 step of the likelihood simulations, s")
+    p.add_argument("--processes", type=int, default=0,
+                   help="map walker batches over a multiprocessing pool of this size (0: none; "
+                   "the batch kernel already uses every core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from discovery.calibration import Calibration, ConvergenceWarning, parse_prior
+
+    names = [n.strip() for n in args.params.split(",") if n.strip()]
+    priors = dict(parse_prior(text) for text in args.prior)
+    fixed = parse_assignments(args.set)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    pool = None
+    if args.processes > 0:
+        import multiprocessing
+
+        pool = multiprocessing.get_context("spawn").Pool(args.processes)
+    cal = Calibration(
+        hypothesis=args.hypothesis, params=names, priors=priors, fixed=fixed,
+        likelihood=args.likelihood,
+        features=tuple(f.strip() for f in args.features.split(",") if f.strip()),
+        window=args.window, transient=args.transient, dt=args.dt, n_walkers=args.walkers,
+        max_steps=args.max_steps, seed=args.seed, backend=out / "chain.h5",
+        progress=not args.no_progress, pool=pool,
+    )
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ConvergenceWarning)
+            cal.fit(args.files)
+    finally:
+        if pool is not None:
+            pool.close()
+            pool.join()
+    post = cal.posterior_
+    post.to_json(out / "summary.json")
+    fig = post.plot_corner()
+    fig.savefig(out / "corner.png", dpi=90)
+    plt.close(fig)
+    axes = post.plot_traces()
+    axes[0].figure.savefig(out / "traces.png", dpi=90)
+    plt.close(axes[0].figure)
+    pred = post.predictive(n_draws=30, seed=args.seed)
+    fig, axs = plt.subplots(len(pred.curves), 1, figsize=(8, 2.8 * len(pred.curves)), squeeze=False)
+    for ax, name in zip(axs[:, 0], pred.curves):
+        pred.plot(name, ax=ax)
+    fig.tight_layout()
+    fig.savefig(out / "predictive.png", dpi=90)
+    plt.close(fig)
+    rep = cal.report_
+    summary = post.summary()
+    print(f"{rep.iterations} steps ({rep.new_steps} new), tau max {max(rep.tau):.1f}, "
+          f"N/tau {rep.n_over_tau:.1f}, acceptance {rep.acceptance:.2f}")
+    for n, s in summary["parameters"].items():
+        truth = "" if s["truth"] is None else f"  truth {s['truth']:.5g}"
+        print(f"  {n:<12s} {s['q50']:.5g}  90 % [{s['q05']:.5g}, {s['q95']:.5g}]{truth}")
+    if not rep.converged:
+        for w in caught:
+            if issubclass(w.category, ConvergenceWarning):
+                print(f"WARNING: {w.message}", file=sys.stderr)
+    print(f"wrote {out / 'chain.h5'}, {out / 'summary.json'}, {out / 'corner.png'}")
+    return 0
