@@ -1,0 +1,217 @@
+"""Calibration core: priors, bad input, the runner on a known Gaussian, resume equality, -inf."""
+import json
+
+import numpy as np
+import pytest
+
+from discovery.calibration import (
+    Calibration,
+    LogUniform,
+    Uniform,
+    cycle_features,
+    parse_prior,
+    run_ensemble,
+    synthetic_recording,
+)
+from discovery.calibration.runner import ConvergenceWarning
+from discovery.calibration.testing import moment_errors, sample_gaussian
+from models import CONTROLLER_A, M002, simulate
+from models.features import limit_cycle_features
+from models.recording import RecordingError
+from studies.cli import main
+
+
+@pytest.fixture(scope="module")
+def short_record(tmp_path_factory):
+    """M002, controller A, 4 s of limit cycle with 1e-4 rad sensor noise (seed 3)."""
+    path = tmp_path_factory.mktemp("cal") / "m002_A_short.csv"
+    return synthetic_recording(M002(), CONTROLLER_A, 12.0, 1e-4, 3, path, keep_last=4.0)
+
+
+def _small(backend=None, max_steps=60, **kw):
+    return Calibration("M002", params=("backlash", "dead_zone"), window=3.0, transient=3.0,
+                       n_walkers=8, max_steps=max_steps, check_every=20, backend=backend,
+                       seed=11, **kw)
+
+
+# -- priors and bad input ------------------------------------------------------------------------
+def test_prior_bounds_reversed_and_log_needs_positive():
+    with pytest.raises(ValueError, match="reversed"):
+        Uniform(2.0, 1.0)
+    with pytest.raises(ValueError, match="reversed"):
+        parse_prior("backlash=3e-4:1e-4:log")
+    with pytest.raises(ValueError, match="low > 0"):
+        LogUniform(0.0, 1.0)
+    name, prior = parse_prior("dead_zone=1e-4:1e-2:log")
+    assert name == "dead_zone" and prior.log and prior.to_natural(prior.to_internal(3e-3)) == pytest.approx(3e-3)
+
+
+def test_unknown_parameter_name_is_named(short_record):
+    with pytest.raises(ValueError, match="unknown parameter 'dead_band'.*dead_zone"):
+        Calibration("M002", params=("dead_band",)).fit([short_record])
+    with pytest.raises(ValueError, match="cannot be calibrated"):
+        Calibration("M002", params=("delay_position",)).fit([short_record])
+    with pytest.raises(ValueError, match="unknown hypothesis"):
+        Calibration("M003", params=("delay",)).fit([short_record])
+
+
+def test_prior_outside_start_and_unsampled_prior(short_record):
+    with pytest.raises(ValueError, match="outside its prior"):
+        _small(priors={"backlash": Uniform(1e-3, 2e-3)}).fit([short_record])
+    with pytest.raises(ValueError, match="not sampled"):
+        _small(priors={"delay": Uniform(1e-3, 2e-2)}).fit([short_record])
+
+
+def test_empty_recording_and_no_recording(tmp_path, short_record):
+    empty = tmp_path / "empty.csv"
+    empty.write_text("t,u,delta\n")
+    empty.with_suffix(".json").write_text(json.dumps({"kind": "closed", "kp": 5.84, "kd": 0.062, "mu": 12.3}))
+    with pytest.raises(RecordingError, match="empty"):
+        _small().fit([empty])
+    with pytest.raises(ValueError, match="no recording"):
+        _small().fit([])
+    flat = tmp_path / "flat.csv"
+    flat.write_text("t,u,delta\n" + "".join(f"{k * 1e-3},0,0\n" for k in range(3000)))
+    flat.with_suffix(".json").write_text(json.dumps({"kind": "closed", "kp": 5.84, "kd": 0.062, "mu": 12.3}))
+    with pytest.raises(ValueError, match="no limit cycle"):
+        _small().fit([flat])
+
+
+def test_cli_bad_input_exit_code(tmp_path, short_record, capsys):
+    args = ["fit", str(short_record.path), "--hypothesis", "M002", "--out", str(tmp_path / "o")]
+    assert main(args + ["--params", "backlash,foo"]) == 2
+    assert "unknown parameter 'foo'" in capsys.readouterr().err
+    assert main(args + ["--params", "backlash", "--prior", "backlash=3e-4:1e-4"]) == 2
+    assert "reversed" in capsys.readouterr().err
+
+
+# -- the runner on a known distribution ----------------------------------------------------------
+def test_runner_recovers_a_correlated_gaussian():
+    mean = [1.0, -2.0, 0.5]
+    cov = np.array([[1.0, 0.95, 0.0], [0.95, 1.0, 0.3], [0.0, 0.3, 4.0]])
+    samples, report, _ = sample_gaussian(mean, cov, seed=5)
+    assert report.converged and report.iterations > 50 * max(report.tau)
+    err = moment_errors(samples, mean, cov)
+    assert np.all(err["mean_in_sd"] < 0.15)
+    assert np.all(err["sd_relative"] < 0.1)
+    assert np.all(err["correlation"] < 0.08)
+
+
+def test_runner_warns_at_the_cap():
+    lp = lambda x: -0.5 * np.sum(np.atleast_2d(x) ** 2, axis=1)  # noqa: E731
+    with pytest.warns(ConvergenceWarning, match="NOT CONVERGED"):
+        _, rep = run_ensemble(lp, lambda rng: rng.standard_normal((8, 2)), 8, 2, 30, seed=1)
+    assert not rep.converged and rep.iterations == 30
+
+
+def test_gaussian_resume_through_hdf_equals_straight_run(tmp_path):
+    import emcee
+
+    from discovery.calibration.testing import GaussianLogProb
+
+    lp = GaussianLogProb([0.0, 1.0], [[1.0, 0.5], [0.5, 2.0]])
+    init = lambda rng: rng.standard_normal((8, 2))  # noqa: E731
+    s1, _ = run_ensemble(lp, init, 8, 2, 90, seed=3, check_every=25, warn=False)
+    be = emcee.backends.HDFBackend(str(tmp_path / "g.h5"))
+    run_ensemble(lp, init, 8, 2, 40, seed=3, backend=be, check_every=25, warn=False)
+    be2 = emcee.backends.HDFBackend(str(tmp_path / "g.h5"))
+    s2, _ = run_ensemble(lp, init, 8, 2, 90, seed=999, backend=be2, check_every=25, warn=False)
+    assert np.array_equal(s1.get_chain(), s2.get_chain())
+
+
+# -- the simulator-backed log posterior ----------------------------------------------------------
+def test_invalid_diverging_and_silent_runs_get_minus_inf(short_record):
+    cal = _small().setup([short_record])
+    lp = cal.log_posterior_
+    term = lp.terms[0]
+    base = M002()
+    sets = [base, base.replace(delay=0.05), base.replace(dead_zone=0.5), None]
+    ll = term.loglike(sets, np.full(4, 1e-4))
+    assert np.isfinite(ll[0])
+    assert np.all(ll[1:] == -np.inf)
+    z_out = np.array([[0.0, 0.0], [np.nan, 0.0]])  # outside the prior, NaN
+    assert np.all(lp(z_out) == -np.inf)
+
+
+def test_vectorised_features_match_models_features():
+    tr = simulate(M002(), CONTROLLER_A, 14.0)
+    sel = tr.t >= 4.0
+    names = ("frequency", "amplitude", "H1", "H3", "H5", "H7")
+    mine = cycle_features(tr.t[sel], tr.delta[sel], names)
+    ref = limit_cycle_features(tr.t[sel], tr.delta[sel], n_harmonics=7)
+    assert mine[0] == pytest.approx(ref.frequency, rel=1e-9)
+    assert mine[1] == pytest.approx(ref.amplitude, rel=1e-12)
+    for k, v in zip((1, 3, 5, 7), mine[2:]):
+        assert v == pytest.approx(ref.harmonics[k - 1], rel=1e-9)
+
+
+def test_waveform_likelihood_peaks_at_truth(short_record):
+    cal = _small().setup([short_record])
+    term = cal.log_posterior_.terms[0]
+    base = M002()
+    sets = [base] + [base.replace(backlash=base.backlash * f) for f in (0.97, 1.03)] + \
+        [base.replace(delay=base.delay + d) for d in (-2e-4, 2e-4)]
+    ll = term.loglike(sets, np.full(len(sets), 1e-4))
+    assert np.all(ll[1:] < ll[0] - 20)
+
+
+def test_interrupted_run_resumes_to_the_same_chain(tmp_path, short_record, monkeypatch):
+    """A fit killed mid-chunk (an exception inside the log posterior) and resumed from its HDF
+    file gives, step for step, the chain of an uninterrupted run with the same seed."""
+    import warnings
+
+    from discovery.calibration.posterior import LogPosterior
+
+    warnings.simplefilter("ignore", ConvergenceWarning)
+    straight = _small(backend=tmp_path / "a.h5").fit([short_record])
+    calls = {"n": 0}
+    original = LogPosterior.__call__
+
+    def dying(self, z):
+        calls["n"] += 1
+        if calls["n"] == 200:  # well inside the second 20-step chunk
+            raise KeyboardInterrupt
+        return original(self, z)
+
+    monkeypatch.setattr(LogPosterior, "__call__", dying)
+    with pytest.raises(KeyboardInterrupt):
+        _small(backend=tmp_path / "b.h5").fit([short_record])
+    monkeypatch.setattr(LogPosterior, "__call__", original)
+    import emcee
+
+    partial = emcee.backends.HDFBackend(str(tmp_path / "b.h5"), read_only=True).iteration
+    assert 0 < partial < 60
+    resumed = _small(backend=tmp_path / "b.h5").fit([short_record])
+    assert resumed.report_.new_steps == 60 - partial
+    assert np.array_equal(straight.sampler_.get_chain(), resumed.sampler_.get_chain())
+    assert np.array_equal(straight.sampler_.get_log_prob(), resumed.sampler_.get_log_prob())
+
+
+def test_backend_with_another_setup_is_refused(tmp_path, short_record):
+    import warnings
+
+    warnings.simplefilter("ignore", ConvergenceWarning)
+    _small(backend=tmp_path / "c.h5", max_steps=20).fit([short_record])
+    with pytest.raises(ValueError, match="different set-up"):
+        Calibration("M002", params=("backlash", "delay"), window=3.0, transient=3.0, n_walkers=8,
+                    max_steps=20, backend=tmp_path / "c.h5").fit([short_record])
+
+
+def test_pool_with_map_is_accepted(short_record):
+    """Any object with ``.map`` serves as the pool; the chain is the same as without it."""
+    import warnings
+
+    class SerialPool:
+        def __init__(self):
+            self.calls = 0
+
+        def map(self, fn, items):
+            self.calls += 1
+            return [fn(i) for i in items]
+
+    warnings.simplefilter("ignore", ConvergenceWarning)
+    pool = SerialPool()
+    a = _small(max_steps=10, pool=pool).fit([short_record])
+    b = _small(max_steps=10).fit([short_record])
+    assert pool.calls >= 10
+    assert np.array_equal(a.sampler_.get_chain(), b.sampler_.get_chain())
