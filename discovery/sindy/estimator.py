@@ -1,0 +1,477 @@
+"""The weak-SINDy estimator of the actuator structure, with its threshold and delay scan.
+
+Issue 4, deliverable 2: an sklearn-style estimator (``__init__`` stores arguments, ``fit`` validates
+and returns ``self``, learned attributes end in ``_``). For every structure form
+(:mod:`discovery.sindy.forms`) it
+
+1. builds the weak system of the recordings (:mod:`discovery.sindy.weak`);
+2. scans the parameters that enter nonlinearly (dead zone ``z``, backlash ``r``, delay ``Td``, ...)
+   coarse-then-fine on the profile residual, the linear coefficients solved at every point by
+   bias-compensated normal equations when the sensor noise level is given;
+3. decides by an information criterion whether the backlash and the dead zone are present;
+4. hands the weak system at the chosen thresholds to a pysindy optimizer (``STLSQ`` by default;
+   ``SR3``, ``EnsembleOptimizer`` or any ``pysindy.optimizers.BaseOptimizer`` work) and repeats the
+   fit on bootstrap resamples of the test functions for per-term inclusion probabilities.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pysindy as ps
+from scipy.optimize import minimize
+
+from models.recording import Recording, load_recording
+
+from .candidates import Candidate
+from .forms import TARGET, form_by_name
+from .weak import BumpTestFunctions, prepare_signals
+
+__all__ = ["WeakSINDyActuator", "DEFAULT_FORMS", "load_recordings"]
+
+#: Forms fitted by default: the papers' placements (issue 4, deliverable 3).
+DEFAULT_FORMS = (
+    "dead_zone_on_error",
+    "dead_zone_on_velocity",
+    "dead_zone_on_velocity_delay_in_loop",
+)
+
+_LOG_THRESHOLDS = ("dead_zone", "backlash", "bandpass_ratio")
+
+#: Fine-quadrature step (s) used while scanning; the final refinement uses ``fine_step``.
+SCAN_FINE_STEP = 2e-4
+PROFILE_COMPENSATED = True
+#: Profile penalty of thresholds whose fit is not a physical actuator (non-positive gains).
+INADMISSIBLE = 10.0
+#: STLSQ threshold on unit-norm columns, the target scaled by the largest term's contribution: a
+#: term contributing less than 1 % of the largest one is dropped.
+DEFAULT_THRESHOLD = 0.01
+
+
+def load_recordings(recordings):
+    """Recordings from :class:`models.recording.Recording` objects or paths (one or several)."""
+    if isinstance(recordings, (str, Path, Recording)):
+        recordings = [recordings]
+    out = []
+    for rec in recordings:
+        out.append(rec if isinstance(rec, Recording) else load_recording(rec))
+    if not out:
+        raise ValueError("no recording given")
+    return out
+
+
+class WeakSINDyActuator:
+    """Weak-form SINDy of the actuator with a threshold and delay scan.
+
+    Parameters
+    ----------
+    forms : sequence of str or StructureForm
+        Structure forms to fit (default :data:`DEFAULT_FORMS`).
+    optimizer : pysindy optimizer or None
+        Sparse regression handed the weak system (default ``ps.STLSQ(threshold=0.01)``); it sees
+        unit-norm columns and a target scaled so that each coefficient is the term's contribution
+        over the largest term's, so its threshold is a fraction of the dominant term.
+    noise : float or None
+        Sensor noise rms (rad) of ``delta``; enables the bias-compensated normal equations.
+    test_functions : BumpTestFunctions or None
+        Default: half width 45 ms, power 6, half overlap.
+    thresholds : dict or None
+        Fix some nonlinear parameters instead of scanning them, e.g.
+        ``{"dead_zone": 1.2e-3, "backlash": 2.182e-4, "delay": 7e-3}``.
+    feedback_gain : float
+        ``K`` in the dead-zone-on-error forms (paper 002 has K = 1); velocity forms fit it.
+    max_delay : float
+        Upper end (s) of the delay scan.
+    criterion : {"bic", "aic"}
+        Information criterion deciding whether backlash and dead zone are present.
+    n_bootstrap : int
+        Bootstrap resamples of the test functions for the inclusion probabilities.
+    seed : int
+        Seed of the ``numpy.random.Generator`` drawing every bootstrap.
+    smoothing : float
+        Savitzky-Golay window (s) of the smoothed ``delta``.
+    fine_step : float
+        Step (s) of the fine quadrature of terms built from the command.
+
+    Attributes
+    ----------
+    candidates_ : list of Candidate
+        One proposal per form, best (lowest criterion) first.
+    recordings_ : list of Recording
+    n_rows_ : int
+        Test functions (weak equations) over all recordings.
+    fit_time_ : float
+        Wall time (s) of :meth:`fit`.
+    scan_ : dict
+        Per form, the profile points evaluated ``(thresholds, residual)``.
+    """
+
+    def __init__(
+        self,
+        forms=DEFAULT_FORMS,
+        optimizer=None,
+        noise=None,
+        test_functions=None,
+        thresholds=None,
+        feedback_gain=1.0,
+        max_delay=0.02,
+        criterion="bic",
+        n_bootstrap=30,
+        seed=0,
+        smoothing=0.008,
+        fine_step=5e-5,
+    ):
+        self.forms = forms
+        self.optimizer = optimizer
+        self.noise = noise
+        self.test_functions = test_functions
+        self.thresholds = thresholds
+        self.feedback_gain = feedback_gain
+        self.max_delay = max_delay
+        self.criterion = criterion
+        self.n_bootstrap = n_bootstrap
+        self.seed = seed
+        self.smoothing = smoothing
+        self.fine_step = fine_step
+
+    # -- validation ----------------------------------------------------------------------------
+    def _validate(self):
+        if self.noise is not None and not (math.isfinite(self.noise) and self.noise >= 0):
+            raise ValueError(f"noise must be a finite rms >= 0 in rad (got {self.noise!r})")
+        if self.criterion not in ("bic", "aic"):
+            raise ValueError(f"criterion must be 'bic' or 'aic' (got {self.criterion!r})")
+        if not (math.isfinite(self.max_delay) and self.max_delay >= 0):
+            raise ValueError(f"max_delay must be >= 0 (got {self.max_delay!r})")
+        if int(self.n_bootstrap) < 0:
+            raise ValueError(f"n_bootstrap must be >= 0 (got {self.n_bootstrap!r})")
+        forms = [form_by_name(f) for f in (self.forms or ())]
+        if not forms:
+            raise ValueError("no structure form to fit")
+        return forms
+
+    def fit(self, recordings):
+        """Fit every form to the recordings (paths or :class:`Recording`); returns ``self``.
+
+        Raises
+        ------
+        ValueError
+            For an unknown form, a bad argument, a non-uniform or too short recording (the message
+            names the file).
+        """
+        start = time.perf_counter()
+        forms = self._validate()
+        self.recordings_ = load_recordings(recordings)
+        tf = self.test_functions or BumpTestFunctions(0.045)
+        fixed = dict(self.thresholds or {})
+        margin = max(self.max_delay, fixed.get("delay", 0.0)) + 0.005
+        self._prepared_by_step = {}
+        for step in (max(self.fine_step, SCAN_FINE_STEP), self.fine_step):
+            prepared = []
+            for rec in self.recordings_:
+                try:
+                    prepared.append(
+                        prepare_signals(
+                            rec.t, rec.u, rec.delta, tf, delay_margin=margin,
+                            smoothing=self.smoothing, fine_step=step, kind=rec.kind,
+                            meta=rec.meta, noise=self.noise,
+                        )
+                    )
+                except ValueError as exc:
+                    raise type(exc)(f"{rec.path or 'recording'}: {exc}") from None
+            self._prepared_by_step[step] = prepared
+        self._prepared = self._prepared_by_step[self.fine_step]
+        self.n_rows_ = sum(p.n_rows for p in self._prepared)
+        self._overlap = tf.overlap
+        self._rng = np.random.default_rng(self.seed)
+        self.scan_ = {}
+        candidates = [self._fit_form(form, fixed) for form in forms]
+        self.candidates_ = sorted(candidates, key=lambda c: c.criterion)
+        self.fit_time_ = time.perf_counter() - start
+        return self
+
+    # -- the weak system -------------------------------------------------------------------------
+    def _system(self, form, thresholds, lifted=True, linear=None, caches=None):
+        """Stacked target, columns, names, row mask and per-recording noise Gram matrices."""
+        ys, xs, grams, rec_index = [], [], [], []
+        names = None
+        for i, prep in enumerate(self._prepared):
+            cache = None if caches is None else caches[i]
+            target, cols, weights = form.columns(prep, thresholds, lifted, linear, cache)
+            names = list(cols)
+            mask = form.row_mask(prep)
+            ys.append(target[mask])
+            xs.append(np.column_stack([cols[n] for n in names])[mask])
+            rec_index.append(np.full(int(mask.sum()), i))
+            w = np.column_stack([weights.get(n, np.zeros(prep.support)) for n in [TARGET] + names])
+            sigma = self.noise or 0.0
+            grams.append(sigma**2 * prep.dt**2 * (w.T @ w))
+        y = np.concatenate(ys)
+        if y.size < 8:
+            raise ValueError(
+                f"form {form.name}: only {y.size} test functions hold its equation (the velocity "
+                "forms need stretches of motion longer than a test-function support)"
+            )
+        return y, np.vstack(xs), names, np.concatenate(rec_index), np.array(grams)
+
+    @staticmethod
+    def _solve(y, x, rec_index, grams, rows=None):
+        """Bias-compensated least squares; returns coefficients, raw residual, compensated Gram."""
+        if rows is not None:
+            y, x, rec_index = y[rows], x[rows], rec_index[rows]
+        counts = np.bincount(rec_index, minlength=len(grams)).astype(float)
+        noise_gram = np.tensordot(counts, grams, axes=1)
+        gram = x.T @ x - noise_gram[1:, 1:]
+        rhs = x.T @ y - noise_gram[1:, 0]
+        scale = np.sqrt(np.maximum(np.diag(x.T @ x), 1e-300))
+        gs = gram / np.outer(scale, scale)
+        try:
+            coef = np.linalg.solve(gs + 1e-12 * np.eye(gs.shape[0]), rhs / scale) / scale
+        except np.linalg.LinAlgError:
+            coef = np.linalg.lstsq(x, y, rcond=None)[0]
+        resid = float(np.sum((x @ coef - y) ** 2))
+        self_resid = float(y @ y - noise_gram[0, 0] - 2.0 * coef @ rhs + coef @ gram @ coef)
+        return coef, resid, gram, rhs, scale, self_resid
+
+    def _criterion(self, resid, norm, n, k):
+        # neighbouring test functions overlap, so n rows carry about n*(1 - overlap) independent
+        # equations; counting all of them would favour every extra element
+        n = max(n * (1.0 - self._overlap), 2.0)
+        rel = max(resid / norm, 1e-300)
+        penalty = math.log(n) if self.criterion == "bic" else 2.0
+        return n * math.log(rel) + k * penalty
+
+    # -- the scan ------------------------------------------------------------------------------
+    def _grid(self, form, fixed):
+        u_span = max(float(np.max(np.abs(p.u))) for p in self._prepared) or 1.0
+        d_span = max(float(np.ptp(p.delta)) for p in self._prepared) or 1.0
+        dt = min(p.dt for p in self._prepared)
+        grids = {
+            "dead_zone": np.concatenate([[0.0], u_span * np.geomspace(0.01, 0.5, 6)]),
+            "backlash": np.concatenate([[0.0], d_span * np.geomspace(0.002, 0.1, 5)]),
+            "delay": np.arange(0.0, self.max_delay + 0.5 * dt, max(dt, 0.003)),
+            "bandpass_ratio": np.geomspace(10.0, 1e5, 9),
+        }
+        names = form.threshold_names()
+        return {n: (np.array([fixed[n]]) if n in fixed else grids[n]) for n in names}
+
+    def _profile(self, form, caches):
+        cache_values = {}
+
+        def evaluate(thr):
+            key = tuple(sorted(thr.items()))
+            if key not in cache_values:
+                full = dict(thr)
+                full.setdefault("feedback_gain", self.feedback_gain)
+                y, x, names, idx, grams = self._system(form, full, caches=caches)
+                sol = self._solve(y, x, idx, grams)
+                value = (sol[5] if PROFILE_COMPENSATED else sol[1]) / float(y @ y)
+                if not form.admissible(dict(zip(names, sol[0]))):
+                    value = INADMISSIBLE + value  # outside the physical actuators
+                cache_values[key] = value
+            return cache_values[key]
+
+        return evaluate, cache_values
+
+    def _scan(self, form, fixed, caches, constraints=None):
+        """Coarse grid then Nelder-Mead refinement of the profile residual."""
+        constraints = dict(constraints or {})
+        evaluate, values = self._profile(form, caches)
+        grid = self._grid(form, {**fixed, **constraints})
+        names = list(grid)
+        mesh = np.meshgrid(*[grid[n] for n in names], indexing="ij")
+        points = np.column_stack([m.ravel() for m in mesh])
+        scores = np.array([evaluate(dict(zip(names, pt))) for pt in points])
+        order = np.argsort(scores)
+        free = [n for n in names if grid[n].size > 1]
+        best_thr, best_score = dict(zip(names, points[order[0]])), scores[order[0]]
+        if not free:
+            return best_thr, best_score, values
+        for start_idx in order[:2]:
+            start = dict(zip(names, points[start_idx]))
+            thr, score = self._nelder_mead(evaluate, start, free, 0.3, 1e-3)
+            if score < best_score:
+                best_thr, best_score = thr, score
+        return best_thr, best_score, values
+
+    def _refine(self, form, start, fixed, caches):
+        """Nelder-Mead from ``start`` on the fine-quadrature profile (small initial simplex)."""
+        evaluate, _ = self._profile(form, caches)
+        free = [n for n in form.threshold_names() if n not in fixed]
+        return self._nelder_mead(evaluate, dict(start), free, 0.05, 2e-4)[0]
+
+    @staticmethod
+    def _nelder_mead(evaluate, start, free, log_step, delay_step):
+        """Minimise the profile over the free thresholds; a threshold at zero stays at zero."""
+        active = [n for n in free if not (n in _LOG_THRESHOLDS and start[n] <= 0)]
+        if not active:
+            return start, evaluate(start)
+
+        def to_thr(v):
+            thr = dict(start)
+            for n, val in zip(active, v):
+                thr[n] = math.exp(val) if n in _LOG_THRESHOLDS else max(val, 0.0)
+            return thr
+
+        x0 = [math.log(start[n]) if n in _LOG_THRESHOLDS else start[n] for n in active]
+        steps = [log_step if n in _LOG_THRESHOLDS else delay_step for n in active]
+        simplex = [x0] + [list(np.add(x0, np.eye(len(active))[i] * steps[i]))
+                          for i in range(len(active))]
+        res = minimize(
+            lambda v: evaluate(to_thr(v)), x0, method="Nelder-Mead",
+            options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-9,
+                     "maxfev": 100 * len(active)},
+        )
+        return to_thr(res.x), float(res.fun)
+
+    # -- one form --------------------------------------------------------------------------------
+    def _fit_form(self, form, fixed):
+        final_prepared = self._prepared
+        self._prepared = self._prepared_by_step[max(self.fine_step, SCAN_FINE_STEP)]
+        caches = [{} for _ in self._prepared]
+        best, _, values = self._scan(form, fixed, caches)
+        alternatives = {"full": best}
+        # sub-structures without an element, for the information criterion
+        for element in ("backlash", "dead_zone"):
+            if element in form.threshold_names() and element not in fixed and best[element] > 0:
+                alt, _, more = self._scan(form, fixed, caches, {element: 0.0})
+                alternatives[element] = alt
+                values.update(more)
+        self.scan_[form.name] = [(dict(k), v) for k, v in values.items()]
+        # fine stage: the same profile with the fine quadrature, from the scan's optimum
+        self._prepared = final_prepared
+        caches = [{} for _ in self._prepared]
+        if self._prepared is not self._prepared_by_step.get(SCAN_FINE_STEP):
+            for key, thr in alternatives.items():
+                alternatives[key] = self._refine(form, thr, fixed, caches)
+
+        def design(thr):
+            full = dict(thr)
+            full.setdefault("feedback_gain", self.feedback_gain)
+            return self._system(form, full, caches=caches)
+
+        designs = {key: design(thr) for key, thr in alternatives.items()}
+        n = designs["full"][0].size
+        norm = float(designs["full"][0] @ designs["full"][0])
+
+        def n_params(thr, n_cols):
+            return n_cols + sum(1 for k in form.threshold_names() if thr.get(k, 0) > 0)
+
+        def ic_of(key, rows=None):
+            y, x, _, idx, grams = designs[key]
+            resid = self._solve(y, x, idx, grams, rows)[1]
+            yy = y if rows is None else y[rows]
+            return self._criterion(resid, float(yy @ yy), yy.size,
+                                   n_params(alternatives[key], x.shape[1]))
+
+        ics = {key: ic_of(key) for key in designs}
+        chosen_key = min(ics, key=ics.get)
+        thresholds = dict(alternatives[chosen_key])
+        # inclusion of the threshold elements from bootstrap resamples of the test functions
+        boot_rows = [self._rng.integers(0, n, n) for _ in range(int(self.n_bootstrap))]
+        element_inclusion = {}
+        for element in ("backlash", "dead_zone"):
+            if element not in form.threshold_names():
+                continue
+            if element in fixed:
+                element_inclusion[element] = float(fixed[element] > 0)
+            elif element not in designs:
+                element_inclusion[element] = float(thresholds.get(element, 0) > 0)
+            else:
+                wins = [ic_of("full", rows) < ic_of(element, rows) for rows in boot_rows]
+                element_inclusion[element] = float(np.mean(wins)) if wins else float(
+                    chosen_key == "full")
+        # linear block from the lifted fit, then the sparse regression on the final columns
+        y, x, names, idx, grams = designs[chosen_key]
+        coef = self._solve(y, x, idx, grams)[0]
+        lifted = dict(zip(names, coef))
+        linear = (-lifted["delta''"], -lifted["delta'"])
+        full = dict(thresholds)
+        full.setdefault("feedback_gain", self.feedback_gain)
+        y, x, names, idx, grams = self._system(form, full, lifted=False, linear=linear,
+                                               caches=caches)
+        coef, support = self._sparse(y, x, idx, grams)
+        inclusion = {name: 0.0 for name in names}
+        if boot_rows:
+            hits = np.zeros(len(names))
+            for rows in boot_rows:
+                hits += self._sparse(y, x, idx, grams, rows)[1]
+            inclusion = dict(zip(names, (hits / len(boot_rows)).tolist()))
+        inclusion.update(element_inclusion)
+        resid = float(np.sum((x @ coef - y) ** 2))
+        k = int(support.sum()) + sum(1 for n in form.threshold_names() if thresholds.get(n, 0) > 0)
+        terms = {name: float(c) for name, c, s in zip(names, coef, support) if s}
+        params = self._block_params(form, terms, thresholds)
+        return Candidate(
+            form=form.name,
+            terms=terms,
+            thresholds={k_: float(v) for k_, v in thresholds.items()},
+            inclusion=inclusion,
+            weak_residual=resid / float(y @ y),
+            criterion=self._criterion(resid, float(y @ y), y.size, k),
+            params=params,
+        )
+
+    def _sparse(self, y, x, idx, grams, rows=None):
+        """pysindy optimizer on the (bias-compensated) weak system; coefficients and support."""
+        coef_ls, _, gram, rhs, scale, _ = self._solve(y, x, idx, grams, rows)
+        yy = y if rows is None else y[rows]
+        # Target scaled so that a coefficient is the term's contribution over the largest one's:
+        # in a limit cycle the third derivative is a small remainder of large cancelling terms.
+        ynorm = float(np.max(np.abs(coef_ls * scale))) or math.sqrt(float(yy @ yy)) or 1.0
+        gs = gram / np.outer(scale, scale)
+        hs = rhs / scale / ynorm
+        try:
+            chol = np.linalg.cholesky(gs + 1e-12 * np.eye(gs.shape[0]))
+            a = chol.T
+            b = np.linalg.solve(chol, hs)
+        except np.linalg.LinAlgError:
+            xx = x if rows is None else x[rows]
+            a, b = xx / scale, yy / ynorm
+        optimizer = copy.deepcopy(self.optimizer) if self.optimizer is not None else ps.STLSQ(
+            threshold=DEFAULT_THRESHOLD, alpha=1e-6
+        )
+        with warnings.catch_warnings():
+            # a resample in which every term falls below the threshold is a legitimate outcome
+            warnings.filterwarnings("ignore", message="Sparsity parameter is too big")
+            optimizer.fit(a, b)
+        coef_scaled = np.ravel(np.asarray(optimizer.coef_))
+        support = np.abs(coef_scaled) > 1e-12
+        return coef_scaled * ynorm / scale, support
+
+    def _block_params(self, form, terms, thresholds):
+        """The ``ActuatorParams`` fields a fitted form stands for."""
+        k2 = -terms.get("delta''", 0.0)
+        k3 = -terms.get("delta'", 0.0)
+        out = {
+            "dead_zone_on": form.dead_zone_on,
+            "delay_inside_loop": form.delay_inside_loop,
+            "damping": k2,
+            "stiffness": k3,
+            "backlash": float(thresholds.get("backlash", 0.0)),
+            "delay": float(thresholds.get("delay", 0.0)),
+        }
+        sign_term = terms.get("L[sign(delta')]", 0.0)
+        if form.dead_zone_on == "error":
+            out["gain"] = terms.get(form.term_names()[3], 0.0)
+            out["feedback_gain"] = float(thresholds.get("feedback_gain", self.feedback_gain))
+            out["dead_zone"] = float(thresholds.get("dead_zone", 0.0))
+            out["friction_offset"] = sign_term
+        else:
+            k1 = terms.get("u(t-Td)", 0.0)
+            play = terms.get("play_r(delta)(t-Td)", terms.get("play_r(delta)", 0.0))
+            out["gain"] = k1
+            out["feedback_gain"] = -play / k1 if k1 else 0.0
+            # c = z - off; split by :func:`discovery.sindy.ranking.split_dead_zone_friction`
+            c = -sign_term
+            out["dead_zone_minus_offset"] = c
+            out["dead_zone"] = max(c, 0.0)
+            out["friction_offset"] = 0.0 if c >= 0 else c
+        if form.bandpass:
+            level = terms.get("L[sat_1(G/s*BP(delta'))]", 0.0)
+            out["bandpass_saturation"] = level if level > 0 else math.inf
+            out["bandpass_gain"] = level * float(thresholds["bandpass_ratio"]) if level > 0 else 0.0
+        return out
