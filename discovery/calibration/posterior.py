@@ -61,6 +61,8 @@ class LogPosterior:
         self.sigma = float(sigma)
         self._phys = [i for i, n in enumerate(self.names) if n != SIGMA]
         self._sigma_index = self.names.index(SIGMA) if SIGMA in self.names else None
+        #: points evaluated so far (each runs one simulation per recording)
+        self.n_points = 0
 
     def natural(self, z):
         """Internal -> natural coordinates, ``(n, ndim)``."""
@@ -103,6 +105,7 @@ class LogPosterior:
         single = np.ndim(z) == 1
         lp, x, sets = self._prepare(z)
         valid = np.array([s is not None for s in sets])
+        self.n_points += int(valid.sum())
         total = np.where(valid, lp, -np.inf)
         if valid.any():
             idx = np.flatnonzero(valid)
