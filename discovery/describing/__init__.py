@@ -11,7 +11,8 @@ Modules, one concept each:
 * :mod:`.actuator_loop` -- a hypothesis (:class:`models.ActuatorParams`) and a controller as a
   first-harmonic loop with the exact delay ``exp(-jw Td)``;
 * :mod:`.inverse` -- paper 002's family of (backlash, dead zone) pairs, printed and corrected, and
-  the exact inverse harmonic balance.
+  the exact inverse harmonic balance;
+* :mod:`.validation` -- a prediction beside the simulated cycle.
 
 The approximation is honest about its limits: for M002 at controller A it predicts 8.88 rad/s
 where the simulator gives 8.60 (:data:`.actuator_loop.DF_CAVEAT`), and the exact inverse has no
@@ -49,6 +50,7 @@ from .inverse import (
     solve_backlash_and_dead_zone,
 )
 from .numeric import describing_function, numeric_df
+from .validation import SimulationComparison, compare_with_simulation
 
 __all__ = [
     "ActuatorDescribingLoop",
@@ -82,6 +84,8 @@ __all__ = [
     "predict_limit_cycles",
     "relay_df",
     "saturation_df",
+    "SimulationComparison",
+    "compare_with_simulation",
     "solve_backlash_and_dead_zone",
     "solve_harmonic_balance",
     "vehicle_controller_response",
