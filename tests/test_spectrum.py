@@ -1,0 +1,139 @@
+"""Spectral analysis as papers 001 and 000 did it (issue 3, items 4-6)."""
+import json
+
+import numpy as np
+import pytest
+
+from discovery.spectral import (
+    SpectralInputError,
+    amplitude_spectrum,
+    harmonic_table,
+    lowpass_reconstruction,
+    noise_floor,
+)
+from models import CONTROLLER_A, InsufficientPeriodsError, hypothesis, simulate
+from models.noise import band_limited_white_noise
+from models.recording import load_recording, recording_from_trajectory, save_recording
+from studies.cli import main
+
+RATE = 1000.0
+
+
+def _sine(duration=10.0, freqs=((1.5, 5e-3), (25.0, 1e-4))):
+    t = np.arange(int(duration * RATE)) / RATE
+    x = sum(a * np.sin(2 * np.pi * f * t) for f, a in freqs)
+    return t, x
+
+
+def test_amplitude_spectrum_reads_amplitudes_and_derivative():
+    t, x = _sine()
+    spec = amplitude_spectrum(t, x)
+    for f, a in ((1.5, 5e-3), (25.0, 1e-4)):
+        k = int(np.argmin(np.abs(spec.frequency_hz - f)))
+        assert spec.amplitude[k] == pytest.approx(a, rel=1e-9)
+    deriv = amplitude_spectrum(t, x, derivative=True)
+    k = int(np.argmin(np.abs(deriv.frequency_hz - 25.0)))
+    assert deriv.amplitude[k] == pytest.approx(2 * np.pi * 25.0 * 1e-4, rel=1e-9)
+
+
+def test_lowpass_reconstruction_drops_content_above_the_cutoff():
+    t, x = _sine()
+    rebuilt = lowpass_reconstruction(t, x)  # 10 Hz default
+    slow = 5e-3 * np.sin(2 * np.pi * 1.5 * t)
+    assert np.max(np.abs(rebuilt.delta - slow)) < 1e-9
+    assert np.max(np.abs(rebuilt.derivative - 2 * np.pi * 1.5 * 5e-3 * np.cos(2 * np.pi * 1.5 * t))) < 1e-8
+    with pytest.raises(SpectralInputError, match="cutoff_hz 600 must lie between"):
+        lowpass_reconstruction(t, x, cutoff_hz=600.0)
+
+
+@pytest.fixture(scope="module")
+def m001f_record():
+    tr = simulate(hypothesis("M001f"), CONTROLLER_A, 40.0)
+    sl = tr.window(20)
+    return tr.t[sl], tr.delta[sl]
+
+
+def test_harmonic_table_flags_the_seventh_harmonic_of_m001f(m001f_record):
+    table = harmonic_table(*m001f_record)
+    assert table.raised_harmonics == (7,)
+    row = table.rows()[6]
+    assert row["frequency_hz"] == pytest.approx(9.57, abs=0.02)
+    assert row["ratio"] == pytest.approx(0.45, abs=0.02)  # MODELS.md: H7/H1 = 0.45
+
+
+def test_no_raised_harmonic_without_the_bandpass_loop():
+    for params in (hypothesis("M001f", bandpass_gain=0.0), hypothesis("M002")):
+        tr = simulate(params, CONTROLLER_A, 40.0)
+        sl = tr.window(20)
+        table = harmonic_table(tr.t[sl], tr.delta[sl])
+        assert table.raised_harmonics == (), params.name
+        assert table.ratio[6] < 0.1
+
+
+@pytest.mark.parametrize("power, band, seed", [(1e-11, 500.0, 3), (4e-11, 100.0, 11)])
+def test_noise_floor_recovers_the_injected_power(power, band, seed):
+    params = hypothesis("M002", noise_power=power, noise_band=band, noise_seed=seed)
+    tr = simulate(params, CONTROLLER_A, 40.0)
+    sl = tr.window(30)
+    floor = noise_floor(tr.t[sl], tr.delta[sl], noise_band=band)
+    assert floor.power == pytest.approx(power, rel=0.2)
+    assert floor.std == pytest.approx(np.sqrt(power * 2 * band), rel=0.1)
+
+
+def test_noise_floor_of_held_noise_on_a_sine():
+    rng = np.random.default_rng(20261121)
+    t, x = _sine(duration=20.0, freqs=((1.4, 5e-3),))
+    power, band = 2e-11, 50.0  # held over 10 samples: the floor rolls off inside 20-100 Hz
+    noise = band_limited_white_noise(power, band, t[-1], rng)
+    x = x + noise[np.floor(t * 2 * band + 1e-9).astype(int)]
+    assert noise_floor(t, x, noise_band=band).power == pytest.approx(power, rel=0.2)
+
+
+def test_recording_input_and_cli(tmp_path, capsys):
+    tr = simulate(hypothesis("M001f", noise_power=1e-12, noise_seed=5), CONTROLLER_A, 30.0)
+    path = save_recording(tmp_path / "m001f.csv", *recording_from_trajectory(tr))
+    recording = load_recording(path)
+    assert harmonic_table(recording).raised_harmonics == (7,)
+    assert main(["spectrum", str(path), "--window", "15", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["raised"] == [7]
+    assert out["harmonics"][6]["raised"] is True
+    assert out["noise_floor"]["power"] == pytest.approx(1e-12, rel=0.2)
+
+
+def test_short_and_bad_records_are_refused():
+    t, x = _sine(duration=1.0, freqs=((1.5, 5e-3),))
+    with pytest.raises(InsufficientPeriodsError, match="at least two"):
+        harmonic_table(t, x)
+    t2 = t.copy()
+    t2[10] += 3e-4
+    with pytest.raises(SpectralInputError, match="uniformly sampled"):
+        amplitude_spectrum(t2, x)
+    with pytest.raises(SpectralInputError, match="NaN"):
+        noise_floor(t, np.where(t > 0.5, np.nan, x))
+    with pytest.raises(SpectralInputError, match="band 20-100 Hz holds"):
+        noise_floor(t[:50], x[:50])
+    with pytest.raises(SpectralInputError, match="not both"):
+        amplitude_spectrum(load_recording_stub(), x)
+
+
+def load_recording_stub():
+    from models.recording import Recording
+
+    return Recording(columns={"t": np.arange(10.0), "u": np.zeros(10), "delta": np.zeros(10)}, meta={"kind": "open"})
+
+
+def test_plots_draw_on_given_axes():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t, x = _sine(duration=10.0, freqs=((1.5, 5e-3), (10.5, 1e-3)))
+    fig, axes = plt.subplots(2, 2)
+    for ax, result in zip(axes.flat, (amplitude_spectrum(t, x), lowpass_reconstruction(t, x),
+                                      harmonic_table(t, x), noise_floor(t, x))):
+        assert result.plot(ax=ax) is ax
+        assert ax.lines or ax.patches
+    assert len(plt.get_fignums()) == 1
+    plt.close("all")
