@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from discovery.calibration import Calibration, compare, synthetic_recording
-from discovery.calibration.ridge import RidgeAnalysis
+from discovery.calibration.ridge import RidgeAnalysis, robust_amplitude
 from discovery.calibration.runner import ConvergenceWarning
 from models import CONTROLLER_A, CONTROLLER_B, M002, OpenLoop
 
@@ -92,7 +92,7 @@ def run(config, seed, out_dir):
         print(f"{label}: {cal.report_.iterations} steps, tau max {max(cal.report_.tau):.0f}, "
               f"converged {cal.report_.converged}, {timings[label]:.0f} s", flush=True)
     truth = {n: float(getattr(M002(), n)) for n in PARAMS}
-    ridge = RidgeAnalysis(posteriors, amplitude=data["A"].features().amplitude, truths=truth)
+    ridge = RidgeAnalysis(posteriors, amplitude=robust_amplitude(data["A"].t, data["A"].delta), truths=truth)
     ax = ridge.plot()
     ax.figure.savefig(out / "ridge.png", dpi=110)
     plt.close(ax.figure)
