@@ -93,7 +93,7 @@ def test_every_delay_position_is_balanced_consistently():
 
 def test_unsupported_structures_raise():
     with pytest.raises(UnsupportedStructureError, match="band-pass feedback loop"):
-        predict_limit_cycles(hypothesis("M001f"), CONTROLLER_A)
+        predict_limit_cycles(hypothesis("M002", bandpass_gain=48.0, bandpass_saturation=0.015), CONTROLLER_A)
     with pytest.raises(UnsupportedStructureError, match="friction offset"):
         predict_limit_cycles(hypothesis("M002", friction_offset=-0.001), CONTROLLER_A)
     with pytest.raises(UnsupportedStructureError, match="sample_rate"):
@@ -105,3 +105,24 @@ def test_amplitude_below_the_dead_zone_is_refused():
     assert abs(loop.balance_at(5.904825e-3, 8.877645)) < 1e-4
     with pytest.raises(AmplitudeBelowDeadZoneError, match="below its half width 0.0012"):
         loop.balance_at(5e-4, 8.57)
+
+
+def test_bandpass_form_reduces_to_the_plain_loop_without_the_loop():
+    plain = predict_limit_cycles(hypothesis("M001f", bandpass_gain=0.0), CONTROLLER_A).stable_cycles[0]
+    tiny = predict_limit_cycles(hypothesis("M001f", bandpass_gain=1e-9), CONTROLLER_A).stable_cycles[0]
+    assert tiny.search_amplitude is not None
+    assert tiny.amplitude == pytest.approx(plain.amplitude, rel=1e-6)
+    assert tiny.frequency == pytest.approx(plain.frequency, rel=1e-6)
+
+
+def test_m001f_with_its_bandpass_loop():
+    result = predict_limit_cycles(hypothesis("M001f"), CONTROLLER_A)
+    large = max(result.stable_cycles, key=lambda c: c.amplitude)
+    cmp = compare_with_simulation(hypothesis("M001f"), CONTROLLER_A)
+    # measured: -0.9 % in frequency, +0.02 % in first-harmonic amplitude
+    assert abs(cmp.frequency_error) < 0.015 and abs(cmp.amplitude_error) < 0.01
+    assert cmp.predicted_frequency == pytest.approx(large.frequency)
+    # the loop's own oscillation in its pass band: a small stable cycle near 59.6 rad/s
+    small = [c for c in result.stable_cycles if c.frequency > 50]
+    assert len(small) == 1 and small[0].amplitude < 1e-4
+    assert "7th harmonic" in result.caveat

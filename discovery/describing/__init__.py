@@ -9,7 +9,8 @@ Modules, one concept each:
 * :mod:`.harmonic_balance` -- every zero of ``1 + L N`` in a rectangle, stability by Loeb's
   criterion; the single-nonlinearity (Lur'e) loop;
 * :mod:`.actuator_loop` -- a hypothesis (:class:`models.ActuatorParams`) and a controller as a
-  first-harmonic loop with the exact delay ``exp(-jw Td)``;
+  first-harmonic loop with the exact delay ``exp(-jw Td)`` at any of its three positions, the
+  friction offset and the band-pass loop (balanced at the fundamental only);
 * :mod:`.inverse` -- paper 002's family of (backlash, dead zone) pairs, printed and corrected, and
   the exact inverse harmonic balance;
 * :mod:`.validation` -- a prediction beside the simulated cycle.
@@ -18,7 +19,7 @@ The approximation is honest about its limits: for M002 at controller A it predic
 where the simulator gives 8.60 (:data:`.actuator_loop.DF_CAVEAT`), and the exact inverse has no
 solution at 8.57 rad/s with a 7 ms output delay.
 """
-from .actuator_loop import DF_CAVEAT, ActuatorDescribingLoop, predict_limit_cycles, vehicle_controller_response
+from .actuator_loop import BANDPASS_CAVEAT, DF_CAVEAT, ActuatorDescribingLoop, predict_limit_cycles, vehicle_controller_response
 from .analytic import (
     backlash_df,
     dead_zone_df,
@@ -55,6 +56,7 @@ from .validation import SimulationComparison, compare_with_simulation
 __all__ = [
     "ActuatorDescribingLoop",
     "AmplitudeBelowDeadZoneError",
+    "BANDPASS_CAVEAT",
     "BacklashDeadZoneFamily",
     "BacklashDeadZonePair",
     "Chain",

@@ -17,10 +17,21 @@ nothing here is specific to one hypothesis. With ``x = a sin(wt)`` the integrato
 ``N`` is the dead zone's describing function (paper 002 eq. 3), or that of ``FRIC(DZ(.))`` when a
 friction offset acts (paper 001 section 3). Its input amplitude is ``q = a |P|`` with the dead
 zone on the error (paper 002) and ``q = a |H P|`` with it on the velocity-level signal (papers
-001 and 000). The band-pass feedback loop of papers 001 (final) and 000 is a second nonlinear
-loop (its saturation) whose effect is on the 7th harmonic, beyond a first-harmonic balance; paper
-001 section 4 itself says the describing-function analysis no longer applies there. Such
-hypotheses raise :class:`UnsupportedStructureError` (set ``bandpass_gain=0`` to analyse the rest).
+001 and 000).
+
+The band-pass feedback loop of papers 001 (final) and 000, ``w = FRIC(DZ(v + p))``,
+``p = sat_s(G BP(w))``, is balanced at the fundamental too. With ``q = v + p`` of amplitude ``Q``
+as the search variable, ``w = N(Q) q``, the saturation's input has amplitude
+``S = G |BP(jw)| N Q`` and ``p = N_sat(S) G BP(jw) w``, so ``v = q (1 - N_sat G BP N)``, the
+integrator output has amplitude ``a = N Q/w`` and the loop equation becomes
+
+    1 - N_sat(S) G BP(jw) N(Q) + H(jw) P(jw, a) N(Q)/(jw) = 0.
+
+This is a first-harmonic balance only: the 7th harmonic that the loop raises in simulation (and
+that saturates it there) is beyond it, so at the cycle near 8.6 rad/s the loop hardly changes the
+prediction; it also finds the loop's own oscillation near its pass band (55-66 rad/s), which the
+simulator shows taking over for some settings (MODELS.md). A band-pass loop with the dead zone on
+the error raises :class:`UnsupportedStructureError`.
 
 Known limit of the approximation (MODELS.md): for M002 at controller A it predicts 8.88 rad/s
 where the simulator gives 8.60, and 8.80 even with no backlash: the cycle is far from a sinusoid
@@ -34,18 +45,25 @@ import numpy as np
 
 from models.experiments import ClosedLoop
 from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+from models.linear import bandpass_transfer_function
 
 from . import analytic
 from .errors import AmplitudeBelowDeadZoneError, UnsupportedStructureError
 from .harmonic_balance import HarmonicBalanceResult, solve_harmonic_balance
 
-__all__ = ["ActuatorDescribingLoop", "predict_limit_cycles", "DF_CAVEAT"]
+__all__ = ["ActuatorDescribingLoop", "predict_limit_cycles", "vehicle_controller_response", "DF_CAVEAT", "BANDPASS_CAVEAT"]
 
 #: What a user should know before trusting a first-harmonic prediction of these loops.
 DF_CAVEAT = (
     "first-harmonic approximation: for M002 at controller A it predicts 8.88 rad/s and a "
     "first harmonic of 5.90e-3 rad against 8.60 rad/s and 5.52e-3 simulated (MODELS.md); use it "
     "to draw families and as a starting guess, not as a likelihood"
+)
+
+#: The band-pass loop is balanced at the fundamental only.
+BANDPASS_CAVEAT = (
+    "the band-pass loop is balanced at the fundamental only: the 7th harmonic it raises and that "
+    "saturates it in simulation is beyond a first-harmonic balance"
 )
 
 
@@ -80,12 +98,12 @@ class ActuatorDescribingLoop:
             raise TypeError(f"params must be an ActuatorParams, got {type(p).__name__}")
         if not isinstance(self.controller, ClosedLoop):
             raise TypeError(f"controller must be a ClosedLoop, got {type(self.controller).__name__}")
-        if p.has_bandpass_loop:
+        if p.has_bandpass_loop and p.dead_zone_position is DeadZonePosition.ERROR:
             raise UnsupportedStructureError(
-                f"{p.name} has a band-pass feedback loop (bandpass_gain={p.bandpass_gain:g}, "
-                f"saturation {p.bandpass_saturation:g}): a second nonlinear loop that acts on the "
-                "7th harmonic, which a first-harmonic balance cannot treat (paper 001 section 4); "
-                "set bandpass_gain=0 to analyse the rest of the model"
+                f"{p.name} has a band-pass feedback loop (bandpass_gain={p.bandpass_gain:g}) with the "
+                "dead zone on the error: the loop's input is then not the dead zone's, a structure the "
+                "describing-function loop does not treat; set bandpass_gain=0 or put the dead zone on "
+                "the velocity signal"
             )
         if p.friction_offset != 0 and p.dead_zone_position is DeadZonePosition.ERROR:
             raise UnsupportedStructureError(
@@ -125,6 +143,50 @@ class ActuatorDescribingLoop:
         zone when it acts on the velocity signal)."""
         return self.delay_factor(frequency, DelayPosition.BEFORE_INTEGRATOR) * self.second_order_response(frequency)
 
+    def bandpass_response(self, frequency):
+        """``G BP(jw)``: the band-pass loop's gain and Butterworth filter (paper 001 section 4,
+        :func:`models.linear.bandpass_transfer_function`); 0 without the loop."""
+        p = self.params
+        w = np.asarray(frequency, dtype=float)
+        if not p.has_bandpass_loop:
+            return np.zeros_like(w, dtype=complex)
+        num, den = bandpass_transfer_function(p.bandpass_low_hz, p.bandpass_high_hz, p.bandpass_order)
+        s = 1j * w
+        return p.bandpass_gain * np.polyval(num, s) / np.polyval(den, s)
+
+    def velocity_nonlinearity_df(self, amplitude):
+        """DF of ``FRIC(DZ(.))`` (or ``DZ`` alone) at the input amplitude ``amplitude``."""
+        p = self.params
+        if p.friction_offset != 0:
+            return analytic.dead_zone_friction_df(amplitude, p.dead_zone, p.friction_offset)
+        return analytic.dead_zone_df(amplitude, p.dead_zone)
+
+    def characteristic_at_dead_zone_input(self, amplitude, frequency):
+        """``Phi(Q, w) = 1 - N_sat G BP N + H P(a) N/(jw)``, with ``Q`` the amplitude at the dead
+        zone's input and ``a = N Q/w`` (dead zone on the velocity signal; any band-pass loop).
+        Where ``N <= 0`` no cycle can exist and ``Phi`` is set to 1."""
+        if self.params.dead_zone_position is not DeadZonePosition.VELOCITY:
+            raise UnsupportedStructureError("this form needs the dead zone on the velocity signal")
+        q = np.asarray(amplitude, dtype=float)
+        w = np.asarray(frequency, dtype=float)
+        n = self.velocity_nonlinearity_df(q)
+        valid = n > 0
+        n_safe = np.where(valid, n, 1.0)
+        a = n_safe * q / w
+        loop = self.bandpass_response(w)
+        level = self.params.bandpass_saturation
+        if self.params.has_bandpass_loop and np.isfinite(level):
+            n_sat = analytic.saturation_df(np.maximum(np.abs(loop) * n_safe * q, 1e-300), level)
+        else:
+            n_sat = 1.0
+        phi = 1.0 - n_sat * loop * n_safe + self.forward_response(w) * self.return_response(a, w) * n_safe / (1j * w)
+        return np.where(valid, phi, 1.0 + 0j)
+
+    def output_amplitude(self, dead_zone_input_amplitude, frequency):
+        """``a = N(Q) Q/w``: the integrator output's amplitude for a dead-zone input amplitude ``Q``."""
+        q = np.asarray(dead_zone_input_amplitude, dtype=float)
+        return self.velocity_nonlinearity_df(q) * q / np.asarray(frequency, dtype=float)
+
     def backlash_df(self, amplitude):
         """Play-operator describing function at the integrator-output amplitude (paper 002 eqs. 4-5)."""
         return analytic.backlash_df(amplitude, self.params.backlash)
@@ -144,11 +206,7 @@ class ActuatorDescribingLoop:
 
     def nonlinearity_df(self, amplitude, frequency):
         """``N(q)`` of the dead zone (and friction offset) at the cycle ``(a, w)``."""
-        q = self.dead_zone_input_amplitude(amplitude, frequency)
-        p = self.params
-        if p.friction_offset != 0:
-            return analytic.dead_zone_friction_df(q, p.dead_zone, p.friction_offset)
-        return analytic.dead_zone_df(q, p.dead_zone)
+        return self.velocity_nonlinearity_df(self.dead_zone_input_amplitude(amplitude, frequency))
 
     def open_loop_response(self, amplitude, frequency):
         """``L = H P/(jw)``: everything but the dead zone's gain around the loop."""
@@ -171,6 +229,11 @@ class ActuatorDescribingLoop:
         for name, value in (("amplitude", amplitude), ("frequency", frequency)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0 (got {value!r})")
+        if self.params.has_bandpass_loop:
+            raise UnsupportedStructureError(
+                f"{self.params.name}: balance_at is defined without the band-pass loop; use "
+                "characteristic_at_dead_zone_input"
+            )
         q = float(self.dead_zone_input_amplitude(amplitude, frequency))
         z = self.params.dead_zone
         if q <= z:
@@ -182,16 +245,36 @@ class ActuatorDescribingLoop:
             )
         return complex(self.characteristic(amplitude, frequency))
 
-    def limit_cycles(self, amplitude_range=(1e-6, 1.0), frequency_range=(0.1, 300.0), **kwargs) -> HarmonicBalanceResult:
-        """Every predicted limit cycle; amplitudes are first-harmonic amplitudes of ``delta``."""
+    def limit_cycles(self, amplitude_range=None, frequency_range=(0.1, 300.0), **kwargs) -> HarmonicBalanceResult:
+        """Every predicted limit cycle; amplitudes are first-harmonic amplitudes of ``delta``.
+
+        Without a band-pass loop the search runs over the output amplitude ``a`` (default range
+        1e-6 to 1 rad); with one, over the dead zone's input amplitude ``Q`` (default from the
+        dead zone's half width to 10 rad/s) and each cycle reports ``a = N Q/w``.
+        """
         c = self.controller
+        label = f"{self.params.name}, Kp {c.kp:g}, Kd {c.kd:g}, mu {c.mu:g}"
+        if not self.params.has_bandpass_loop:
+            return solve_harmonic_balance(
+                self.characteristic,
+                (1e-6, 1.0) if amplitude_range is None else amplitude_range,
+                frequency_range,
+                describing_function_at=self.nonlinearity_df,
+                label=label,
+                caveat=DF_CAVEAT,
+                amplitude_name="amplitude of delta (rad)",
+                **kwargs,
+            )
+        z = self.params.dead_zone
         return solve_harmonic_balance(
-            self.characteristic,
-            amplitude_range,
+            self.characteristic_at_dead_zone_input,
+            (max(z, 1e-7) * 1.0001, 10.0) if amplitude_range is None else amplitude_range,
             frequency_range,
-            describing_function_at=self.nonlinearity_df,
-            label=f"{self.params.name}, Kp {c.kp:g}, Kd {c.kd:g}, mu {c.mu:g}",
-            caveat=DF_CAVEAT,
+            describing_function_at=lambda q, w: self.velocity_nonlinearity_df(q),
+            label=label + " (band-pass loop at the fundamental)",
+            caveat=DF_CAVEAT + "; " + BANDPASS_CAVEAT,
+            amplitude_map=self.output_amplitude,
+            amplitude_name="amplitude at the dead zone's input",
             **kwargs,
         )
 

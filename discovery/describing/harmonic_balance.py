@@ -53,6 +53,10 @@ class LimitCycle:
         ``A w (dX/dA dY/dw - dX/dw dY/dA)``; positive means stable.
     describing_function : complex
         The nonlinearity's describing function at the cycle.
+    search_amplitude : float or None
+        The amplitude variable the balance was solved in, when it is not ``amplitude`` (e.g. the
+        dead zone's input for a loop with a band-pass feedback); Loeb's criterion is evaluated in
+        that variable.
     """
 
     amplitude: float
@@ -60,6 +64,7 @@ class LimitCycle:
     stable: bool
     loeb_index: float
     describing_function: complex
+    search_amplitude: float | None = None
 
     @property
     def frequency_hz(self) -> float:
@@ -73,6 +78,7 @@ class LimitCycle:
             "stable": self.stable,
             "loeb_index": self.loeb_index,
             "describing_function": [self.describing_function.real, self.describing_function.imag],
+            "search_amplitude": self.search_amplitude,
         }
 
 
@@ -92,6 +98,8 @@ class HarmonicBalanceResult:
         What loop this is.
     caveat : str
         Where the first-harmonic approximation is known to be off for this loop.
+    amplitude_name : str
+        What the grid's amplitude is.
     """
 
     limit_cycles: tuple
@@ -100,6 +108,7 @@ class HarmonicBalanceResult:
     characteristic: np.ndarray = field(repr=False)
     label: str = ""
     caveat: str = ""
+    amplitude_name: str = "amplitude"
 
     @property
     def stable_cycles(self) -> tuple:
@@ -125,12 +134,13 @@ class HarmonicBalanceResult:
         ax.plot([], [], "C0", label="Re Phi = 0")
         ax.plot([], [], "C1--", label="Im Phi = 0")
         for c in self.limit_cycles:
-            ax.plot(c.frequency, c.amplitude, "ko", mfc="k" if c.stable else "w",
+            grid_amplitude = c.amplitude if c.search_amplitude is None else c.search_amplitude
+            ax.plot(c.frequency, grid_amplitude, "ko", mfc="k" if c.stable else "w",
                     label=f"{'stable' if c.stable else 'unstable'} {c.amplitude:.3g} at {c.frequency:.3g} rad/s")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("frequency (rad/s)")
-        ax.set_ylabel("amplitude")
+        ax.set_ylabel(self.amplitude_name)
         ax.set_title(self.label)
         ax.legend(fontsize="small")
         return ax
@@ -161,6 +171,8 @@ def solve_harmonic_balance(
     label="",
     caveat="",
     tolerance=1e-9,
+    amplitude_map=None,
+    amplitude_name="amplitude",
 ) -> HarmonicBalanceResult:
     """All zeros of ``characteristic(A, w)`` in the rectangle, with their stability.
 
@@ -177,6 +189,12 @@ def solve_harmonic_balance(
         be missed).
     tolerance : float
         Largest ``|Phi|`` accepted at a refined zero.
+    amplitude_map : callable, optional
+        ``(A, w) -> reported amplitude`` when the search variable ``A`` is not the amplitude to
+        report; the search amplitude is kept in :attr:`LimitCycle.search_amplitude`. Loeb's sign
+        carries over when the map increases with ``A``.
+    amplitude_name : str
+        Axis label of the search amplitude.
     """
     a_lo, a_hi = _check_range("amplitude_range", amplitude_range)
     w_lo, w_hi = _check_range("frequency_range", frequency_range)
@@ -216,8 +234,13 @@ def solve_harmonic_balance(
     for a, w in sorted(found):
         index = _loeb_index(characteristic, a, w)
         n = complex(np.asarray(describing_function_at(a, w))) if describing_function_at else complex("nan")
-        cycles.append(LimitCycle(a, w, bool(index > 0), index, n))
-    return HarmonicBalanceResult(tuple(cycles), amplitudes, frequencies, grid, label, caveat)
+        if amplitude_map is None:
+            cycles.append(LimitCycle(a, w, bool(index > 0), index, n))
+        else:
+            reported = float(np.asarray(amplitude_map(a, w)))
+            cycles.append(LimitCycle(reported, w, bool(index > 0), index, n, search_amplitude=a))
+    cycles.sort(key=lambda c: c.amplitude)
+    return HarmonicBalanceResult(tuple(cycles), amplitudes, frequencies, grid, label, caveat, amplitude_name)
 
 
 def frequency_response(linear, frequency):

@@ -6,7 +6,9 @@ differences, so a user sees the size of the approximation before using a predict
 (``tests/test_describing_harmonic_balance.py``): M002 at controller A, DF 5.905e-3 rad at 8.878
 rad/s against a simulated first harmonic of 5.52e-3 at 8.60 (+7.0 % and +3.3 %); controller B,
 7.66e-3 at 6.83 against 7.30e-3 at 6.67 (+5.0 %, +2.4 %). With the dead zone on the velocity
-signal (M001i), whose output the integrator smooths, the prediction is within 1 % at both.
+signal (M001i), whose output the integrator smooths, the prediction is within 1 % at both; M001f
+with its band-pass loop balanced at the fundamental: 5.698e-3 rad at 8.514 rad/s against
+5.697e-3 at 8.589 at controller A (+0.02 %, -0.9 %), +4.8 % and -0.2 % at B.
 """
 from __future__ import annotations
 
