@@ -126,3 +126,19 @@ def test_m001f_with_its_bandpass_loop():
     small = [c for c in result.stable_cycles if c.frequency > 50]
     assert len(small) == 1 and small[0].amplitude < 1e-4
     assert "7th harmonic" in result.caveat
+
+
+def test_results_plot_on_given_axes_without_new_figures():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from discovery.describing import paper002_family
+
+    fig, (ax1, ax2) = plt.subplots(1, 2)
+    result = predict_limit_cycles(hypothesis("M002"), CONTROLLER_A)
+    assert result.plot(ax=ax1) is ax1
+    assert paper002_family(4.89e-3, 8.57, CONTROLLER_A).plot(ax=ax2) is ax2
+    assert len(ax2.lines) == 1 and len(plt.get_fignums()) == 1
+    plt.close("all")
