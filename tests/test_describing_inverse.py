@@ -60,6 +60,8 @@ def test_paper001_describing_function():
 def test_inverse_errors_name_the_problem():
     with pytest.raises(UnsupportedStructureError, match="dead zone on the actuator error"):
         paper002_family(**HWIL, controller=CONTROLLER_A, params=hypothesis("M001i"))
+    with pytest.raises(UnsupportedStructureError, match="dead zone and a backlash only"):
+        solve_backlash_and_dead_zone(**HWIL, controller=CONTROLLER_A, params=hypothesis("M001f"))
     with pytest.raises(ValueError, match="measured amplitude must be a finite number > 0"):
         paper002_family(amplitude=0.0, frequency=8.57, controller=CONTROLLER_A)
     with pytest.raises(ValueError, match="variant must be one of"):

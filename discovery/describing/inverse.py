@@ -275,10 +275,11 @@ def solve_backlash_and_dead_zone(
     """
     amplitude, frequency = _check_cycle(amplitude, frequency)
     params = M002() if params is None else params
-    if params.friction_offset != 0:
+    if params.friction_offset != 0 or params.has_bandpass_loop:
         raise UnsupportedStructureError(
             f"{params.name}: the inverse solve treats a dead zone and a backlash only "
-            f"(friction_offset={params.friction_offset:g}); set friction_offset=0"
+            f"(friction_offset={params.friction_offset:g}, bandpass_gain={params.bandpass_gain:g}); "
+            "set both to 0"
         )
     loop = ActuatorDescribingLoop(params.replace(backlash=0.0), controller)
     a, w = amplitude, frequency

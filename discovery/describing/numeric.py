@@ -6,10 +6,13 @@ operator settle on its periodic orbit) gives the Fourier coefficients
 
     b1 = (2/n) sum y_k sin(theta_k),   a1 = (2/n) sum y_k cos(theta_k),   N = (b1 + j a1)/A
 
-(paper 002 eq. 2; Gelb and Vander Velde 1968, ch. 2). Midpoint sampling keeps jumps (relay,
-friction offset) symmetric, so the error falls as ``1/n^2``: with the default 8192 samples per
-period it is below 1e-6 for the papers' elements (``tests/test_describing_functions.py`` checks
-1e-4 against :mod:`discovery.describing.analytic`). Only rate-independent elements are meaningful
+(paper 002 eq. 2; Gelb and Vander Velde 1968, ch. 2). Midpoint sampling keeps jumps at the zero
+crossings (relay, friction offset) symmetric, so for continuous elements and those jumps the error
+falls as ``1/n^2``: with the default 8192 samples per period it is below 1e-5 for the papers'
+elements (``tests/test_describing_functions.py`` checks 1e-4 against
+:mod:`discovery.describing.analytic`). A jump away from the zero crossings, such as the friction
+offset after a dead zone, converges as ``1/n`` only (1e-3 at 8192 samples just above the dead
+zone): pass ``samples_per_period=2**16`` there. Only rate-independent elements are meaningful
 here: the describing function does not depend on the frequency.
 """
 from __future__ import annotations
