@@ -52,3 +52,12 @@ def test_h3_inner_integrators_select_the_small_cycle_and_x0_alone_does_not(tmp_p
     assert not summary["x0_alone_reaches_small"]
     assert summary["x0_alone_classes"]["large"] == sum(summary["x0_alone_classes"].values())
     assert summary["small_cycle"]["amplitude"] < 0.1 * summary["large_cycle"]["amplitude"]
+
+
+def test_h4_ranks_the_true_delay_position_first(tmp_path):
+    module = STUDIES["h4_delay_position"]
+    summary = module.run(module.QUICK, 0, tmp_path)
+    assert summary["truth"] == "before_first_integrator"
+    assert summary["winner"] == summary["truth"]
+    best = summary["positions"][summary["winner"]]["best"]
+    assert abs(best["amplitude_A_pct"]) < 0.5 and abs(best["frequency_A_pct"]) < 0.2
