@@ -61,7 +61,7 @@ def test_cli_fit_writes_outputs_and_resumes(tmp_path, limit_cycle, capsys):
         first = json.loads((out / "summary.json").read_text())
         assert main(args + ["--max-steps", "80"]) == 0
     second = json.loads((out / "summary.json").read_text())
-    for f in ("chain.h5", "summary.json", "corner.png", "traces.png", "predictive.png"):
+    for f in ("chain.h5", "summary.json", "corner.png", "traces.png", "predictive.png", "posterior.nc"):
         assert (out / f).exists(), f
     assert first["iterations"] == 40 and second["iterations"] == 80
     for s in (first, second):

@@ -17,8 +17,9 @@ def register(sub):
         description="Sample the posterior of chosen parameters of a hypothesis given one or more "
         "recordings (closed loop at any controller setting, open-loop tests) with emcee. Writes "
         "DIR/chain.h5 (checkpointed every step), DIR/summary.json, DIR/corner.png, "
-        "DIR/traces.png and DIR/predictive.png. Running it again on the same DIR resumes the "
-        "chain (raise --max-steps to continue a run that stopped at the cap).",
+        "DIR/traces.png, DIR/predictive.png and DIR/posterior.nc (ArviZ InferenceData). "
+        "Running it again on the same DIR resumes the chain (raise --max-steps to continue a "
+        "run that stopped at the cap).",
     )
     p.add_argument("files", nargs="+", metavar="FILE.csv", help="recordings (CSV + JSON sidecar)")
     p.add_argument("--hypothesis", required=True, metavar="NAME",
@@ -91,6 +92,10 @@ def run(args) -> int:
     axes = post.plot_traces()
     axes[0].figure.savefig(out / "traces.png", dpi=90)
     plt.close(axes[0].figure)
+    try:  # ArviZ InferenceData (walkers as chains, natural units)
+        post.to_inference_data().to_netcdf(str(out / "posterior.nc"), engine="h5netcdf")
+    except Exception as exc:  # noqa: BLE001 - an optional export must not lose the run
+        print(f"note: posterior.nc not written ({exc})", file=sys.stderr)
     pred = post.predictive(n_draws=30, seed=args.seed)
     fig, axs = plt.subplots(len(pred.curves), 1, figsize=(8, 2.8 * len(pred.curves)), squeeze=False)
     for ax, name in zip(axs[:, 0], pred.curves):
