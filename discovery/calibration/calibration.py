@@ -97,7 +97,7 @@ class Calibration:
         False runs every chain to ``max_steps`` (e.g. to map a ridge).
     """
 
-    def __init__(self, hypothesis="M002", params=("backlash", "dead_zone", "delay", SIGMA),
+    def __init__(self, hypothesis, params=("backlash", "dead_zone", "delay", SIGMA),
                  priors=None, fixed=None, start=None, likelihood="waveform",
                  features=DEFAULT_FEATURES, window=10.0, transient=6.0, dt=5e-4, n_walkers=16,
                  max_steps=4000, check_every=100, tau_factor=50.0, moves=None, pool=None,

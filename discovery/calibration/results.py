@@ -338,11 +338,9 @@ def compare(calibrations, n_draws=200, seed=0) -> ModelComparison:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             w = az.waic(idata, scale="deviance")
-        ll_all = cal.sampler_.get_log_prob() - 0.0
         chain = cal.sampler_.get_chain()
         flat = chain.reshape(-1, chain.shape[-1])
-        lpost = ll_all.reshape(-1)
-        i = int(np.argmax(lpost))
+        i = int(np.argmax(cal.sampler_.get_log_prob().reshape(-1)))  # flat priors: the MLE
         max_ll = float(cal.log_posterior_.log_likelihood(flat[i:i + 1])[0])
         n_obs = int(idata.log_likelihood["delta"].shape[-1])
         k = len(cal.names_)

@@ -1,0 +1,25 @@
+"""Coverage of the 90 % intervals over seeds (slow: about 40 s per seed on 2 cores).
+
+MODELS.md: over 46 seeded trials the 90 % intervals covered the truth 89 % of the time; a coverage
+claim needs several seeds, at least 7 of 10 inside the 90 % interval per parameter.
+Run with ``pytest -m slow tests/test_calibration_coverage.py``.
+"""
+import pytest
+
+from discovery.calibration import Calibration, synthetic_recording
+from models import CONTROLLER_A, M002
+
+NAMES = ("backlash", "dead_zone", "delay", "sigma")
+
+
+@pytest.mark.slow
+def test_ninety_percent_intervals_cover_the_truth_over_ten_seeds(tmp_path):
+    inside = {n: 0 for n in NAMES}
+    for seed in range(1, 11):
+        rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, seed,
+                                  tmp_path / f"a{seed}.csv", keep_last=10.0)
+        post = Calibration("M002", params=NAMES, max_steps=3000, seed=seed).fit([rec]).posterior_
+        for n in NAMES:
+            lo, hi = post.interval(n, 0.90)
+            inside[n] += lo < post.truths[n] < hi
+    assert all(v >= 7 for v in inside.values()), inside
