@@ -10,15 +10,17 @@ Pipeline stages, one module each:
 * :mod:`.estimator` -- :class:`WeakSINDyActuator`, the sklearn-style estimator with the threshold
   and delay scan, the information criterion and the bootstrap inclusion probabilities;
 * :mod:`.candidates` -- :class:`Candidate`, a fitted proposal convertible to a models/ hypothesis;
+* :mod:`.simulation` -- recordings' experiments rebuilt and scored against simulations;
 * :mod:`.ranking` -- :func:`rank_by_simulation`, every proposal simulated as a full model.
 
 :func:`discover_structure` runs the whole pipeline.
 """
 from .candidates import Candidate
-from .estimator import DEFAULT_FORMS, WeakSINDyActuator, load_recordings
+from .estimator import DEFAULT_FORMS, WeakSINDyActuator
 from .forms import FORMS, StructureForm, UnknownFormError, form_by_name
 from .library import ACTUATOR_TERMS, ActuatorLibrary, play_along
-from .ranking import rank_by_simulation, waveform_distance
+from .ranking import rank_by_simulation
+from .simulation import load_recordings, replay_experiment, waveform_distance
 from .weak import BumpTestFunctions, RecordingTooShortError
 
 __all__ = [
@@ -37,6 +39,7 @@ __all__ = [
     "load_recordings",
     "play_along",
     "rank_by_simulation",
+    "replay_experiment",
     "waveform_distance",
 ]
 

@@ -19,49 +19,39 @@ import copy
 import math
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pysindy as ps
 from scipy.optimize import minimize
 
-from models.recording import Recording, load_recording
 
 from .candidates import Candidate
-from .forms import TARGET, form_by_name
+from .forms import MOVING_FRACTION, TARGET, form_by_name
+from .simulation import load_recordings, score_on_recordings
 from .weak import BumpTestFunctions, prepare_signals
 
-__all__ = ["WeakSINDyActuator", "DEFAULT_FORMS", "load_recordings"]
+__all__ = ["WeakSINDyActuator", "DEFAULT_FORMS"]
 
 #: Forms fitted by default: the papers' placements (issue 4, deliverable 3).
 DEFAULT_FORMS = (
     "dead_zone_on_error",
     "dead_zone_on_velocity",
     "dead_zone_on_velocity_delay_in_loop",
+    "dead_zone_on_velocity_bandpass",
 )
 
 _LOG_THRESHOLDS = ("dead_zone", "backlash", "bandpass_ratio")
 
 #: Fine-quadrature step (s) used while scanning; the final refinement uses ``fine_step``.
 SCAN_FINE_STEP = 2e-4
-PROFILE_COMPENSATED = True
+PROFILE_COMPENSATED = False
+#: Longest stretch (s) of each recording simulated in the velocity forms' simulation stage.
+SIMULATED_SPAN = 8.0
 #: Profile penalty of thresholds whose fit is not a physical actuator (non-positive gains).
 INADMISSIBLE = 10.0
 #: STLSQ threshold on unit-norm columns, the target scaled by the largest term's contribution: a
 #: term contributing less than 1 % of the largest one is dropped.
 DEFAULT_THRESHOLD = 0.01
-
-
-def load_recordings(recordings):
-    """Recordings from :class:`models.recording.Recording` objects or paths (one or several)."""
-    if isinstance(recordings, (str, Path, Recording)):
-        recordings = [recordings]
-    out = []
-    for rec in recordings:
-        out.append(rec if isinstance(rec, Recording) else load_recording(rec))
-    if not out:
-        raise ValueError("no recording given")
-    return out
 
 
 class WeakSINDyActuator:
@@ -186,6 +176,9 @@ class WeakSINDyActuator:
         self._prepared = self._prepared_by_step[self.fine_step]
         self.n_rows_ = sum(p.n_rows for p in self._prepared)
         self._overlap = tf.overlap
+        # one speed floor for all recordings: a slow test must not lower it below the friction
+        self._speed_floor = MOVING_FRACTION * max(
+            float(np.percentile(p.speed, 99)) for p in self._prepared)
         self._rng = np.random.default_rng(self.seed)
         self.scan_ = {}
         candidates = [self._fit_form(form, fixed) for form in forms]
@@ -202,7 +195,7 @@ class WeakSINDyActuator:
             cache = None if caches is None else caches[i]
             target, cols, weights = form.columns(prep, thresholds, lifted, linear, cache)
             names = list(cols)
-            mask = form.row_mask(prep)
+            mask = form.row_mask(prep, self._speed_floor)
             ys.append(target[mask])
             xs.append(np.column_stack([cols[n] for n in names])[mask])
             rec_index.append(np.full(int(mask.sum()), i))
@@ -384,8 +377,14 @@ class WeakSINDyActuator:
                 wins = [ic_of("full", rows) < ic_of(element, rows) for rows in boot_rows]
                 element_inclusion[element] = float(np.mean(wins)) if wins else float(
                     chosen_key == "full")
+        if form.simulated_threshold_names():
+            thresholds = self._simulation_stage(form, thresholds, fixed, caches)
+            element_inclusion["backlash"] = float(thresholds["backlash"] > 0)
+            element_inclusion["dead_zone"] = float(thresholds["dead_zone"] > 0)
         # linear block from the lifted fit, then the sparse regression on the final columns
-        y, x, names, idx, grams = designs[chosen_key]
+        full = dict(thresholds)
+        full.setdefault("feedback_gain", self.feedback_gain)
+        y, x, names, idx, grams = self._system(form, full, caches=caches)
         coef = self._solve(y, x, idx, grams)[0]
         lifted = dict(zip(names, coef))
         linear = (-lifted["delta''"], -lifted["delta'"])
@@ -414,6 +413,129 @@ class WeakSINDyActuator:
             criterion=self._criterion(resid, float(y @ y), y.size, k),
             params=params,
         )
+
+    # -- velocity forms: dead zone, friction offset, backlash and delay by simulation ----------
+    def _velocity_block(self, form, thresholds, caches):
+        """Weak least-squares block of a velocity form at a delay, with ``r = 0``.
+
+        Returns the ``ActuatorParams`` fields except ``dead_zone``, ``backlash`` and
+        ``friction_offset``, and ``c_eff = z - off - K1*K*r/K3`` (what the moving test functions
+        see of the three).
+        """
+        full = {**thresholds, "backlash": 0.0}
+        y, x, names, idx, grams = self._system(form, full, caches=caches)
+        lifted = dict(zip(names, self._solve(y, x, idx, grams)[0]))
+        linear = (-lifted["delta''"], -lifted["delta'"])
+        y, x, names, idx, grams = self._system(form, full, lifted=False, linear=linear,
+                                               caches=caches)
+        c = dict(zip(names, self._solve(y, x, idx, grams)[0]))
+        k1 = c["u(t-Td)"]
+        play = c.get("play_r(delta)(t-Td)", c.get("play_r(delta)", 0.0))
+        block = {
+            "gain": k1, "damping": -c["delta''"], "stiffness": -c["delta'"],
+            "feedback_gain": -play / k1 if k1 else 0.0, "delay": float(thresholds["delay"]),
+        }
+        level = c.get("L[sat_1(G/s*BP(delta'))]", 0.0)
+        if form.bandpass and level > 0:
+            block["bandpass_saturation"] = level
+            block["bandpass_gain"] = level * float(thresholds["bandpass_ratio"])
+        return block, -c.get("L[sign(delta')]", 0.0)
+
+    def _velocity_params(self, form, block, c_eff, dead_zone, backlash):
+        from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+
+        c = c_eff + block["gain"] * block["feedback_gain"] * backlash / block["stiffness"]
+        return ActuatorParams(
+            dead_zone=dead_zone, backlash=backlash, friction_offset=dead_zone - c,
+            dead_zone_position=DeadZonePosition.VELOCITY,
+            delay_position=(DelayPosition.BEFORE_INTEGRATOR if form.delay_inside_loop
+                            else DelayPosition.OUTPUT),
+            x0=0.5 * float(np.ptp(self.recordings_[0].delta)),
+            **block,
+        )
+
+    def _simulation_stage(self, form, thresholds, fixed, caches):
+        """Coarse grid then Nelder-Mead over ``(z, r, Td)`` on simulations of the recordings.
+
+        The block coefficients are re-fitted by weak least squares at each delay; the friction
+        offset follows from the sign coefficient, ``off = z - c``. The residual is the mean
+        squared simulation score over the recordings.
+        """
+        blocks = {}
+
+        def block_at(td):
+            key = round(float(td), 7)
+            if key not in blocks:
+                blocks[key] = self._velocity_block(form, {**thresholds, "delay": key}, caches)
+            return blocks[key]
+
+        def param_sets(points):
+            out, ok = [], []
+            for z, r, td in points:
+                block, c_eff = block_at(td)
+                try:
+                    out.append(self._velocity_params(form, block, c_eff, z, r))
+                    ok.append(True)
+                except ValueError:
+                    ok.append(False)
+            return out, np.array(ok)
+
+        def scores(points):
+            sets, ok = param_sets(points)
+            result = np.full(len(points), math.inf)
+            if sets:
+                s, _ = score_on_recordings(sets, self.recordings_, max_time=SIMULATED_SPAN)
+                result[ok] = np.mean(s**2, axis=1)
+            return result
+
+        d_span = max(float(np.ptp(p.delta)) for p in self._prepared)
+        if "delay" in fixed:
+            td0 = float(fixed["delay"])
+        else:
+            # the moving test functions hardly see the delay: scan it on simulations first
+            r_mid = float(fixed.get("backlash", d_span * 0.003))
+            probe = []
+            for td in np.arange(0.0, self.max_delay + 1e-9, 1e-3):
+                block, c_eff = block_at(td)
+                c = c_eff + block["gain"] * block["feedback_gain"] * r_mid / block["stiffness"]
+                probe.append((float(fixed.get("dead_zone", max(c, 1e-4) * 0.5)), r_mid, td))
+            td0 = probe[int(np.argmin(scores(probe)))][2]
+        tds = ([td0] if "delay" in fixed else
+               sorted({min(max(td0 + k * 5e-4, 0.0), self.max_delay) for k in (-1, 0, 1)}))
+        rs = ([float(fixed["backlash"])] if "backlash" in fixed
+              else [0.0] + [d_span * f for f in (0.0015, 0.003, 0.006)])
+        points = []
+        for td in tds:
+            block, c_eff = block_at(td)
+            for r in rs:
+                c = c_eff + block["gain"] * block["feedback_gain"] * r / block["stiffness"]
+                zs = ([float(fixed["dead_zone"])] if "dead_zone" in fixed
+                      else [max(c, 1e-4) * f for f in (0.15, 0.35, 0.55, 0.75, 0.95)])
+                points += [(z, r, td) for z in zs]
+        coarse = scores(points)
+        best = points[int(np.argmin(coarse))]
+        free = [i for i, n in enumerate(("dead_zone", "backlash", "delay")) if n not in fixed]
+        free = [i for i in free if not (i < 2 and best[i] <= 0)]
+        if free:
+            def unpack(v):
+                pt = list(best)
+                for i, val in zip(free, v):
+                    pt[i] = math.exp(val) if i < 2 else min(max(val, 0.0), self.max_delay)
+                return tuple(pt)
+
+            x0 = [math.log(best[i]) if i < 2 else best[i] for i in free]
+            steps = [0.15 if i < 2 else 2.5e-4 for i in free]
+            simplex = [x0] + [list(np.add(x0, np.eye(len(free))[k] * steps[k]))
+                              for k in range(len(free))]
+            res = minimize(lambda v: float(scores([unpack(v)])[0]), x0, method="Nelder-Mead",
+                           options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-10,
+                                    "maxfev": 25 * len(free)})
+            if res.fun < coarse.min():
+                best = unpack(res.x)
+        z, r, td = best
+        out = dict(thresholds)
+        out.update(dead_zone=float(z), backlash=float(r), delay=float(td))
+        return out
 
     def _sparse(self, y, x, idx, grams, rows=None):
         """pysindy optimizer on the (bias-compensated) weak system; coefficients and support."""
@@ -465,11 +587,11 @@ class WeakSINDyActuator:
             play = terms.get("play_r(delta)(t-Td)", terms.get("play_r(delta)", 0.0))
             out["gain"] = k1
             out["feedback_gain"] = -play / k1 if k1 else 0.0
-            # c = z - off; split by :func:`discovery.sindy.ranking.split_dead_zone_friction`
+            # the sign coefficient is c = z - off; z comes from the simulation stage
             c = -sign_term
             out["dead_zone_minus_offset"] = c
-            out["dead_zone"] = max(c, 0.0)
-            out["friction_offset"] = 0.0 if c >= 0 else c
+            out["dead_zone"] = float(thresholds.get("dead_zone", max(c, 0.0)))
+            out["friction_offset"] = out["dead_zone"] - c
         if form.bandpass:
             level = terms.get("L[sat_1(G/s*BP(delta'))]", 0.0)
             out["bandpass_saturation"] = level if level > 0 else math.inf

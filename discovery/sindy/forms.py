@@ -34,6 +34,10 @@ __all__ = ["StructureForm", "FORMS", "UnknownFormError", "form_by_name", "TARGET
 
 TARGET = "delta'''"
 
+#: Velocity forms use the test functions over which the speed stays above this fraction of its
+#: 99th percentile.
+MOVING_FRACTION = 0.05
+
 
 class UnknownFormError(ValueError):
     """Raised for a structure form name that :data:`FORMS` does not hold."""
@@ -84,13 +88,20 @@ class StructureForm:
         return tuple(names)
 
     def threshold_names(self):
-        """Parameters entering nonlinearly, scanned by the estimator."""
-        names = ["backlash", "delay"]
+        """Parameters entering nonlinearly that the weak residual scans.
+
+        In the velocity forms the weak equation only holds while the actuator moves, where the
+        backlash shifts the play output by ``r*sign(delta')`` and merges with the dead zone and the
+        friction offset into one sign coefficient: ``z``, ``off`` and ``r`` are then found by
+        simulation (:meth:`simulated_threshold_names`).
+        """
         if self.dead_zone_on == "error":
-            names.insert(0, "dead_zone")
-        if self.bandpass:
-            names.append("bandpass_ratio")
-        return tuple(names)
+            return ("dead_zone", "backlash", "delay")
+        return ("delay", "bandpass_ratio") if self.bandpass else ("delay",)
+
+    def simulated_threshold_names(self):
+        """Parameters the estimator scans on simulations of the recordings instead."""
+        return () if self.dead_zone_on == "error" else ("dead_zone", "backlash", "delay")
 
     def admissible(self, coefficients):
         """Whether lifted least-squares coefficients describe a physical actuator.
@@ -106,15 +117,21 @@ class StructureForm:
         play = c.get("play_r(delta)(t-Td)", c.get("play_r(delta)", 0.0))
         return c["u(t-Td)"] > 0 and play < 0
 
-    def row_mask(self, prepared):
+    def row_mask(self, prepared, speed_floor=None):
         """Test functions the form's equation holds on.
 
-        The velocity forms invert the dead zone, which is only possible while the actuator moves:
-        supports holding a standstill (zero velocity sign) are dropped.
+        The velocity forms invert the dead zone and the friction offset, which is only possible
+        while the actuator moves clearly: supports where the speed falls below
+        :data:`MOVING_FRACTION` of its 99th percentile (a standstill, a reversal, the small
+        dither of the band-pass loop) are dropped; ``speed_floor`` (rad/s) overrides that floor,
+        so that one floor serves several recordings.
         """
         if self.dead_zone_on == "error":
             return np.ones(prepared.n_rows, dtype=bool)
-        moving = np.abs(prepared.velocity_sign) > 0
+        floor = speed_floor
+        if floor is None:
+            floor = MOVING_FRACTION * float(np.percentile(prepared.speed, 99))
+        moving = prepared.speed > floor
         stopped = np.concatenate([[0], np.cumsum(~moving)])
         n = prepared.support
         return (stopped[prepared.starts + n] - stopped[prepared.starts]) == 0

@@ -84,6 +84,8 @@ class PreparedSignals:
         Savitzky-Golay smoothed ``delta`` (for the play operator and the velocity sign).
     velocity_sign : ndarray
         ``sign(delta')`` from the smoothed derivative, zero where the speed is below the noise.
+    speed : ndarray
+        ``|delta'|`` from the smoothed derivative (0 where below the noise).
     jumps : ndarray of bool
         Command jumps per sample interval (:func:`discovery.sindy.library.command_jumps`).
     starts : ndarray of int
@@ -99,6 +101,7 @@ class PreparedSignals:
     delta: np.ndarray
     delta_smooth: np.ndarray
     velocity_sign: np.ndarray
+    speed: np.ndarray
     jumps: np.ndarray
     starts: np.ndarray
     support: int
@@ -231,6 +234,7 @@ def prepare_signals(t, u, delta, test_functions, delay_margin=0.0, smoothing=0.0
     fine = max(1, int(round(dt / fine_step)))
     return PreparedSignals(
         t=t, u=u, delta=delta, delta_smooth=delta_smooth, velocity_sign=velocity_sign,
+        speed=np.where(velocity_sign != 0, np.abs(speed), 0.0),
         jumps=command_jumps(u), starts=starts, support=support, fine=fine,
         test_functions=test_functions, kind=kind, meta=dict(meta or {}),
     )
