@@ -16,6 +16,13 @@ def test_df_predict_json(capsys):
     assert cycle["amplitude"] == pytest.approx(7.66e-3, rel=0.005)
 
 
+def test_df_predict_compare_reports_the_difference(capsys):
+    assert main(["df", "predict", "M002", "--compare", "--frequency-range", "1", "50", "--json"]) == 0
+    cmp = json.loads(capsys.readouterr().out)["comparison"]
+    assert cmp["simulated_frequency"] == pytest.approx(8.60, abs=0.01)
+    assert cmp["frequency_error"] == pytest.approx(0.033, abs=0.005)
+
+
 def test_df_predict_set_and_unsupported(capsys):
     assert main(["df", "predict", "M001f", "--set", "bandpass_gain=0", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["limit_cycles"][0]["stable"] is True

@@ -43,6 +43,10 @@ def register(sub):
     pr.add_argument("name", metavar="NAME", help=f"hypothesis: {', '.join(HYPOTHESES)} (case-insensitive)")
     _controller_arguments(pr)
     pr.add_argument("--set", action="append", metavar="KEY=VALUE", default=[], help="override a parameter (repeatable)")
+    pr.add_argument("--amplitude-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+                    help="search range of the amplitude (of delta, rad; of the dead zone's input with a band-pass loop)")
+    pr.add_argument("--frequency-range", type=float, nargs=2, default=(0.1, 300.0), metavar=("LOW", "HIGH"),
+                    help="search range of the frequency, rad/s")
     pr.add_argument("--compare", action="store_true", help="also simulate 40 s and report the differences")
     pr.add_argument("--plot", metavar="FILE.png", help="save the harmonic-balance plot")
     pr.add_argument("--json", action="store_true", help="print JSON")
@@ -81,12 +85,15 @@ def _save(result, path):
 def run_predict(args) -> int:
     params = hypothesis(args.name, **parse_assignments(args.set))
     controller = ClosedLoop(kp=args.kp, kd=args.kd, mu=args.mu)
-    result = predict_limit_cycles(params, controller)
+    ranges = {"frequency_range": tuple(args.frequency_range)}
+    if args.amplitude_range is not None:
+        ranges["amplitude_range"] = tuple(args.amplitude_range)
+    result = predict_limit_cycles(params, controller, **ranges)
     out = {"hypothesis": params.name, "controller": {"kp": args.kp, "kd": args.kd, "mu": args.mu}}
     out.update(result.to_dict())
     if args.compare:
         try:
-            out["comparison"] = compare_with_simulation(params, controller).to_dict()
+            out["comparison"] = compare_with_simulation(params, controller, **ranges).to_dict()
         except NoHarmonicBalanceSolution as exc:
             out["comparison"] = {"error": str(exc)}
     if args.plot:
