@@ -61,3 +61,20 @@ def test_h4_ranks_the_true_delay_position_first(tmp_path):
     assert summary["winner"] == summary["truth"]
     best = summary["positions"][summary["winner"]]["best"]
     assert abs(best["amplitude_A_pct"]) < 0.5 and abs(best["frequency_A_pct"]) < 0.2
+
+
+def test_h5_noise_floor_and_effects(tmp_path):
+    module = STUDIES["h5_noise"]
+    summary = module.run(module.QUICK, 0, tmp_path)
+    floors = {r["recording"]: r for r in summary["floor"]}
+    assert abs(floors["m000_open_square"]["error_pct"]) < 20
+    assert summary["max_floor_error_pct"] < 35  # the cycle's own harmonics raise the floor
+    powers = summary["config"]["powers"]
+    loud = powers.index(max(powers))
+    eff = summary["cycle_effect"]
+    # noise inflates (max-min)/2 of the measurement far more than the actuator's own cycle
+    grow_delta = eff["amplitude_delta"]["mean"][loud] / eff["amplitude_delta"]["mean"][0] - 1
+    grow_x = eff["amplitude_x"]["mean"][loud] / eff["amplitude_x"]["mean"][0] - 1
+    assert grow_delta > 0.02 and abs(grow_x) < 0.01
+    bias = summary["identified_dead_zone"]
+    assert abs(bias["h1_delta"]["bias_pct_vs_noise_free"][loud]) < abs(bias["amplitude_delta"]["bias_pct_vs_noise_free"][loud])
