@@ -29,9 +29,12 @@ integrator output has amplitude ``a = N Q/w`` and the loop equation becomes
 
 This is a first-harmonic balance only: the 7th harmonic that the loop raises in simulation (and
 that saturates it there) is beyond it, so at the cycle near 8.6 rad/s the loop hardly changes the
-prediction; it also finds the loop's own oscillation near its pass band (55-66 rad/s), which the
-simulator shows taking over for some settings (MODELS.md). A band-pass loop with the dead zone on
-the error raises :class:`UnsupportedStructureError`.
+prediction (M001f at controller A: 5.698e-3 rad at 8.514 rad/s against a simulated first harmonic
+of 5.697e-3 at 8.589). It also finds a small cycle of the loop in its pass band (59.6 rad/s,
+4.5e-5 rad, "stable" by Loeb) for M001f and for M000 with G 48 and saturation 0.015. That one is
+*not* confirmed by the simulator: the small cycle M000 does reach from x(0) = 0, y(0) = 0.1
+(MODELS.md) is at 13.8 rad/s with 2.4e-4 rad, which this balance does not find. A band-pass loop
+with the dead zone on the error raises :class:`UnsupportedStructureError`.
 
 Known limit of the approximation (MODELS.md): for M002 at controller A it predicts 8.88 rad/s
 where the simulator gives 8.60, and 8.80 even with no backlash: the cycle is far from a sinusoid
