@@ -66,7 +66,8 @@ DF_CAVEAT = (
 #: The band-pass loop is balanced at the fundamental only.
 BANDPASS_CAVEAT = (
     "the band-pass loop is balanced at the fundamental only: the 7th harmonic it raises and that "
-    "saturates it in simulation is beyond a first-harmonic balance"
+    "saturates it in simulation is beyond a first-harmonic balance; a small cycle it finds in the "
+    "loop's pass band (near 60 rad/s) is not confirmed by simulation"
 )
 
 
