@@ -140,6 +140,6 @@ def test_results_plot_on_given_axes_without_new_figures():
     fig, (ax1, ax2) = plt.subplots(1, 2)
     result = predict_limit_cycles(hypothesis("M002"), CONTROLLER_A)
     assert result.plot(ax=ax1) is ax1
-    assert paper002_family(4.89e-3, 8.57, CONTROLLER_A).plot(ax=ax2) is ax2
+    assert paper002_family(4.89e-3, 8.57, CONTROLLER_A, hypothesis("M002")).plot(ax=ax2) is ax2
     assert len(ax2.lines) == 1 and len(plt.get_fignums()) == 1
     plt.close("all")

@@ -15,10 +15,11 @@ from models import CONTROLLER_A, hypothesis
 #: MODELS.md "Describing-function facts": the corrected family at controller A.
 MODELS_FAMILY = np.array([1.011e-3, 1.111e-3, 1.208e-3, 1.301e-3, 1.333e-3, 1.389e-3, 1.554e-3, 1.769e-3])
 HWIL = dict(amplitude=4.89e-3, frequency=8.57)
+M002 = hypothesis("M002")
 
 
 def test_corrected_family_reproduces_models_md():
-    family = paper002_family(**HWIL, controller=CONTROLLER_A)
+    family = paper002_family(**HWIL, controller=CONTROLLER_A, params=M002)
     np.testing.assert_allclose(family.backlash_half_width, FAMILY_BACKLASH_HALF_WIDTHS)
     assert np.max(np.abs(family.dead_zone / MODELS_FAMILY - 1)) < 0.01
     assert family.delay == pytest.approx(7e-3)
@@ -27,8 +28,8 @@ def test_corrected_family_reproduces_models_md():
 
 
 def test_printed_equations_do_not_reproduce_the_paper():
-    printed = paper002_family(**HWIL, controller=CONTROLLER_A, variant="printed")
-    corrected = paper002_family(**HWIL, controller=CONTROLLER_A)
+    printed = paper002_family(**HWIL, controller=CONTROLLER_A, params=M002, variant="printed")
+    corrected = paper002_family(**HWIL, controller=CONTROLLER_A, params=M002)
     # the printed slips move every member far from the corrected family and from the paper's
     # pair (4.364e-4, 1.2e-3)
     assert np.all(np.abs(printed.dead_zone / corrected.dead_zone - 1) > 0.5)
@@ -37,7 +38,7 @@ def test_printed_equations_do_not_reproduce_the_paper():
 
 def test_exact_balance_has_no_solution_at_the_hwil_cycle_with_a_7ms_output_delay():
     with pytest.raises(NoHarmonicBalanceSolution, match="real part 1.05") as exc:
-        solve_backlash_and_dead_zone(**HWIL, controller=CONTROLLER_A, params=hypothesis("M002"))
+        solve_backlash_and_dead_zone(**HWIL, controller=CONTROLLER_A, params=M002)
     assert "8.57 rad/s" in str(exc.value) and "7 ms output delay" in str(exc.value)
 
 
@@ -63,9 +64,9 @@ def test_inverse_errors_name_the_problem():
     with pytest.raises(UnsupportedStructureError, match="dead zone and a backlash only"):
         solve_backlash_and_dead_zone(**HWIL, controller=CONTROLLER_A, params=hypothesis("M001f"))
     with pytest.raises(ValueError, match="measured amplitude must be a finite number > 0"):
-        paper002_family(amplitude=0.0, frequency=8.57, controller=CONTROLLER_A)
+        paper002_family(amplitude=0.0, frequency=8.57, controller=CONTROLLER_A, params=M002)
     with pytest.raises(ValueError, match="variant must be one of"):
-        paper002_family(**HWIL, controller=CONTROLLER_A, variant="typo")
+        paper002_family(**HWIL, controller=CONTROLLER_A, params=M002, variant="typo")
     # a frequency where no backlash can balance the phase
     with pytest.raises(NoHarmonicBalanceSolution, match="no exact harmonic-balance solution"):
         solve_backlash_and_dead_zone(amplitude=4.89e-3, frequency=30.0, controller=CONTROLLER_A,

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from models.experiments import ClosedLoop
-from models.hypotheses import M002, ActuatorParams, DeadZonePosition, DelayPosition
+from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 
 from . import analytic
 from .actuator_loop import ActuatorDescribingLoop, vehicle_controller_response
@@ -106,6 +106,11 @@ class BacklashDeadZoneFamily:
         return ax
 
 
+def _check_params(params):
+    if not isinstance(params, ActuatorParams):
+        raise TypeError(f"params must be an ActuatorParams (e.g. models.M002()), got {type(params).__name__}")
+
+
 def _paper002_structure(params: ActuatorParams, delay):
     if params.dead_zone_position is not DeadZonePosition.ERROR:
         raise UnsupportedStructureError(
@@ -133,7 +138,7 @@ def paper002_family(
     amplitude,
     frequency,
     controller: ClosedLoop,
-    params: ActuatorParams | None = None,
+    params: ActuatorParams,
     delay=None,
     backlash_half_widths=FAMILY_BACKLASH_HALF_WIDTHS,
     variant="corrected",
@@ -148,9 +153,10 @@ def paper002_family(
         ``w``: measured cycle frequency (rad/s).
     controller : models.ClosedLoop
         ``Kp, Kd, mu`` of ``Gp`` (eq. 7).
-    params : models.ActuatorParams, optional
-        Linear part ``gain/(s^2 + damping s + stiffness)`` and ``feedback_gain`` (default
-        :class:`models.M002`, i.e. paper 002's eq. 1); its widths are ignored.
+    params : models.ActuatorParams
+        Structure (dead zone on the error, delay at the output), linear part
+        ``gain/(s^2 + damping s + stiffness)`` and ``feedback_gain``; :class:`models.M002` is
+        paper 002's eq. 1. Its widths are ignored.
     delay : float, optional
         Output delay ``Td`` (s); default ``params.delay``.
     backlash_half_widths : array_like
@@ -171,12 +177,13 @@ def paper002_family(
       ``X_z = K1 w/(dc Z)`` with ``Z = Zx/K1g`` and ``dc = K1g/K3`` (37 in paper 002);
       ``zm = X_z rho`` where the dead-zone DF at ``zm/X_z = rho`` equals ``Z`` (eq. 3).
     * printed: ``KK = ((1 + 1/tan theta)/|Gp|)^2`` (eq. 15); ``Zx`` the positive root of eq. 16
-      as printed (last term ``c KK``); ``X_z = K1 w/(37 Zx)`` (eq. 18 as printed).
+      as printed (last term ``c KK``; eq. 17 as printed is the root of the *corrected* eq. 16);
+      ``X_z = K1 w/(37 Zx)`` (eq. 18 as printed).
     """
     amplitude, frequency = _check_cycle(amplitude, frequency)
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {', '.join(VARIANTS)} (got {variant!r})")
-    params = M002() if params is None else params
+    _check_params(params)
     delay = _paper002_structure(params, delay)
     widths = np.atleast_1d(np.asarray(backlash_half_widths, dtype=float))
     if np.any(~np.isfinite(widths)) or np.any(widths < 0):
@@ -245,7 +252,7 @@ class BacklashDeadZonePair:
 
 
 def solve_backlash_and_dead_zone(
-    amplitude, frequency, controller: ClosedLoop, params: ActuatorParams | None = None, n_grid=4000
+    amplitude, frequency, controller: ClosedLoop, params: ActuatorParams, n_grid=4000
 ):
     """Exact harmonic balance ``1 + H P N/(jw) = 0`` for the backlash and the dead zone.
 
@@ -258,9 +265,10 @@ def solve_backlash_and_dead_zone(
     amplitude, frequency : float
         Measured cycle at the actuator output (rad, rad/s).
     controller : models.ClosedLoop
-    params : models.ActuatorParams, optional
-        Structure, linear part, delay and its position (default :class:`models.M002`); its
-        backlash and dead-zone values are ignored.
+    params : models.ActuatorParams
+        Structure, linear part, delay and its position (e.g. :class:`models.M002` for paper 002,
+        :class:`models.M001i` for paper 001 section 2); its backlash and dead-zone values are
+        ignored.
 
     Returns
     -------
@@ -274,7 +282,7 @@ def solve_backlash_and_dead_zone(
         (0, 1); the message gives the describing function the phase would need.
     """
     amplitude, frequency = _check_cycle(amplitude, frequency)
-    params = M002() if params is None else params
+    _check_params(params)
     if params.friction_offset != 0 or params.has_bandpass_loop:
         raise UnsupportedStructureError(
             f"{params.name}: the inverse solve treats a dead zone and a backlash only "
