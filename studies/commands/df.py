@@ -11,16 +11,17 @@ from discovery.describing import (
     predict_limit_cycles,
     solve_backlash_and_dead_zone,
 )
-from models.experiments import ClosedLoop
+from models.experiments import CONTROLLER_A, ClosedLoop
 from models.hypotheses import HYPOTHESES, hypothesis
 
 from ._common import parse_assignments, print_json
 
 
 def _controller_arguments(p):
-    p.add_argument("--kp", type=float, default=5.84, help="proportional gain (default: controller A, 5.84)")
-    p.add_argument("--kd", type=float, default=0.062, help="derivative time, s (default 0.062)")
-    p.add_argument("--mu", type=float, default=12.3, help="vehicle effectiveness, 1/s^2 (default 12.3)")
+    a = CONTROLLER_A
+    p.add_argument("--kp", type=float, default=a.kp, help=f"proportional gain (default: controller A, {a.kp:g})")
+    p.add_argument("--kd", type=float, default=a.kd, help=f"derivative time, s (default {a.kd:g})")
+    p.add_argument("--mu", type=float, default=a.mu, help=f"vehicle effectiveness, 1/s^2 (default {a.mu:g})")
 
 
 def register(sub):
