@@ -138,8 +138,9 @@ def test_results_plot_on_given_axes_without_new_figures():
     from discovery.describing import paper002_family
 
     fig, (ax1, ax2) = plt.subplots(1, 2)
+    open_figures = plt.get_fignums()  # other tests may have left figures open
     result = predict_limit_cycles(hypothesis("M002"), CONTROLLER_A)
     assert result.plot(ax=ax1) is ax1
     assert paper002_family(4.89e-3, 8.57, CONTROLLER_A, hypothesis("M002")).plot(ax=ax2) is ax2
-    assert len(ax2.lines) == 1 and len(plt.get_fignums()) == 1
-    plt.close("all")
+    assert len(ax2.lines) == 1 and plt.get_fignums() == open_figures
+    plt.close(fig)

@@ -131,9 +131,10 @@ def test_plots_draw_on_given_axes():
 
     t, x = _sine(duration=10.0, freqs=((1.5, 5e-3), (10.5, 1e-3)))
     fig, axes = plt.subplots(2, 2)
+    open_figures = plt.get_fignums()  # other tests may have left figures open
     for ax, result in zip(axes.flat, (amplitude_spectrum(t, x), lowpass_reconstruction(t, x),
                                       harmonic_table(t, x), noise_floor(t, x))):
         assert result.plot(ax=ax) is ax
         assert ax.lines or ax.patches
-    assert len(plt.get_fignums()) == 1
-    plt.close("all")
+    assert plt.get_fignums() == open_figures
+    plt.close(fig)
