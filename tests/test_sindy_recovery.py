@@ -113,3 +113,38 @@ def test_m002_limit_cycle_structure_at_true_thresholds(m002_cycle):
     assert ranked[0].score_details["recording_0"]["amplitude_error"] < 0.05
     assert ranked[0].score_details["recording_0"]["frequency_error"] < 0.02
     print("M002 limit cycle at true thresholds:", best.terms, "static gain", best.static_gain)
+
+
+def test_m002_limit_cycle_free_scan_ranks_the_error_form_first(m002_cycle):
+    # thresholds and delay scanned, not given; the dead-zone-on-error form wins the ranking
+    est = WeakSINDyActuator(forms=["dead_zone_on_error", "dead_zone_on_velocity"], noise=NOISE,
+                            n_bootstrap=10, seed=0).fit([m002_cycle])
+    ranked = rank_by_simulation(est.candidates_, est.recordings_)
+    best = ranked[0]
+    assert best.form == "dead_zone_on_error"
+    assert set(best.terms) == M002_TERMS
+    assert best.static_gain == pytest.approx(37.0, rel=0.02)
+    assert best.score < ranked[1].score
+    print("M002 limit cycle, free scan:", best.thresholds, "static gain", best.static_gain,
+          f"fit {est.fit_time_:.1f} s")
+
+
+def test_m002_open_loop_at_200_hz(data_dir):
+    truth = hypothesis("M002")
+    recordings = []
+    for seed, command in ((51, OpenLoop.square(2e-2, 1.0)), (52, OpenLoop.sine(2e-2, 2.0))):
+        trajectory = simulate(truth, command, 8.0, rate=200)
+        columns, meta = recording_from_trajectory(trajectory, seed=seed)
+        rng = np.random.default_rng(seed)
+        columns["delta"] = columns["delta"] + NOISE * rng.standard_normal(trajectory.t.size)
+        path = save_recording(data_dir / f"m002_200hz_{seed}.csv", columns, meta)
+        recordings.append(load_recording(path))
+    est = WeakSINDyActuator(forms=["dead_zone_on_error"], noise=NOISE, seed=0).fit(recordings)
+    best = est.candidates_[0]
+    assert set(best.terms) == M002_TERMS
+    # no tolerance in the issue at 200 Hz: 5 % on the gain, 10 % and 15 % on z and r
+    assert best.terms[DZ_TERM] == pytest.approx(truth.gain, rel=0.05)
+    assert best.thresholds["dead_zone"] == pytest.approx(truth.dead_zone, rel=0.10)
+    assert best.thresholds["backlash"] == pytest.approx(truth.backlash, rel=0.15)
+    assert abs(best.thresholds["delay"] - truth.delay) < 0.5e-3
+    print("M002 open loop at 200 Hz:", best.terms, best.thresholds, f"fit {est.fit_time_:.1f} s")

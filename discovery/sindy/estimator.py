@@ -44,7 +44,10 @@ _LOG_THRESHOLDS = ("dead_zone", "backlash", "bandpass_ratio")
 
 #: Fine-quadrature step (s) used while scanning; the final refinement uses ``fine_step``.
 SCAN_FINE_STEP = 2e-4
-PROFILE_COMPENSATED = False
+#: Profile residual of the dead-zone-on-error forms: the bias-compensated one (the misfit with
+#: the expected noise energy removed). The velocity forms keep only the moving test functions and
+#: use the raw residual, whose compensated version turns negative at near-collinear points.
+PROFILE_COMPENSATED = True
 #: Longest stretch (s) of each recording simulated in the velocity forms' simulation stage.
 SIMULATED_SPAN = 8.0
 #: Profile penalty of thresholds whose fit is not a physical actuator (non-positive gains).
@@ -261,7 +264,8 @@ class WeakSINDyActuator:
                 full.setdefault("feedback_gain", self.feedback_gain)
                 y, x, names, idx, grams = self._system(form, full, caches=caches)
                 sol = self._solve(y, x, idx, grams)
-                value = (sol[5] if PROFILE_COMPENSATED else sol[1]) / float(y @ y)
+                compensated = PROFILE_COMPENSATED and form.dead_zone_on == "error"
+                value = (sol[5] if compensated else sol[1]) / float(y @ y)
                 if not form.admissible(dict(zip(names, sol[0]))):
                     value = INADMISSIBLE + value  # outside the physical actuators
                 cache_values[key] = value

@@ -85,11 +85,18 @@ def waveform_distance(recorded, simulated, period_samples=None):
         n = min(recorded.size, simulated.size)
         return float(np.sqrt(np.mean((recorded[:n] - simulated[:n]) ** 2)) / norm)
     n = recorded.size
-    best = math.inf
-    for shift in range(0, min(period_samples, simulated.size - n) + 1):
-        seg = simulated[shift: shift + n]
-        best = min(best, float(np.sqrt(np.mean((ref - (seg - seg.mean())) ** 2))))
-    return best / norm
+    shifts = min(period_samples, simulated.size - n) + 1
+    if shifts < 1:
+        raise ValueError("the simulated waveform is shorter than the recorded one")
+    # ||ref - (seg - mean seg)||^2 for every shift, from running sums and one correlation
+    sim = simulated[: shifts + n - 1]
+    csum = np.concatenate([[0.0], np.cumsum(sim)])
+    csq = np.concatenate([[0.0], np.cumsum(sim**2)])
+    seg_sum = csum[n: n + shifts] - csum[:shifts]
+    seg_sq = csq[n: n + shifts] - csq[:shifts]
+    cross = np.correlate(sim, ref, mode="valid")[:shifts]
+    err = np.sum(ref**2) + seg_sq - seg_sum**2 / n - 2.0 * cross
+    return float(np.sqrt(max(float(np.min(err)), 0.0) / n)) / norm
 
 
 def simulation_score(recording, t, delta):
@@ -105,9 +112,8 @@ def simulation_score(recording, t, delta):
         sim = np.interp(recording.t, t, delta)
         d = waveform_distance(recording.delta, sim)
         return d, {"waveform": d}
-    half = recording.t >= recording.t[0] + 0.5 * (recording.t[-1] - recording.t[0])
     try:
-        data = limit_cycle_features(recording.t[half], recording.delta[half])
+        data = _recorded_features(recording)
         sel = t >= t[0] + 0.5 * (t[-1] - t[0])
         model = limit_cycle_features(t[sel], delta[sel])
     except InsufficientPeriodsError as exc:
@@ -125,6 +131,22 @@ def simulation_score(recording, t, delta):
         "amplitude_error": d_amp, "frequency_error": d_freq, "waveform": d_wave,
     }
     return d_amp + d_freq + d_wave, details
+
+
+_FEATURE_CACHE = {}
+
+
+def _recorded_features(recording):
+    """Limit-cycle features of a recording's last half (cached: the scans score it many times)."""
+    key = (id(recording), recording.t.size, float(recording.t[-1]))
+    cached = _FEATURE_CACHE.get(key)
+    if cached is None or cached[0] is not recording:
+        half = recording.t >= recording.t[0] + 0.5 * (recording.t[-1] - recording.t[0])
+        cached = (recording, limit_cycle_features(recording.t[half], recording.delta[half]))
+        if len(_FEATURE_CACHE) > 64:
+            _FEATURE_CACHE.clear()
+        _FEATURE_CACHE[key] = cached
+    return cached[1]
 
 
 def simulable(params):

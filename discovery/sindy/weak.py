@@ -30,6 +30,10 @@ __all__ = [
 ]
 
 
+#: Fine-quadrature step (s) for a command without jumps.
+SMOOTH_COMMAND_STEP = 1e-3
+
+
 class RecordingTooShortError(ValueError):
     """A recording holds no whole test-function support after the delay margin."""
 
@@ -231,11 +235,16 @@ def prepare_signals(t, u, delta, test_functions, delay_margin=0.0, smoothing=0.0
     sigma = float(noise) if noise is not None else estimate_noise(delta)
     floor = 4.0 * sigma * float(np.linalg.norm(savgol_coeffs(window, 3, deriv=1, delta=dt)))
     velocity_sign = np.where(np.abs(speed) > floor, np.sign(speed), 0.0)
+    jumps = command_jumps(u)
+    if not jumps.any():
+        # a continuous command (e.g. the controller output of a limit cycle): the fine grid only
+        # has to resolve the dead zone's kinks and the delay, 1 ms is enough
+        fine_step = max(fine_step, SMOOTH_COMMAND_STEP)
     fine = max(1, int(round(dt / fine_step)))
     return PreparedSignals(
         t=t, u=u, delta=delta, delta_smooth=delta_smooth, velocity_sign=velocity_sign,
         speed=np.where(velocity_sign != 0, np.abs(speed), 0.0),
-        jumps=command_jumps(u), starts=starts, support=support, fine=fine,
+        jumps=jumps, starts=starts, support=support, fine=fine,
         test_functions=test_functions, kind=kind, meta=dict(meta or {}),
     )
 
