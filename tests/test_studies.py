@@ -78,3 +78,16 @@ def test_h5_noise_floor_and_effects(tmp_path):
     assert grow_delta > 0.02 and abs(grow_x) < 0.01
     bias = summary["identified_dead_zone"]
     assert abs(bias["h1_delta"]["bias_pct_vs_noise_free"][loud]) < abs(bias["amplitude_delta"]["bias_pct_vs_noise_free"][loud])
+
+
+def test_h1_family_and_exact_solve(tmp_path):
+    module = STUDIES["h1_deadzone_backlash"]
+    summary = module.run(module.QUICK, 0, tmp_path)
+    # MODELS.md: corrected family gives zm = 1.333e-3 at f = 4.364e-4 (half width)
+    assert summary["dead_zone_at_printed_f"]["f_as_half_width"] == pytest.approx(1.333e-3, rel=0.01)
+    assert summary["exact_solution"] == [] and "no exact harmonic-balance solution" in summary["exact_solution_message"]
+    assert summary["paper001_exact"][0]["backlash_half_width"] == pytest.approx(1.237e-4, rel=0.01)
+    m002_a = next(r for r in summary["df_vs_simulation"] if r["hypothesis"] == "M002" and r["controller"] == "A")
+    assert m002_a["frequency_error_pct"] == pytest.approx(3.3, abs=0.3)  # DF 8.88 vs simulated 8.60 rad/s
+    amps = [r["amplitude"] for r in summary["family_simulated"]]
+    assert max(amps) / min(amps) > 1.2  # the DF family is not one cycle in simulation
