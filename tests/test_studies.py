@@ -91,3 +91,13 @@ def test_h1_family_and_exact_solve(tmp_path):
     assert m002_a["frequency_error_pct"] == pytest.approx(3.3, abs=0.3)  # DF 8.88 vs simulated 8.60 rad/s
     amps = [r["amplitude"] for r in summary["family_simulated"]]
     assert max(amps) / min(amps) > 1.2  # the DF family is not one cycle in simulation
+
+
+def test_h2_flags_the_seventh_harmonic_of_m001f_only(tmp_path):
+    module = STUDIES["h2_friction_bandpass"]
+    summary = module.run(module.QUICK, 0, tmp_path)
+    tables = summary["harmonic_tables"]
+    assert tables["M001f"]["raised"] == [7]
+    assert abs(summary["seventh_harmonic"]["M001f"]["frequency_hz"] - 9.57) < 0.1
+    assert tables["M002"]["raised"] == [] and tables["M001i"]["raised"] == []
+    assert summary["seventh_harmonic"]["data"]["ratio"] < 0.1  # Table 1's loop does not raise it
