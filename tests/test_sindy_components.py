@@ -128,3 +128,14 @@ def test_cli_sindy_unknown_form_is_rejected(short_recording, capsys):
     with pytest.raises(SystemExit):
         main(["sindy", str(short_recording), "--form", "nonsense"])
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_actuator_library_inside_pysindy_sindy_model():
+    # the library plugs into ps.SINDy (lists of trajectories, feature names from the inputs)
+    t = np.arange(0, 2, 1e-3)
+    x = np.column_stack([0.01 * np.sin(2 * np.pi * 1.3 * t), 0.012 * np.sin(2 * np.pi * 0.7 * t)])
+    lib = ActuatorLibrary(dead_zone=1e-3, backlash=2e-4, dt=1e-3, terms=["delta", "play_r(delta)"])
+    model = ps.SINDy(feature_library=lib, optimizer=ps.STLSQ(threshold=1e-6))
+    model.fit([x, x[::-1].copy()], t=1e-3, feature_names=["d", "c"])
+    assert model.get_feature_names() == ["d", "play_r(d)"]
+    assert np.asarray(model.coefficients()).shape == (2, 2)

@@ -23,6 +23,7 @@ import warnings
 import numpy as np
 import pysindy as ps
 from scipy.optimize import minimize
+from sklearn.base import BaseEstimator
 
 
 from .candidates import Candidate
@@ -57,7 +58,7 @@ INADMISSIBLE = 10.0
 DEFAULT_THRESHOLD = 0.01
 
 
-class WeakSINDyActuator:
+class WeakSINDyActuator(BaseEstimator):
     """Weak-form SINDy of the actuator with a threshold and delay scan.
 
     Parameters
@@ -101,6 +102,8 @@ class WeakSINDyActuator:
         Wall time (s) of :meth:`fit`.
     scan_ : dict
         Per form, the profile points evaluated ``(thresholds, residual)``.
+    skipped_ : dict
+        Forms the data could not support (e.g. too few test functions in motion), with the reason.
     """
 
     def __init__(
@@ -184,7 +187,19 @@ class WeakSINDyActuator:
             float(np.percentile(p.speed, 99)) for p in self._prepared)
         self._rng = np.random.default_rng(self.seed)
         self.scan_ = {}
-        candidates = [self._fit_form(form, fixed) for form in forms]
+        self.skipped_ = {}
+        candidates = []
+        for form in forms:
+            try:
+                candidates.append(self._fit_form(form, fixed))
+            except ValueError as exc:
+                if len(forms) == 1:
+                    raise
+                # one form that the data cannot support does not stop the others
+                self.skipped_[form.name] = str(exc)
+        if not candidates:
+            raise ValueError("no structure form could be fitted: " + "; ".join(
+                f"{name}: {why}" for name, why in self.skipped_.items()))
         self.candidates_ = sorted(candidates, key=lambda c: c.criterion)
         self.fit_time_ = time.perf_counter() - start
         return self

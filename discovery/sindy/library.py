@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 from numba import njit
-from pysindy.feature_library.base import BaseFeatureLibrary
+from pysindy.feature_library.base import BaseFeatureLibrary, x_sequence_or_item
 from pysindy.utils import AxesArray
 
 from models.nonlinearities import dead_zone, saturation
@@ -160,9 +160,13 @@ class ActuatorLibrary(BaseFeatureLibrary):
             )
         return terms
 
-    def fit(self, x, y=None):
-        """Check the parameters and the input width; returns ``self``."""
-        x = np.asarray(x)
+    @x_sequence_or_item
+    def fit(self, x_full, y=None):
+        """Check the parameters and the input width; returns ``self``.
+
+        ``x_full`` is one trajectory ``(n_samples, 2)`` or a list of them (pysindy's convention).
+        """
+        x = np.asarray(x_full[0])
         if x.ndim != 2 or x.shape[1] != 2:
             raise ValueError(
                 f"ActuatorLibrary expects two input columns (delta, u); got shape {x.shape}"
@@ -204,14 +208,21 @@ class ActuatorLibrary(BaseFeatureLibrary):
                 out[name] = np.sign(np.gradient(delta, t))
         return out
 
-    def transform(self, x):
-        """Rows ``(delta, u)`` in time order -> the selected terms, shape ``(n_samples, n_terms)``."""
-        x = np.asarray(x, dtype=float)
-        values = self.evaluate(x[:, 0], x[:, 1])
-        return AxesArray(
-            np.column_stack([values[name] for name in self._selected()]),
-            {"ax_sample": 0, "ax_coord": 1},
-        )
+    @x_sequence_or_item
+    def transform(self, x_full):
+        """Rows ``(delta, u)`` in time order -> the selected terms, ``(n_samples, n_terms)``.
+
+        One trajectory or a list of them; memory and delay terms restart with each trajectory.
+        """
+        out = []
+        for x in x_full:
+            x = np.asarray(x, dtype=float)
+            values = self.evaluate(x[:, 0], x[:, 1])
+            out.append(AxesArray(
+                np.column_stack([values[name] for name in self._selected()]),
+                {"ax_time": 0, "ax_coord": 1},
+            ))
+        return out
 
     def get_feature_names(self, input_features=None):
         """Term names; ``input_features`` renames ``delta`` and ``u``."""

@@ -40,9 +40,12 @@ def run(args) -> int:
             "candidates": candidates,
             "n_weak_equations": est.n_rows_,
             "fit_time": est.fit_time_,
+            "skipped_forms": dict(est.skipped_),
             "files": list(args.files),
         })
         return 0
+    for name, why in est.skipped_.items():
+        print(f"skipped {name}: {why}")
     for rank, cand in enumerate(est.candidates_, start=1):
         score = "n/a" if cand.score is None else f"{cand.score:.4g}"
         print(f"#{rank} {cand.form}  score {score}  criterion {cand.criterion:.1f}")
