@@ -51,6 +51,8 @@ SCAN_FINE_STEP = 2e-4
 PROFILE_COMPENSATED = True
 #: Longest stretch (s) of each recording simulated in the velocity forms' simulation stage.
 SIMULATED_SPAN = 8.0
+#: Simulation-stage residual of a run that diverged or lost its cycle.
+FAILED_SIMULATION = 1e6
 #: Profile penalty of thresholds whose fit is not a physical actuator (non-positive gains).
 INADMISSIBLE = 10.0
 #: STLSQ threshold on unit-norm columns, the target scaled by the largest term's contribution: a
@@ -501,10 +503,12 @@ class WeakSINDyActuator(BaseEstimator):
 
         def scores(points):
             sets, ok = param_sets(points)
-            result = np.full(len(points), math.inf)
+            result = np.full(len(points), FAILED_SIMULATION)
             if sets:
                 s, _ = score_on_recordings(sets, self.recordings_, max_time=SIMULATED_SPAN)
-                result[ok] = np.mean(s**2, axis=1)
+                # a diverged run or a lost cycle scores a large finite value (Nelder-Mead
+                # compares differences of scores)
+                result[ok] = np.minimum(np.mean(s**2, axis=1), FAILED_SIMULATION)
             return result
 
         d_span = max(float(np.ptp(p.delta)) for p in self._prepared)

@@ -196,9 +196,8 @@ class StructureForm:
             cols[self.term_names()[3]] = weak_integrals(p, dz, 0, True)
         else:
             cols["u(t-Td)"] = weak_integrals(p, u_td, 0, True)
-            if self.delay_inside_loop and td > 0:
-                step = p.dt / p.fine
-                shift = td / step
+            if self.delay_inside_loop:
+                shift = td / (p.dt / p.fine)
                 b_td = np.interp(np.arange(b.size) - shift, np.arange(b.size), b, left=b[0])
                 cols["play_r(delta)(t-Td)"] = weak_integrals(p, b_td, 0, True)
             else:
