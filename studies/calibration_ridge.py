@@ -93,9 +93,14 @@ def run(config, seed, out_dir):
               f"converged {cal.report_.converged}, {timings[label]:.0f} s", flush=True)
     truth = {n: float(getattr(M002(), n)) for n in PARAMS}
     ridge = RidgeAnalysis(posteriors, amplitude=robust_amplitude(data["A"].t, data["A"].delta), truths=truth)
-    ax = ridge.plot()
-    ax.figure.savefig(out / "ridge.png", dpi=110)
-    plt.close(ax.figure)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
+    ridge.plot(ax=ax1)
+    ax1.set_title("one cycle's amplitude+frequency: a ridge along the DF family")
+    ridge.plot(ax=ax2, zoom=0.06)
+    ax2.set_title("zoom: B, open loop and the waveform shrink it")
+    fig.tight_layout()
+    fig.savefig(out / "ridge.png", dpi=110)
+    plt.close(fig)
 
     # model comparison on controller A
     fits = {}

@@ -76,6 +76,8 @@ def test_ridge_analysis_and_df_family(fits):
     assert len(rows) == 2 and -1 <= rows[0]["corr_log_pair"] <= 1
     assert ridge.shrinkage()["same again"]["backlash"] == pytest.approx(1.0)
     assert ridge.plot() is not None
+    ax = ridge.plot(zoom=0.05)
+    assert ax.get_xlim()[0] == pytest.approx(0.95 * M002().backlash)
     f, zm, source = df_family(2 * PAPER002_FAMILY_A["amplitude"])
     assert f[0] == pytest.approx(2e-4) and zm[0] == pytest.approx(2 * 1.011e-3)
     assert "MODELS.md" in source or "describing" in source

@@ -138,8 +138,12 @@ class RidgeAnalysis:
     def to_dict(self):
         return {"pair": list(self.pair), "rows": self.rows, "shrinkage": self.shrinkage()}
 
-    def plot(self, ax=None, max_points=3000, seed=0):
-        """Samples in (f, zm), log-log, per data set, over the DF family and the iso-frequency line."""
+    def plot(self, ax=None, max_points=3000, seed=0, zoom=None):
+        """Samples in (f, zm), log-log, per data set, over the DF family and the iso-frequency line.
+
+        ``zoom`` (e.g. 0.05) limits the axes to that relative distance around the truth (or the
+        last posterior's median), where the narrow posteriors of the richer data sets show.
+        """
         import matplotlib.pyplot as plt
 
         if ax is None:
@@ -153,7 +157,7 @@ class RidgeAnalysis:
                 s = s[rng.choice(s.shape[0], max_points, replace=False)]
             x, y = s[:, post.names.index(a)], s[:, post.names.index(b)]
             row = self.rows[k]
-            ax.plot(x, y, ".", ms=1.5, alpha=0.35, color=f"C{k}",
+            ax.plot(x, y, ".", ms=1.5 + 0.5 * k, alpha=0.35, color=f"C{k}",
                     label=f"{label} (corr ln {row['corr_log_pair']:.2f})")
             if med is None:
                 med = (float(np.median(x)), float(np.median(y)))
@@ -167,6 +171,15 @@ class RidgeAnalysis:
                     label="iso-frequency f/zm = const")
         if self.truths and self.truths.get(a) is not None:
             ax.plot(self.truths[a], self.truths[b], "r*", ms=12, label="truth")
+        if zoom is not None:
+            if self.truths and self.truths.get(a) is not None:
+                ca, cb = self.truths[a], self.truths[b]
+            else:
+                last = list(self.posteriors.values())[-1]
+                ca = float(np.median(last.samples[:, last.names.index(a)]))
+                cb = float(np.median(last.samples[:, last.names.index(b)]))
+            ax.set_xlim(ca * (1 - zoom), ca * (1 + zoom))
+            ax.set_ylim(cb * (1 - zoom / 4), cb * (1 + zoom / 4))
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel(f"{a} (rad)")
