@@ -187,8 +187,10 @@ class Posterior:
     def to_inference_data(self, log_likelihood=False, n_draws=200, seed=0):
         """ArviZ ``InferenceData`` (walkers as chains, post burn-in, natural units).
 
-        With ``log_likelihood=True`` a ``log_likelihood`` group holds the pointwise
-        log-likelihood of ``n_draws`` posterior draws (one pseudo-chain), for WAIC/LOO.
+        With ``log_likelihood=True`` the result is instead built on ``n_draws`` random posterior
+        draws (one pseudo-chain): its ``posterior`` group holds those draws and its
+        ``log_likelihood`` group (variable ``delta``) their pointwise log-likelihood over every
+        recording's samples (or whitened features), for ``arviz.waic``/``arviz.loo``.
         """
         import arviz as az
 
