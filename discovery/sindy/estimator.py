@@ -476,24 +476,33 @@ class WeakSINDyActuator(BaseEstimator):
         )
 
     def _simulation_stage(self, form, thresholds, fixed, caches):
-        """Coarse grid then Nelder-Mead over ``(z, r, Td)`` on simulations of the recordings.
+        """Coarse grid then Nelder-Mead over ``(z, r, Td[, G])`` on simulations of the recordings.
 
-        The block coefficients are re-fitted by weak least squares at each delay; the friction
-        offset follows from the sign coefficient, ``off = z - c``. The residual is the mean
-        squared simulation score over the recordings.
+        The block coefficients are re-fitted by weak least squares at each delay; the band-pass
+        loop gain ``G`` is refined here too (the saturated loop's gain is barely seen by the weak
+        residual, and a wrong one biases the split of z and off); the friction offset follows from
+        the sign coefficient, ``off = z - c``.
+        The residual is the mean squared simulation score over the recordings.
         """
         blocks = {}
+        q0 = float(thresholds.get("bandpass_ratio", 0.0))
 
-        def block_at(td):
-            key = round(float(td), 7)
+        def block_at(td, q=q0):
+            key = (round(float(td), 7), round(float(q), 6))
             if key not in blocks:
-                blocks[key] = self._velocity_block(form, {**thresholds, "delay": key}, caches)
+                thr = {**thresholds, "delay": key[0]}
+                if form.bandpass:
+                    thr["bandpass_ratio"] = key[1]
+                blocks[key] = self._velocity_block(form, thr, caches)
             return blocks[key]
 
         def param_sets(points):
             out, ok = [], []
-            for z, r, td in points:
+            for z, r, td, q in points:
                 block, c_eff = block_at(td)
+                if form.bandpass and "bandpass_saturation" in block:
+                    # the loop gain moves on simulations, the block stays that of the weak fit
+                    block = {**block, "bandpass_gain": block["bandpass_saturation"] * q}
                 try:
                     out.append(self._velocity_params(form, block, c_eff, z, r))
                     ok.append(True)
@@ -521,10 +530,10 @@ class WeakSINDyActuator(BaseEstimator):
             for td in np.arange(0.0, self.max_delay + 1e-9, 1e-3):
                 block, c_eff = block_at(td)
                 c = c_eff + block["gain"] * block["feedback_gain"] * r_mid / block["stiffness"]
-                probe.append((float(fixed.get("dead_zone", max(c, 1e-4) * 0.5)), r_mid, td))
+                probe.append((float(fixed.get("dead_zone", max(c, 1e-4) * 0.5)), r_mid, td, q0))
             td0 = probe[int(np.argmin(scores(probe)))][2]
         tds = ([td0] if "delay" in fixed else
-               sorted({min(max(td0 + k * 5e-4, 0.0), self.max_delay) for k in (-1, 0, 1)}))
+               sorted({min(max(td0 + k * 2.5e-4, 0.0), self.max_delay) for k in (-2, -1, 0, 1, 2)}))
         rs = ([float(fixed["backlash"])] if "backlash" in fixed
               else [0.0] + [d_span * f for f in (0.0015, 0.003, 0.006)])
         points = []
@@ -534,20 +543,22 @@ class WeakSINDyActuator(BaseEstimator):
                 c = c_eff + block["gain"] * block["feedback_gain"] * r / block["stiffness"]
                 zs = ([float(fixed["dead_zone"])] if "dead_zone" in fixed
                       else [max(c, 1e-4) * f for f in (0.15, 0.35, 0.55, 0.75, 0.95)])
-                points += [(z, r, td) for z in zs]
+                points += [(z, r, td, q0) for z in zs]
         coarse = scores(points)
         best = points[int(np.argmin(coarse))]
-        free = [i for i, n in enumerate(("dead_zone", "backlash", "delay")) if n not in fixed]
-        free = [i for i in free if not (i < 2 and best[i] <= 0)]
+        names = ("dead_zone", "backlash", "delay", "bandpass_ratio")
+        free = [i for i, n in enumerate(names) if n not in fixed]
+        free = [i for i in free if not (i != 2 and best[i] <= 0)]
+        logs = (0, 1, 3)
         if free:
             def unpack(v):
                 pt = list(best)
                 for i, val in zip(free, v):
-                    pt[i] = math.exp(val) if i < 2 else min(max(val, 0.0), self.max_delay)
+                    pt[i] = math.exp(val) if i in logs else min(max(val, 0.0), self.max_delay)
                 return tuple(pt)
 
-            x0 = [math.log(best[i]) if i < 2 else best[i] for i in free]
-            steps = [0.15 if i < 2 else 2.5e-4 for i in free]
+            x0 = [math.log(best[i]) if i in logs else best[i] for i in free]
+            steps = [(0.5 if i == 3 else 0.15) if i in logs else 2.5e-4 for i in free]
             simplex = [x0] + [list(np.add(x0, np.eye(len(free))[k] * steps[k]))
                               for k in range(len(free))]
             res = minimize(lambda v: float(scores([unpack(v)])[0]), x0, method="Nelder-Mead",
@@ -555,9 +566,11 @@ class WeakSINDyActuator(BaseEstimator):
                                     "maxfev": 25 * len(free)})
             if res.fun < coarse.min():
                 best = unpack(res.x)
-        z, r, td = best
+        z, r, td, q = best
         out = dict(thresholds)
         out.update(dead_zone=float(z), backlash=float(r), delay=float(td))
+        if form.bandpass:
+            out["bandpass_ratio"] = float(q)
         return out
 
     def _sparse(self, y, x, idx, grams, rows=None):
