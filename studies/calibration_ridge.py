@@ -92,7 +92,9 @@ def run(config, seed, out_dir):
         print(f"{label}: {cal.report_.iterations} steps, tau max {max(cal.report_.tau):.0f}, "
               f"converged {cal.report_.converged}, {timings[label]:.0f} s", flush=True)
     truth = {n: float(getattr(M002(), n)) for n in PARAMS}
-    ridge = RidgeAnalysis(posteriors, amplitude=robust_amplitude(data["A"].t, data["A"].delta), truths=truth)
+    ridge = RidgeAnalysis(posteriors, amplitude=robust_amplitude(data["A"].t, data["A"].delta),
+                          truths=truth, frequency=data["A"].features().frequency,
+                          controller=CONTROLLER_A, params=M002())
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
     ridge.plot(ax=ax1)
     ax1.set_title("one cycle's amplitude+frequency: a ridge along the DF family")

@@ -80,5 +80,9 @@ def test_ridge_analysis_and_df_family(fits):
     assert ax.get_xlim()[0] == pytest.approx(0.95 * M002().backlash)
     f, zm, source = df_family(2 * PAPER002_FAMILY_A["amplitude"])
     assert f[0] == pytest.approx(2e-4) and zm[0] == pytest.approx(2 * 1.011e-3)
-    assert "MODELS.md" in source or "describing" in source
+    assert "MODELS.md" in source
+    # with the cycle's frequency, the controller and the structure: discovery.describing's family
+    f, zm, source = df_family(4.89e-3, 8.57, CONTROLLER_A, M002(), backlash=[2e-4, 4.364e-4])
+    assert "paper002_family" in source
+    assert zm == pytest.approx([1.111e-3, 1.333e-3], rel=2e-3)  # MODELS.md's corrected family
     assert robust_amplitude(rec.t, rec.delta) == pytest.approx(4.99e-3, rel=0.01)

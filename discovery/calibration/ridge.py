@@ -7,12 +7,12 @@ amplitude and frequency, its waveform, a second controller setting, open-loop te
 of ``ln f`` and ``ln zm``, marginal 90 % widths, the whole correlation matrix, and a plot of the
 samples over the DF family.
 
-The DF family comes from :mod:`discovery.describing` when that package offers it (a callable
-``family(amplitude, frequency, experiment, params, backlash)`` returning the dead zones, looked up
-as ``discovery.describing.df_family``); until then from MODELS.md's corrected paper 002 family at
-controller A (computed for the HWIL cycle 4.89e-3 rad at 8.57 rad/s, Td = 7 ms), scaled to the
-recorded amplitude by the homogeneity of both DFs (scaling f, zm and the amplitude together leaves
-the DFs unchanged). The iso-frequency line ``f/zm = const`` (MODELS.md homogeneity: frequency and
+The DF family comes from :func:`discovery.describing.paper002_family` (paper 002 eqs. 13-18 with
+MODELS.md's corrections) for the recorded amplitude and frequency, the controller and the
+hypothesis' structure; where that does not apply (another structure, no controller given) from
+MODELS.md's tabulated corrected family at controller A (computed for the HWIL cycle 4.89e-3 rad
+at 8.57 rad/s, Td = 7 ms), scaled to the recorded amplitude by the homogeneity of both DFs. The
+iso-frequency line ``f/zm = const`` (MODELS.md homogeneity: frequency and
 shape depend only on the ratio) is drawn through the posterior median. The DF method is an
 approximation here (it predicts 8.88 rad/s where the simulation gives 8.60): the family shows the
 direction of the trade-off, not its exact place.
@@ -55,23 +55,27 @@ def robust_amplitude(t, delta, bins=100):
     return 0.5 * float(np.max(means) - np.min(means))
 
 
-def df_family(amplitude, frequency=None, experiment=None, params=None, backlash=None):
-    """(backlash, dead_zone) arrays of the DF family for a cycle of ``amplitude`` (rad).
+def df_family(amplitude, frequency=None, controller=None, params=None, backlash=None):
+    """(backlash, dead_zone) arrays of paper 002's DF family for a cycle of ``amplitude`` (rad).
 
-    Returns ``(f, zm, source)``; ``source`` says where the curve came from.
+    Uses :func:`discovery.describing.paper002_family` (variant "corrected") when ``frequency``,
+    ``controller`` and ``params`` are given and the structure is paper 002's; otherwise MODELS.md's
+    tabulated family scaled by homogeneity. Returns ``(f, zm, source)``.
     """
-    try:  # the describing-function issue's inverse method, when it exists
-        from discovery import describing
-
-        family = getattr(describing, "df_family", None)
-    except ImportError:
-        family = None
-    if family is not None and frequency is not None and backlash is not None:
+    if frequency is not None and controller is not None and params is not None:
         try:
-            zm = np.asarray(family(amplitude, frequency, experiment, params, backlash), float)
-            return np.asarray(backlash, float), zm, "discovery.describing.df_family"
-        except Exception:  # noqa: BLE001 - fall back to the tabulated family
-            pass
+            from discovery.describing import paper002_family
+
+            grid = np.geomspace(5e-5, 1e-3, 40) if backlash is None else np.asarray(backlash, float)
+            fam = paper002_family(amplitude, frequency, controller, params,
+                                  backlash_half_widths=grid, variant="corrected")
+            ok = np.isfinite(fam.dead_zone)
+            if ok.sum() >= 2:
+                return (fam.backlash_half_width[ok], fam.dead_zone[ok],
+                        f"discovery.describing.paper002_family (corrected), {amplitude:.4g} rad at "
+                        f"{frequency:.4g} rad/s, Td {fam.delay:g} s")
+        except (ImportError, ValueError, TypeError):
+            pass  # another structure or no describing package: the tabulated family
     k = float(amplitude) / PAPER002_FAMILY_A["amplitude"]
     f = k * np.asarray(PAPER002_FAMILY_A["backlash"])
     zm = k * np.asarray(PAPER002_FAMILY_A["dead_zone"])
@@ -93,12 +97,21 @@ class RidgeAnalysis:
         The recorded cycle amplitude ``(max - min)/2`` (rad; :func:`robust_amplitude` for noisy
         data) that places the DF family; ``None`` draws no family.
     truths : dict or None
+    frequency : float or None
+        Recorded cycle frequency (rad/s), with ``controller`` and ``params`` for
+        :func:`discovery.describing.paper002_family`.
+    controller : models.ClosedLoop or None
+    params : models.ActuatorParams or None
+        The hypothesis (its structure; the widths are ignored).
     """
 
     posteriors: dict
     pair: tuple = ("backlash", "dead_zone")
     amplitude: float | None = None
     truths: dict | None = None
+    frequency: float | None = None
+    controller: object = None
+    params: object = None
     rows: list = field(init=False)
 
     def __post_init__(self):
@@ -162,7 +175,7 @@ class RidgeAnalysis:
             if med is None:
                 med = (float(np.median(x)), float(np.median(y)))
         if self.amplitude is not None:
-            f, zm, source = df_family(self.amplitude)
+            f, zm, source = df_family(self.amplitude, self.frequency, self.controller, self.params)
             ax.plot(f, zm, "k--", lw=1.2, label="DF family (paper 002)")
             ax.text(0.02, 0.02, source, transform=ax.transAxes, fontsize=5)
         if med is not None:
