@@ -561,11 +561,16 @@ class WeakSINDyActuator(BaseEstimator):
             steps = [(0.5 if i == 3 else 0.15) if i in logs else 2.5e-4 for i in free]
             simplex = [x0] + [list(np.add(x0, np.eye(len(free))[k] * steps[k]))
                               for k in range(len(free))]
-            res = minimize(lambda v: float(scores([unpack(v)])[0]), x0, method="Nelder-Mead",
-                           options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-10,
-                                    "maxfev": 25 * len(free)})
-            if res.fun < coarse.min():
-                best = unpack(res.x)
+            best_score = float(coarse.min())
+            for _ in range(2):  # one restart: Nelder-Mead's simplex collapses on ridges
+                res = minimize(lambda v: float(scores([unpack(v)])[0]), x0, method="Nelder-Mead",
+                               options={"initial_simplex": simplex, "xatol": 2e-3,
+                                        "fatol": 1e-10, "maxfev": 40 * len(free)})
+                if res.fun < best_score:
+                    best, best_score = unpack(res.x), float(res.fun)
+                x0 = list(res.x)
+                simplex = [x0] + [list(np.add(x0, np.eye(len(free))[k] * steps[k]))
+                                  for k in range(len(free))]
         z, r, td, q = best
         out = dict(thresholds)
         out.update(dead_zone=float(z), backlash=float(r), delay=float(td))
