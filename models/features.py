@@ -87,22 +87,18 @@ def upward_mean_crossings(t, x, level, hysteresis):
     ``level - hysteresis``; its time is the last linear-interpolated crossing of ``level`` before
     that, so noise near the level does not add crossings.
     """
-    below = x < level - hysteresis
-    above = x > level + hysteresis
-    times = []
-    armed = False
-    last_up = None
-    for k in range(1, x.size):
-        if x[k - 1] < level <= x[k]:
-            frac = (level - x[k - 1]) / (x[k] - x[k - 1])
-            last_up = t[k - 1] + frac * (t[k] - t[k - 1])
-        if below[k]:
-            armed = True
-            last_up = None
-        elif above[k] and armed and last_up is not None:
-            times.append(last_up)
-            armed = False
-    return np.asarray(times)
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float)
+    state = np.where(x < level - hysteresis, -1, np.where(x > level + hysteresis, 1, 0))
+    marked = np.flatnonzero(state)
+    states = state[marked]
+    # a run of "below" samples followed by an "above" one arms and fires the trigger
+    fire = np.flatnonzero((states[:-1] == -1) & (states[1:] == 1))
+    first_above = marked[fire + 1]
+    ups = np.flatnonzero((x[:-1] < level) & (x[1:] >= level)) + 1  # x[k-1] < level <= x[k]
+    k = ups[np.searchsorted(ups, first_above, side="right") - 1]  # last crossing before firing
+    frac = (level - x[k - 1]) / (x[k] - x[k - 1])
+    return t[k - 1] + frac * (t[k] - t[k - 1])
 
 
 def limit_cycle_features(t, delta, n_harmonics=11) -> LimitCycleFeatures:

@@ -87,7 +87,13 @@ class Recording:
         return float(self.meta["sample_rate"])
 
     def experiment(self):
-        """The :class:`ClosedLoop` of a closed-loop recording, or an ``OpenLoop`` replaying ``u``."""
+        """The experiment that produced the recording.
+
+        Closed loop: the :class:`ClosedLoop` of the sidecar. Open loop: the analytic command when
+        the sidecar names one (``waveform`` step/square/sine, as tvcid writes them), so square
+        edges stay sharp; otherwise an ``OpenLoop`` replaying the sampled ``u`` (linear between
+        samples, which puts a jump's edge half a sample early).
+        """
         from .experiments import OpenLoop
 
         if self.kind == "closed":
@@ -97,6 +103,10 @@ class Recording:
                 mu=self.meta["mu"],
                 sample_rate=self.meta.get("controller_rate"),
             )
+        waveform = self.meta.get("waveform")
+        if waveform in ("step", "square", "sine"):
+            keys = ("amplitude", "frequency", "start", "offset", "from_rest")
+            return OpenLoop(waveform, **{k: self.meta[k] for k in keys if k in self.meta})
         return OpenLoop.from_samples(self.t, self.u)
 
     def window(self, seconds):

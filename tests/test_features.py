@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from models import InsufficientPeriodsError, limit_cycle_features
+from models.features import upward_mean_crossings
 
 W0 = 8.57
 
@@ -48,3 +49,28 @@ def test_fewer_than_two_periods_is_a_clear_error():
         limit_cycle_features(t, np.sin(W0 * t))
     with pytest.raises(InsufficientPeriodsError, match="no oscillation"):
         limit_cycle_features(t, np.zeros_like(t))
+
+
+def _schmitt_reference(t, x, level, hysteresis):
+    """Sample-by-sample Schmitt trigger, the definition the vectorised detector implements."""
+    times, armed, last_up = [], bool(x[0] < level - hysteresis), None
+    for k in range(1, x.size):
+        if x[k - 1] < level <= x[k]:
+            last_up = t[k - 1] + (level - x[k - 1]) / (x[k] - x[k - 1]) * (t[k] - t[k - 1])
+        if x[k] < level - hysteresis:
+            armed, last_up = True, None
+        elif x[k] > level + hysteresis and armed and last_up is not None:
+            times.append(last_up)
+            armed = False
+    return np.asarray(times)
+
+
+def test_vectorised_crossings_equal_the_sample_by_sample_trigger():
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        n = int(rng.integers(50, 3000))
+        t = np.arange(n) * 1e-3
+        x = np.sin(2 * np.pi * rng.uniform(0.5, 20) * t + rng.uniform(0, 6))
+        x += rng.uniform(0, 0.5) * rng.standard_normal(n)
+        level, h = x.mean(), rng.uniform(0, 0.3)
+        np.testing.assert_allclose(upward_mean_crossings(t, x, level, h), _schmitt_reference(t, x, level, h))

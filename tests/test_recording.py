@@ -57,3 +57,14 @@ def test_malformed_recordings_name_the_culprit(tmp_path, text, meta, message):
     path = _write(tmp_path, text, meta)
     with pytest.raises(RecordingError, match=message):
         load_recording(path)
+
+
+def test_open_loop_sidecar_rebuilds_the_analytic_command(tmp_path):
+    from models import OpenLoop
+
+    tr = simulate(hypothesis("M002"), OpenLoop.square(5e-3, 1.0), 2.0)
+    rec = load_recording(save_recording(tmp_path / "sq.csv", *recording_from_trajectory(tr)))
+    replay = simulate(hypothesis("M002"), rec.experiment(), 2.0)
+    np.testing.assert_array_equal(replay.delta, tr.delta)  # edges exactly where they were
+    hand = _write(tmp_path, "t,u,delta\n0,0,0\n1,1,0\n2,1,0\n")
+    assert load_recording(hand).experiment().waveform == "samples"
