@@ -40,10 +40,10 @@ SPECS = (
                   "HWIL-like limit cycle, controller A (Kp 5.84, Kd 0.062, mu 12.3)"),
     RecordingSpec("m000_closed_B", CONTROLLER_B, 30.0, 2, ("t", "u", "delta", "theta"),
                   "HWIL-like limit cycle, controller B (Kp 9.8, Kd 0.06, mu 4.5)"),
-    RecordingSpec("m000_open_square", OpenLoop.square(5e-3, 1.0), 10.0, 3, ("t", "u", "delta"),
-                  "open-loop square wave, +-5 mrad at 1 Hz, actuator starting at rest"),
-    RecordingSpec("m000_open_sine", OpenLoop.sine(5e-3, 2.0), 10.0, 4, ("t", "u", "delta"),
-                  "open-loop sine, 5 mrad at 2 Hz, actuator starting at rest"),
+    RecordingSpec("m000_open_square", OpenLoop.square(2e-2, 1.0), 8.0, 3, ("t", "u", "delta"),
+                  "open-loop square wave, +-20 mrad at 1 Hz, actuator starting at rest"),
+    RecordingSpec("m000_open_sine", OpenLoop.sine(2e-2, 2.0), 8.0, 4, ("t", "u", "delta"),
+                  "open-loop sine, 20 mrad at 2 Hz, actuator starting at rest"),
 )
 RATE = 1000.0
 
