@@ -1,4 +1,5 @@
-"""Every study runs in --quick mode and writes its outputs."""
+"""Every study runs in --quick mode (once, through ``tvcid study all --quick``) and writes its
+outputs; each study's claims are checked on those outputs."""
 import json
 
 import pytest
@@ -7,20 +8,35 @@ from studies.cli import main
 from studies.registry import STUDIES
 
 
+@pytest.fixture(scope="session")
+def quick_results(tmp_path_factory):
+    """``tvcid study all --quick`` run once for the session; the results directory."""
+    results = tmp_path_factory.mktemp("results")
+    assert main(["study", "all", "--quick", "--results", str(results)]) == 0
+    return results
+
+
+def _summary(results, name):
+    return json.loads((results / name / "summary.json").read_text())
+
+
 @pytest.mark.parametrize("name", sorted(STUDIES))
-def test_study_quick_writes_outputs(tmp_path, name):
-    assert main(["study", name, "--quick", "--results", str(tmp_path)]) == 0
-    out = tmp_path / name
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["study"] == name
+def test_study_quick_writes_outputs(quick_results, name):
+    out = quick_results / name
+    assert _summary(quick_results, name)["study"] == name
     assert any(p.suffix == ".png" and p.stat().st_size > 10_000 for p in out.iterdir())
 
 
-def test_report_has_a_row_for_every_paper_number(tmp_path):
+def test_one_study_runs_alone(tmp_path):
+    assert main(["study", "h2_friction_bandpass", "--quick", "--results", str(tmp_path)]) == 0
+    assert (tmp_path / "h2_friction_bandpass" / "spectra.png").exists()
+    assert (tmp_path / "report.md").exists()
+
+
+def test_report_has_a_row_for_every_paper_number(quick_results):
     from studies.report import load_papers
 
-    assert main(["study", "all", "--quick", "--results", str(tmp_path)]) == 0
-    report = (tmp_path / "report.md").read_text()
+    report = (quick_results / "report.md").read_text()
     ids = [e["id"] for e in load_papers()["numbers"]]
     table = [line for line in report.splitlines() if line.startswith("| p0")]
     assert [line.split("|")[1].strip() for line in table] == ids
@@ -45,27 +61,24 @@ def test_unknown_study_is_named(capsys):
     assert "unknown study 'h9_nothing'" in capsys.readouterr().err
 
 
-def test_h3_inner_integrators_select_the_small_cycle_and_x0_alone_does_not(tmp_path):
-    module = STUDIES["h3_initial_conditions"]
-    summary = module.run(module.QUICK, 0, tmp_path)
+def test_h3_inner_integrators_select_the_small_cycle_and_x0_alone_does_not(quick_results):
+    summary = _summary(quick_results, "h3_initial_conditions")
     assert summary["small_basin_off_x_axis"]
     assert not summary["x0_alone_reaches_small"]
     assert summary["x0_alone_classes"]["large"] == sum(summary["x0_alone_classes"].values())
     assert summary["small_cycle"]["amplitude"] < 0.1 * summary["large_cycle"]["amplitude"]
 
 
-def test_h4_ranks_the_true_delay_position_first(tmp_path):
-    module = STUDIES["h4_delay_position"]
-    summary = module.run(module.QUICK, 0, tmp_path)
+def test_h4_ranks_the_true_delay_position_first(quick_results):
+    summary = _summary(quick_results, "h4_delay_position")
     assert summary["truth"] == "before_first_integrator"
     assert summary["winner"] == summary["truth"]
     best = summary["positions"][summary["winner"]]["best"]
     assert abs(best["amplitude_A_pct"]) < 0.5 and abs(best["frequency_A_pct"]) < 0.2
 
 
-def test_h5_noise_floor_and_effects(tmp_path):
-    module = STUDIES["h5_noise"]
-    summary = module.run(module.QUICK, 0, tmp_path)
+def test_h5_noise_floor_and_effects(quick_results):
+    summary = _summary(quick_results, "h5_noise")
     floors = {r["recording"]: r for r in summary["floor"]}
     assert abs(floors["m000_open_square"]["error_pct"]) < 20
     assert summary["max_floor_error_pct"] < 35  # closed loop: the fed-back noise colours the floor; sine: the response's own harmonics
@@ -80,9 +93,8 @@ def test_h5_noise_floor_and_effects(tmp_path):
     assert abs(bias["h1_delta"]["bias_pct_vs_noise_free"][loud]) < abs(bias["amplitude_delta"]["bias_pct_vs_noise_free"][loud])
 
 
-def test_h1_family_and_exact_solve(tmp_path):
-    module = STUDIES["h1_deadzone_backlash"]
-    summary = module.run(module.QUICK, 0, tmp_path)
+def test_h1_family_and_exact_solve(quick_results):
+    summary = _summary(quick_results, "h1_deadzone_backlash")
     # MODELS.md: corrected family gives zm = 1.333e-3 at f = 4.364e-4 (half width)
     assert summary["dead_zone_at_printed_f"]["f_as_half_width"] == pytest.approx(1.333e-3, rel=0.01)
     assert summary["exact_solution"] == [] and "no exact harmonic-balance solution" in summary["exact_solution_message"]
@@ -93,9 +105,8 @@ def test_h1_family_and_exact_solve(tmp_path):
     assert max(amps) / min(amps) > 1.2  # the DF family is not one cycle in simulation
 
 
-def test_h2_flags_the_seventh_harmonic_of_m001f_only(tmp_path):
-    module = STUDIES["h2_friction_bandpass"]
-    summary = module.run(module.QUICK, 0, tmp_path)
+def test_h2_flags_the_seventh_harmonic_of_m001f_only(quick_results):
+    summary = _summary(quick_results, "h2_friction_bandpass")
     tables = summary["harmonic_tables"]
     assert tables["M001f"]["raised"] == [7]
     assert abs(summary["seventh_harmonic"]["M001f"]["frequency_hz"] - 9.57) < 0.1
@@ -104,3 +115,15 @@ def test_h2_flags_the_seventh_harmonic_of_m001f_only(tmp_path):
     # the record's loop (M000, Table 1) raises the 9-10 Hz band, unlocked from the 7th harmonic
     assert band["data"] > 2 * max(band["M002"], band["M001i"])
     assert band["M001f"] > 2 * max(band["M002"], band["M001i"])
+
+
+def test_discover_proposes_the_bandpass_structure_and_calibrates_it(quick_results):
+    summary = _summary(quick_results, "discover")
+    assert summary["best_form"] == "dead_zone_on_velocity_bandpass"  # the data's generator has the loop
+    assert summary["best_params"]["bandpass_gain"] > 0
+    post = summary["posterior"]["parameters"]
+    assert set(post) == {"dead_zone", "backlash", "delay", "sigma"}
+    for name in ("dead_zone", "backlash"):  # right order of magnitude, within a factor 2
+        assert 0.5 < post[name]["q50"] / summary["generating_values"][name] < 2.0
+    assert (quick_results / "discover" / "corner.png").exists()
+    assert (quick_results / "discover" / "predictive.png").exists()
