@@ -320,7 +320,7 @@ class OpenLoopTerm:
         t0 = recording.t[0]
         self.tau = recording.t - t0
         self.data = recording.delta
-        self.experiment = OpenLoop.from_samples(self.tau, recording.u)
+        self.experiment = _exact_command(recording) or OpenLoop.from_samples(self.tau, recording.u)
         self.dt = float(dt)
         self.n = self.tau.size
         self.sigma_hat = estimate_noise(self.data)
@@ -351,7 +351,34 @@ class OpenLoopTerm:
 
     def describe(self):
         return {"name": self.name, "kind": "open", "samples": int(self.n),
-                "duration": float(self.tau[-1]), "sigma_hat": self.sigma_hat}
+                "duration": float(self.tau[-1]), "sigma_hat": self.sigma_hat,
+                "command": ("sidecar " + self.experiment.waveform
+                            if self.experiment.waveform != "samples" else "recorded samples")}
+
+
+def _exact_command(recording):
+    """The open-loop command rebuilt from the sidecar (step, square, sine), when it matches ``u``.
+
+    Replaying a sampled discontinuous command by linear interpolation moves each edge by half a
+    sample (0.5 ms at 1 kHz): a square-wave test then biases the delay by a fraction of a
+    millisecond, several posterior sd. A sidecar that names a standard waveform (as tvcid's own
+    recordings do) gives the exact command; it is used only if it reproduces the recorded ``u``
+    at every sample and the record starts at t = 0 (the actuator at rest).
+    """
+    meta = recording.meta
+    if meta.get("waveform") not in ("step", "square", "sine") or recording.t[0] != 0.0:
+        return None
+    try:
+        exp = OpenLoop(meta["waveform"], amplitude=meta.get("amplitude", 0.0),
+                       frequency=meta.get("frequency", 0.0), start=meta.get("start", 0.0),
+                       offset=meta.get("offset", 0.0), from_rest=bool(meta.get("from_rest", True)))
+    except (ValueError, TypeError):
+        return None
+    u = recording.u
+    scale = max(float(np.max(np.abs(u))), 1e-300)
+    if not np.allclose(exp.command(recording.t), u, rtol=0.0, atol=1e-9 * scale):
+        return None
+    return exp
 
 
 def make_term(recording, likelihood, window, transient, dt, name=None, features=DEFAULT_FEATURES,
