@@ -357,22 +357,16 @@ class OpenLoopTerm:
 
 
 def _exact_command(recording):
-    """The open-loop command rebuilt from the sidecar (step, square, sine), when it matches ``u``.
+    """The analytic open-loop command of :meth:`Recording.experiment`, checked against ``u``.
 
     Replaying a sampled discontinuous command by linear interpolation moves each edge by half a
     sample (0.5 ms at 1 kHz): a square-wave test then biases the delay by a fraction of a
-    millisecond, several posterior sd. A sidecar that names a standard waveform (as tvcid's own
-    recordings do) gives the exact command; it is used only if it reproduces the recorded ``u``
-    at every sample and the record starts at t = 0 (the actuator at rest).
+    millisecond, several posterior sd. ``Recording.experiment()`` rebuilds step/square/sine
+    commands from the sidecar; it is used here only if it reproduces the recorded ``u`` at every
+    sample and the record starts at t = 0 (the actuator at rest). ``None`` otherwise.
     """
-    meta = recording.meta
-    if meta.get("waveform") not in ("step", "square", "sine") or recording.t[0] != 0.0:
-        return None
-    try:
-        exp = OpenLoop(meta["waveform"], amplitude=meta.get("amplitude", 0.0),
-                       frequency=meta.get("frequency", 0.0), start=meta.get("start", 0.0),
-                       offset=meta.get("offset", 0.0), from_rest=bool(meta.get("from_rest", True)))
-    except (ValueError, TypeError):
+    exp = recording.experiment()
+    if getattr(exp, "waveform", "samples") == "samples" or recording.t[0] != 0.0:
         return None
     u = recording.u
     scale = max(float(np.max(np.abs(u))), 1e-300)
