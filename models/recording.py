@@ -87,12 +87,14 @@ class Recording:
         return float(self.meta["sample_rate"])
 
     def experiment(self):
-        """The experiment that produced the recording.
+        """The experiment that produced the recording, its time measured from the first sample.
 
         Closed loop: the :class:`ClosedLoop` of the sidecar. Open loop: the analytic command when
-        the sidecar names one (``waveform`` step/square/sine, as tvcid writes them), so square
-        edges stay sharp; otherwise an ``OpenLoop`` replaying the sampled ``u`` (linear between
-        samples, which puts a jump's edge half a sample early).
+        the sidecar names one (``waveform`` step/square/sine, as tvcid writes them), the record
+        starts at t = 0 and the command reproduces every sample of ``u``; square edges then stay
+        where they were, where replaying the samples linearly puts each edge half a sample early
+        (0.5 ms at 1 kHz, enough to bias an identified delay). Otherwise an ``OpenLoop`` replaying
+        the sampled ``u``.
         """
         from .experiments import OpenLoop
 
@@ -104,10 +106,16 @@ class Recording:
                 sample_rate=self.meta.get("controller_rate"),
             )
         waveform = self.meta.get("waveform")
-        if waveform in ("step", "square", "sine"):
+        if waveform in ("step", "square", "sine") and self.t[0] == 0.0:
             keys = ("amplitude", "frequency", "start", "offset", "from_rest")
-            return OpenLoop(waveform, **{k: self.meta[k] for k in keys if k in self.meta})
-        return OpenLoop.from_samples(self.t, self.u)
+            try:
+                exact = OpenLoop(waveform, **{k: self.meta[k] for k in keys if k in self.meta})
+            except (TypeError, ValueError):
+                exact = None
+            scale = max(float(np.max(np.abs(self.u))), 1e-300)
+            if exact is not None and np.allclose(exact.command(self.t), self.u, rtol=0.0, atol=1e-9 * scale):
+                return exact
+        return OpenLoop.from_samples(self.t - self.t[0], self.u)
 
     def window(self, seconds):
         """``(t, delta)`` over the last ``seconds`` (all of it for ``None``)."""

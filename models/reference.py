@@ -8,7 +8,6 @@ periodic cycles; it is ~500x slower and meant for tests and the benchmark only.
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 

@@ -28,7 +28,6 @@ import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
 
 from discovery.calibration import Calibration, compare, synthetic_recording
 from discovery.calibration.ridge import RidgeAnalysis, robust_amplitude

@@ -1,8 +1,7 @@
 """The simulator reproduces the limit cycles the papers print (MODELS.md reference numbers)."""
-import numpy as np
 import pytest
 
-from models import CONTROLLER_A, ClosedLoop, hypothesis, simulate
+from models import ClosedLoop, hypothesis, simulate
 
 HWIL_FREQUENCY = 8.57  # rad/s, paper 002 section 6 and paper 001
 H7_HZ = 9.57  # paper 001 section 3, the raised 7th harmonic of the derivative

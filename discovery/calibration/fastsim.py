@@ -140,7 +140,6 @@ class BatchSimulator:
         """
         n = len(param_sets)
         rows, keep = [], []
-        bp = None
         for i, params in enumerate(param_sets):
             if params is None:
                 continue

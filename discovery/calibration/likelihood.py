@@ -22,7 +22,6 @@ import math
 
 import numpy as np
 
-from models.experiments import ClosedLoop, OpenLoop
 from models.features import (
     CROSSING_HYSTERESIS,
     InsufficientPeriodsError,
@@ -320,7 +319,8 @@ class OpenLoopTerm:
         t0 = recording.t[0]
         self.tau = recording.t - t0
         self.data = recording.delta
-        self.experiment = _exact_command(recording) or OpenLoop.from_samples(self.tau, recording.u)
+        # the sidecar's analytic command when it reproduces u (sharp square edges), else u replayed
+        self.experiment = recording.experiment()
         self.dt = float(dt)
         self.n = self.tau.size
         self.sigma_hat = estimate_noise(self.data)
@@ -354,25 +354,6 @@ class OpenLoopTerm:
                 "duration": float(self.tau[-1]), "sigma_hat": self.sigma_hat,
                 "command": ("sidecar " + self.experiment.waveform
                             if self.experiment.waveform != "samples" else "recorded samples")}
-
-
-def _exact_command(recording):
-    """The analytic open-loop command of :meth:`Recording.experiment`, checked against ``u``.
-
-    Replaying a sampled discontinuous command by linear interpolation moves each edge by half a
-    sample (0.5 ms at 1 kHz): a square-wave test then biases the delay by a fraction of a
-    millisecond, several posterior sd. ``Recording.experiment()`` rebuilds step/square/sine
-    commands from the sidecar; it is used here only if it reproduces the recorded ``u`` at every
-    sample and the record starts at t = 0 (the actuator at rest). ``None`` otherwise.
-    """
-    exp = recording.experiment()
-    if getattr(exp, "waveform", "samples") == "samples" or recording.t[0] != 0.0:
-        return None
-    u = recording.u
-    scale = max(float(np.max(np.abs(u))), 1e-300)
-    if not np.allclose(exp.command(recording.t), u, rtol=0.0, atol=1e-9 * scale):
-        return None
-    return exp
 
 
 def make_term(recording, likelihood, window, transient, dt, name=None, features=DEFAULT_FEATURES,

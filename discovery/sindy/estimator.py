@@ -369,7 +369,6 @@ class WeakSINDyActuator(BaseEstimator):
 
         designs = {key: design(thr) for key, thr in alternatives.items()}
         n = designs["full"][0].size
-        norm = float(designs["full"][0] @ designs["full"][0])
 
         def n_params(thr, n_cols):
             return n_cols + sum(1 for k in form.threshold_names() if thr.get(k, 0) > 0)

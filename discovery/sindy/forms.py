@@ -19,7 +19,6 @@ Written in the measured output ``delta`` with ``L = d^2/dt^2 + K2 d/dt + K3``:
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np

@@ -161,7 +161,6 @@ def harmonic_table(
     x = x - np.mean(x)
     n = x.size
     spectrum = 2.0 * np.abs(np.fft.rfft(x)) / n
-    bins = np.fft.rfftfreq(n, 1.0 / samples.rate)
     harmonic = np.arange(1, n_harmonics + 1)
     if harmonic[-1] * f0 >= 0.5 * samples.rate:
         raise ValueError(
