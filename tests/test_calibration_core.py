@@ -240,3 +240,11 @@ def test_open_loop_command_rebuilt_from_sidecar(tmp_path):
     ll_sampled = sampled.terms_[0].loglike(sets, np.full(2, 1e-4))
     assert ll_exact[0] > ll_exact[1]  # the truth wins with the exact command
     assert ll_sampled[1] > ll_sampled[0]  # the half-sample edge shift favours a longer delay
+
+
+def test_default_delay_prior_refuses_a_start_below_the_step():
+    from discovery.calibration import default_prior
+
+    assert default_prior("delay", 7e-3, dt=5e-4).low == pytest.approx(3.5e-3)
+    with pytest.raises(ValueError, match="delay starts at 0.00024 s.*declare one"):
+        default_prior("delay", 2.4e-4, dt=5e-4)

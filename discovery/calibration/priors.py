@@ -129,6 +129,11 @@ def default_prior(name, value, dt=None) -> Prior:
         return LogUniform(value / 5.0, value * 5.0)
     if name == "delay":
         low = value / 2.0 if dt is None else max(value / 2.0, 2.0 * dt)
+        if low >= 2.0 * value:
+            raise ValueError(
+                f"delay starts at {value:.3g} s, too close to the step (2 dt = {2.0 * dt:.3g} s) for a "
+                "default prior; declare one and a start inside it (e.g. --prior delay=0.001:0.01)"
+            )
         return Uniform(low, 2.0 * value)
     a, b = value / 2.0, value * 2.0
     return Uniform(min(a, b), max(a, b))
