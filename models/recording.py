@@ -34,11 +34,11 @@ DEFAULT_UNITS = {"t": "s", "u": "rad", "delta": "rad"}
 
 
 def _tool_version():
-    try:
-        from importlib.metadata import version
+    from importlib.metadata import PackageNotFoundError, version
 
+    try:
         return version("tvcid")
-    except Exception:  # not installed: running from a checkout
+    except PackageNotFoundError:  # not installed: running from a checkout
         return "unknown"
 
 

@@ -17,12 +17,13 @@ Deciding figures: ``ridge.png`` (samples in (f, zm) over the DF family), ``compa
 90 % widths, correlation matrices, convergence, WAIC and BIC. Ridge chains are run to a step cap and
 reported as ridges, not tested for convergence (MODELS.md).
 
-Usage: ``python -m studies.calibration_ridge [--quick] [--seed N] [--out DIR]``.
+Run by ``h1_deadzone_backlash`` (outputs under ``results/h1_deadzone_backlash/mcmc_ridge/``), or
+alone: ``python -m studies.calibration_ridge [--quick] [--seed N] [--out DIR]``.
 """
 from __future__ import annotations
 
-import argparse
 import json
+import sys
 import time
 import warnings
 from dataclasses import asdict, dataclass
@@ -33,6 +34,8 @@ from discovery.calibration import Calibration, compare, synthetic_recording
 from discovery.calibration.ridge import RidgeAnalysis, robust_amplitude
 from discovery.calibration.runner import ConvergenceWarning
 from models import CONTROLLER_A, CONTROLLER_B, M002, OpenLoop
+
+from .common import pyplot, study_main
 
 NAME = "calibration_ridge"
 PARAMS = ("backlash", "dead_zone", "delay")
@@ -63,11 +66,7 @@ def _data(config, seed, out):
 
 
 def run(config, seed, out_dir):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     data = _data(config, seed, out)
@@ -131,25 +130,20 @@ def run(config, seed, out_dir):
 
 
 def describe(summary):
-    print(f"{'data':<28} {'corr ln f,ln zm':>15} {'w90 f':>8} {'w90 zm':>8} {'w90 Td':>8} conv")
+    print(f"{'data':<28} {'corr ln f,ln zm':>15} {'w90 f':>8} {'w90 zm':>8} {'w90 Td':>8} conv  truth in 90 %")
     for r in summary["ridge"]["rows"]:
         w = r["width90_relative"]
+        outside = [n for n, ok in r["truth_inside_90"].items() if not ok]
         print(f"{r['label']:<28} {r['corr_log_pair']:15.3f} {w['backlash']:8.3g} "
-              f"{w['dead_zone']:8.3g} {w['delay']:8.3g} {r['converged']}")
+              f"{w['dead_zone']:8.3g} {w['delay']:8.3g} {r['converged']!s:5} "
+              f"{'all' if not outside else 'not ' + ', '.join(outside)}")
     for row in summary["comparison"]["table"]:
         print(f"{row['model']:<6} WAIC {row['waic']:.1f}  BIC {row['bic']:.1f}  "
               f"max loglike {row['max_loglike']:.1f}")
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=f"results/{NAME}")
-    args = ap.parse_args(argv)
-    summary = run(QUICK if args.quick else Config(), args.seed, Path(args.out))
-    describe(summary)
-    print(f"wrote {args.out}")
+    return study_main(sys.modules[__name__], argv)
 
 
 if __name__ == "__main__":

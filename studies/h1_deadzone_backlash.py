@@ -6,11 +6,14 @@ describing functions of the dead zone (eq. 3) and the backlash (eqs. 4-5) determ
 eqs. 13-18; the printed pair is f = 4.364e-4, zm = 1.2e-3. tvcid checks the equations as printed and
 corrected (three slips, MODELS.md), the exact harmonic balance, how far the DF prediction is from the
 simulated cycle, what the family members do when simulated, and where an MCMC posterior on one cycle
-lies relative to the family (the ridge; ``calibration_ridge`` runs the chains).
+lies relative to the family and how controller B and open-loop tests shrink it (the chains are
+run by ``calibration_ridge`` into ``mcmc_ridge/``).
 
 Deciding figure: ``family.png``: the corrected and printed families, the printed pair, and the cycle
-each family member produces in simulation; ``df_vs_simulation.png``. ``summary.json`` holds the
-numbers, including the exact solve's "no solution" statement.
+each family member produces in simulation; ``df_vs_simulation.png``; ``mcmc_ridge/ridge.png``:
+posterior samples of (f, zm) over the family, one cycle against controller B, open-loop tests and
+the waveform. ``summary.json`` holds the numbers, including the exact solve's "no solution"
+statement and the ridge's correlations and widths.
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ from discovery.describing import (
 )
 from models import CONTROLLER_A, CONTROLLER_B, M002, M001i, limit_cycle_features, simulate_batch
 
+from . import calibration_ridge
 from .common import pyplot, study_main
 
 NAME = "h1_deadzone_backlash"
@@ -41,9 +45,11 @@ class Config:
     family_widths: tuple = tuple(np.round(np.geomspace(5e-5, 1.2e-3, 15), 8))
     t_end: float = 40.0
     window: float = 20.0
+    ridge: calibration_ridge.Config = calibration_ridge.Config()
 
 
-QUICK = Config(family_widths=tuple(np.round(np.geomspace(5e-5, 1.2e-3, 5), 8)), t_end=15.0, window=8.0)
+QUICK = Config(family_widths=tuple(np.round(np.geomspace(5e-5, 1.2e-3, 5), 8)), t_end=15.0, window=8.0,
+               ridge=calibration_ridge.QUICK)
 
 
 def simulate_family(family, config):
@@ -85,6 +91,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
                                 "amplitude_error_pct": 100 * c.amplitude_error,
                                 "frequency_error_pct": 100 * c.frequency_error})
     simulated = simulate_family(corrected, config)
+    ridge = calibration_ridge.run(config.ridge, seed, out_dir / "mcmc_ridge")
     summary = {
         "study": NAME, "config": asdict(config), "seed": seed,
         "hwil_cycle": {"amplitude": amp, "frequency": freq},
@@ -96,6 +103,8 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
         "paper001_exact": paper001,
         "df_vs_simulation": comparisons,
         "family_simulated": simulated,
+        "mcmc_ridge": {"rows": ridge["ridge"]["rows"], "comparison": ridge["comparison"]["table"],
+                       "details": "mcmc_ridge/summary.json"},
         "paper_numbers": {
             "p002_backlash": {"value": f_at_printed_zm,
                               "how": "corrected paper 002 family at zm = 1.2e-3 (f as half width); "
@@ -167,6 +176,10 @@ def describe(summary):
     for r in summary["df_vs_simulation"]:
         print(f"{r['hypothesis']} {r['controller']}: DF {r['amplitude_error_pct']:+.1f} % amplitude, "
               f"{r['frequency_error_pct']:+.1f} % frequency")
+    for r in summary["mcmc_ridge"]["rows"]:
+        print(f"MCMC {r['label']}: corr(ln f, ln zm) {r['corr_log_pair']:.3f}, "
+              f"90 % widths f {r['width90_relative']['backlash']:.3g}, zm {r['width90_relative']['dead_zone']:.3g}, "
+              f"truth inside: {all(r['truth_inside_90'].values())}")
 
 
 def main(argv=None):

@@ -94,8 +94,9 @@ def write_report(results_dir, papers_path=PAPERS_JSON) -> Path:
         lines += ["", f"## {name}", "", module.__doc__.split("\n\n", 1)[1].strip(), ""]
         if "config" in summary:
             lines += [f"Config: `{json.dumps(summary['config'])}`, seed {summary.get('seed')}.", ""]
-        for png in sorted((results_dir / name).glob("*.png")):
-            lines.append(f"![{name}: {png.stem}]({name}/{png.name})")
+        for png in sorted((results_dir / name).rglob("*.png")):
+            rel = png.relative_to(results_dir).as_posix()
+            lines.append(f"![{name}: {png.relative_to(results_dir / name).with_suffix('').as_posix()}]({rel})")
             lines.append("")
     path = results_dir / "report.md"
     path.write_text("\n".join(lines) + "\n")

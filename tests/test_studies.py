@@ -105,6 +105,17 @@ def test_h1_family_and_exact_solve(quick_results):
     assert max(amps) / min(amps) > 1.2  # the DF family is not one cycle in simulation
 
 
+def test_h1_runs_the_mcmc_ridge_and_the_report_embeds_it(quick_results):
+    summary = _summary(quick_results, "h1_deadzone_backlash")
+    rows = {r["label"]: r for r in summary["mcmc_ridge"]["rows"]}
+    assert set(rows) >= {"A amplitude+frequency", "A+B+open loop waveform"}
+    # one cycle's amplitude and frequency: f and zm trade along the family
+    assert rows["A amplitude+frequency"]["corr_log_pair"] > 0.8
+    assert (quick_results / "h1_deadzone_backlash" / "mcmc_ridge" / "ridge.png").exists()
+    report = (quick_results / "report.md").read_text()
+    assert "(h1_deadzone_backlash/mcmc_ridge/ridge.png)" in report
+
+
 def test_h2_flags_the_seventh_harmonic_of_m001f_only(quick_results):
     summary = _summary(quick_results, "h2_friction_bandpass")
     tables = summary["harmonic_tables"]

@@ -121,15 +121,18 @@ class RidgeAnalysis:
             ia, ib = post.names.index(a), post.names.index(b)
             la = np.log(post.samples[:, ia])
             lb = np.log(post.samples[:, ib])
-            widths = {}
+            widths, inside = {}, {}
             for n in post.names:
                 lo, hi = post.interval(n, 0.90)
                 med = float(np.median(post.samples[:, post.names.index(n)]))
                 widths[n] = (hi - lo) / abs(med) if med else float("nan")
+                if self.truths and n in self.truths:
+                    inside[n] = bool(lo <= self.truths[n] <= hi)
             self.rows.append({
                 "label": label,
                 "corr_log_pair": float(np.corrcoef(la, lb)[0, 1]),
                 "width90_relative": widths,
+                "truth_inside_90": inside,
                 "correlation": post.summary()["correlation"],
                 "converged": bool(post.report.converged),
                 "n_over_tau": float(post.report.n_over_tau),
