@@ -28,7 +28,7 @@ from discovery.spectral import noise_floor
 from models.hypotheses import KICK_X0
 from models.recording import load_recording
 
-from .common import pyplot, study_main
+from .common import study_main, write_posterior_figures
 
 NAME = "discover"
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -88,22 +88,8 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
         "generating_structure": {k: truth.get(k) for k in ("dead_zone_position", "delay_position", "bandpass_gain")},
     }
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
-    plot(post, out_dir)
+    write_posterior_figures(post, out_dir, seed=seed)
     return summary
-
-
-def plot(post, out_dir):
-    plt = pyplot()
-    fig = post.plot_corner()
-    fig.savefig(out_dir / "corner.png", dpi=90)
-    plt.close(fig)
-    axes = post.plot_traces()
-    axes[0].figure.savefig(out_dir / "traces.png", dpi=90)
-    plt.close(axes[0].figure)
-    pred = post.predictive(n_draws=30)
-    ax = pred.plot()
-    ax.figure.savefig(out_dir / "predictive.png", dpi=100)
-    plt.close(ax.figure)
 
 
 def describe(summary):

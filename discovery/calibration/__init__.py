@@ -9,6 +9,7 @@
   predictive plots, ArviZ export, WAIC and BIC;
 * :mod:`.ridge` -- the dead-zone/backlash ridge of a single limit cycle and its shrinkage.
 """
+from .backend import CheckpointBackend
 from .calibration import Calibration, load_recordings
 from .likelihood import DEFAULT_FEATURES, LIKELIHOODS, cycle_features, estimate_noise
 from .priors import SIGMA, LogUniform, Prior, Uniform, default_prior, parse_prior
@@ -18,6 +19,7 @@ from .synthetic import synthetic_recording
 
 __all__ = [
     "Calibration",
+    "CheckpointBackend",
     "ConvergenceReport",
     "ConvergenceWarning",
     "DEFAULT_FEATURES",

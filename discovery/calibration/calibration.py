@@ -15,6 +15,7 @@ import numpy as np
 from models.hypotheses import ActuatorParams, hypothesis as get_hypothesis
 from models.recording import Recording, load_recording
 
+from .backend import CheckpointBackend
 from .likelihood import DEFAULT_FEATURES, LIKELIHOODS, make_term
 from .posterior import LogPosterior, check_parameter_names
 from .priors import SIGMA, Prior, default_prior
@@ -227,12 +228,13 @@ class Calibration:
         if self.optimize_start:
             from scipy.optimize import minimize
 
+            z0 = _profile_sigma(lp, z0, self.names_)
             res = minimize(lambda z: -lp(z) if np.isfinite(lp(z)) else 1e300, z0,
                            method="Nelder-Mead",
                            options={"maxfev": 150 * len(z0), "xatol": 1e-6, "fatol": 0.05,
                                     "initial_simplex": _simplex(z0, lp)})
             if np.isfinite(lp(res.x)):
-                z0 = res.x
+                z0 = _profile_sigma(lp, res.x, self.names_)
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
         scale = _axis_scales(lp, z0)
         ndim = len(z0)
@@ -259,22 +261,19 @@ class Calibration:
         self.setup(recordings)
         backend = None
         if self.backend is not None:
-            import emcee
-            import h5py
-
             path = Path(self.backend)
             path.parent.mkdir(parents=True, exist_ok=True)
             config = json.dumps(self._config(), sort_keys=True)
+            backend = CheckpointBackend(str(path), name="mcmc")
             if path.exists():
-                with h5py.File(path, "r") as f:
+                with backend.open("r") as f:
                     old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
                 if old is not None and old != config:
                     raise ValueError(
                         f"{path} holds a run with a different set-up; use another output "
                         f"(stored: {old}; now: {config})"
                     )
-            backend = emcee.backends.HDFBackend(str(path), name="mcmc")
-            with h5py.File(path, "a") as f:
+            with backend.open("a") as f:
                 g = f.require_group(_H5_GROUP)
                 g.attrs["config"] = config
         self.sampler_, self.report_ = run_ensemble(
@@ -285,6 +284,33 @@ class Calibration:
         )
         self.posterior_ = Posterior.from_sampler(self, self.sampler_, self.report_)
         return self
+
+
+def _profile_sigma(lp, z0, names):
+    """``z0`` with the noise sd at its conditional maximum given the other parameters.
+
+    The noise estimate from the record's floor is far below the misfit of a misspecified model
+    (a SINDy proposal): started there, the posterior is so sharp that the walkers' ball collapses
+    and the chain crawls for hundreds of steps (seen in the ``discover`` study).
+    """
+    if SIGMA not in names:
+        return z0
+    from scipy.optimize import minimize_scalar
+
+    j = list(names).index(SIGMA)
+    lo, hi = lp.priors[j].internal_bounds
+
+    def cost(v):
+        z = z0.copy()
+        z[j] = v
+        f = lp(z)
+        return -f if np.isfinite(f) else 1e300
+
+    res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4 * (hi - lo)})
+    if res.fun < cost(z0[j]):
+        z0 = z0.copy()
+        z0[j] = res.x
+    return z0
 
 
 def _simplex(z0, lp):

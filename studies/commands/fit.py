@@ -51,12 +51,9 @@ def register(sub):
 
 
 def run(args) -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from discovery.calibration import Calibration, ConvergenceWarning, parse_prior
+
+    from ..common import write_posterior_figures
 
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     priors = dict(parse_prior(text) for text in args.prior)
@@ -86,23 +83,11 @@ def run(args) -> int:
             pool.join()
     post = cal.posterior_
     post.to_json(out / "summary.json")
-    fig = post.plot_corner()
-    fig.savefig(out / "corner.png", dpi=90)
-    plt.close(fig)
-    axes = post.plot_traces()
-    axes[0].figure.savefig(out / "traces.png", dpi=90)
-    plt.close(axes[0].figure)
+    write_posterior_figures(post, out, seed=args.seed)
     try:  # ArviZ InferenceData (walkers as chains, natural units)
         post.to_inference_data().to_netcdf(str(out / "posterior.nc"), engine="h5netcdf")
     except Exception as exc:  # noqa: BLE001 - an optional export must not lose the run
         print(f"note: posterior.nc not written ({exc})", file=sys.stderr)
-    pred = post.predictive(n_draws=30, seed=args.seed)
-    fig, axs = plt.subplots(len(pred.curves), 1, figsize=(8, 2.8 * len(pred.curves)), squeeze=False)
-    for ax, name in zip(axs[:, 0], pred.curves):
-        pred.plot(name, ax=ax)
-    fig.tight_layout()
-    fig.savefig(out / "predictive.png", dpi=90)
-    plt.close(fig)
     rep = cal.report_
     summary = post.summary()
     print(f"{rep.iterations} steps ({rep.new_steps} new), tau max {max(rep.tau):.1f}, "
