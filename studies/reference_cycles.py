@@ -7,7 +7,8 @@ mu 4.5) the cycles MODELS.md lists.
 
 Deciding figure: ``cycles.png``, the last two seconds of each hypothesis' output at controllers A
 and B, with the HWIL amplitude marked; ``summary.json`` holds amplitude, frequency and the
-derivative's H7/H1 of every run beside the reference numbers.
+derivative's H7/H1 of every run beside the reference numbers, and how much holding the PD output
+at 200 Hz (the HWIL rate) changes each cycle.
 """
 from __future__ import annotations
 
@@ -79,8 +80,9 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
             keep = tr.t >= tr.t[-1] - 2.0
             traces[f"{name}_{label}_t"] = tr.t[keep]
             traces[f"{name}_{label}_delta"] = tr.delta[keep]
+    sampled = controller_sampling(rows, config, seed)
     summary = {"study": NAME, "config": asdict(config), "seed": seed, "hwil_controller_a": HWIL_A,
-               "runs": rows, "paper_numbers": paper_numbers(rows, config, seed)}
+               "runs": rows, "sampled_200hz": sampled, "paper_numbers": paper_numbers(rows, sampled)}
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     np.savez_compressed(out_dir / "cycles.npz", **traces)
@@ -88,14 +90,25 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
     return summary
 
 
-def paper_numbers(rows, config, seed):
+def controller_sampling(rows, config, seed):
+    """Each hypothesis at controller A with the PD output held at 200 Hz (paper 002's HWIL rate),
+    beside the continuous controller's cycle in ``rows``."""
+    sampled_a = ClosedLoop(CONTROLLER_A.kp, CONTROLLER_A.kd, CONTROLLER_A.mu, sample_rate=200.0)
+    continuous = {r["hypothesis"]: r for r in rows if r["controller"] == "A"}
+    out = []
+    for name in HYPOTHESES:
+        f = simulate(hypothesis(name, noise_seed=seed), sampled_a, config.t_end).features(window=config.window)
+        out.append({"hypothesis": name, "amplitude": f.amplitude, "frequency": f.frequency,
+                    "amplitude_raise_pct": 100 * (f.amplitude / continuous[name]["amplitude"] - 1),
+                    "frequency_change_pct": 100 * (f.frequency / continuous[name]["frequency"] - 1)})
+    return out
+
+
+def paper_numbers(rows, sampled):
     """The papers' printed numbers this study reproduces, keyed as in ``data/papers.json``."""
     run = {(r["hypothesis"], r["controller"]): r for r in rows}
     m002, m000, m001f = run[("M002", "A")], run[("M000", "A")], run[("M001f", "A")]
-    sampled = simulate(hypothesis("M002", noise_seed=seed),
-                       ClosedLoop(CONTROLLER_A.kp, CONTROLLER_A.kd, CONTROLLER_A.mu, sample_rate=200.0),
-                       config.t_end).features(window=config.window)
-    raise_pct = 100 * (sampled.amplitude / m002["amplitude"] - 1)
+    raise_pct = next(r["amplitude_raise_pct"] for r in sampled if r["hypothesis"] == "M002")
     a, _, c = M000().abc
     try:
         simulate(hypothesis("M000", **dict(zip(("gain", "damping", "stiffness"),
@@ -146,6 +159,9 @@ def describe(summary):
             ref = f"  ref {r['reference_amplitude']:.3e} at {r['reference_frequency']:.3f}"
         print(f"{r['hypothesis']:6s} {r['controller']}  {r['amplitude']:.3e} rad at "
               f"{r['frequency']:.3f} rad/s  H7/H1 {r['h7_over_h1_derivative']:.2f}{ref}")
+    for r in summary["sampled_200hz"]:
+        print(f"{r['hypothesis']:6s} A, PD held at 200 Hz: amplitude {r['amplitude_raise_pct']:+.1f} %, "
+              f"frequency {r['frequency_change_pct']:+.1f} %")
 
 
 def main(argv=None):
