@@ -237,12 +237,18 @@ class WaveformTerm(_ClosedLoopTerm):
 
 
 class FeatureTerm(_ClosedLoopTerm):
-    """Gaussian likelihood of the limit-cycle features of one closed-loop recording."""
+    """Gaussian likelihood of the limit-cycle features of one closed-loop recording.
+
+    Covariance: the features' spread under the recording's sensor noise (Monte Carlo over
+    ``n_mc`` noise draws), plus twice the cycle's own window-to-window wander measured on
+    ``n_segments`` pieces of the window (zero for a periodic cycle; for M000's quasi-periodic
+    cycle the frequency of a 10 s window wanders ~0.3 %), plus an optional relative ``floor``.
+    """
 
     kind = "features"
 
     def __init__(self, recording, window, transient, dt, name=None, features=DEFAULT_FEATURES,
-                 n_mc=64, rng=None, floor=0.0):
+                 n_mc=64, rng=None, floor=0.0, n_segments=4):
         super().__init__(recording, window, transient, dt, name=name)
         self.features = _check_feature_names(features)
         try:
@@ -255,6 +261,11 @@ class FeatureTerm(_ClosedLoopTerm):
             for _ in range(int(n_mc))
         ])
         cov = np.atleast_2d(np.cov(draws, rowvar=False))
+        # a cycle that is not periodic (the band-pass loop's unlocked 9-10 Hz oscillation) wanders
+        # from window to window beyond what sensor noise explains; the data's and the simulated
+        # window each wander by that much
+        self.wander_var = self._wander_variance(n_segments, n_mc, rng)
+        cov += np.diag(2.0 * self.wander_var)
         cov += np.diag((float(floor) * np.abs(self.observed)) ** 2)
         cov += np.diag(1e-12 * np.diag(cov) + 1e-300)
         self.cov_hat = cov
@@ -262,8 +273,44 @@ class FeatureTerm(_ClosedLoopTerm):
         self._whiten = np.linalg.inv(chol)  # applied without BLAS in loglike
         self._logdet = 2.0 * float(np.sum(np.log(np.diag(chol))))
 
+    def _wander_variance(self, n_segments, n_mc, rng):
+        """Variance of the window's features from the cycle's own wander (beyond sensor noise).
+
+        The window is cut into ``n_segments`` pieces (fewer if a piece would hold under three
+        periods). Where the spread of the pieces' features is
+        clearly (over 4x in variance) more than sensor noise makes it at that length (``n_mc``
+        noise draws spread over the pieces), the excess, divided by ``n_segments`` for the whole
+        window, is the wander; elsewhere zero. Zero too when a piece holds under two periods.
+        """
+        zero = np.zeros(len(self.features))
+        periods = (self.tau[-1] - self.tau[0]) * self.observed[self.features.index("frequency")] / (2 * math.pi) \
+            if "frequency" in self.features else np.inf
+        n_segments = int(min(n_segments, periods // 3))  # pieces of three periods at least
+        if n_segments < 2:
+            return zero
+        edges = np.linspace(self.tau[0], self.tau[-1], int(n_segments) + 1)
+        rows, noise = [], []
+        per_piece = max(2, int(n_mc) // int(n_segments))
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            sel = (self.tau >= lo) & (self.tau <= hi)
+            tau, d = self.tau[sel], self.data[sel]
+            try:
+                f = self._data_features_at(tau, d)
+                draws = [self._data_features_at(tau, d + self.sigma_hat * rng.standard_normal(d.size))
+                         for _ in range(per_piece)]
+            except InsufficientPeriodsError:
+                return zero
+            rows.append(f)
+            noise.append(np.var(draws, axis=0, ddof=1))
+        seg_var = np.var(np.asarray(rows), axis=0, ddof=1)
+        noise_var = np.mean(noise, axis=0)
+        return np.where(seg_var > 4.0 * noise_var, (seg_var - noise_var) / len(rows), 0.0)
+
     def _data_features(self, d):
-        f = limit_cycle_features(self.tau, d, n_harmonics=max(
+        return self._data_features_at(self.tau, d)
+
+    def _data_features_at(self, tau, d):
+        f = limit_cycle_features(tau, d, n_harmonics=max(
             [int(n[1:]) for n in self.features if n.startswith("H")] or [1]))
         out = []
         for n in self.features:
@@ -302,7 +349,8 @@ class FeatureTerm(_ClosedLoopTerm):
     def describe(self):
         d = super().describe()
         d.update({"features": list(self.features), "observed": self.observed.tolist(),
-                  "sd": np.sqrt(np.diag(self.cov_hat)).tolist()})
+                  "sd": np.sqrt(np.diag(self.cov_hat)).tolist(),
+                  "wander_sd": np.sqrt(self.wander_var).tolist()})
         return d
 
 
