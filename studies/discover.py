@@ -98,6 +98,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
         "candidates": candidates, "skipped_forms": dict(est.skipped_),
         "best_form": best.form, "best_params": params.to_dict(),
         "posterior": post.summary(),
+        "likelihood_terms": [term.describe() for term in cal.terms_],  # observed features, sd, wander
         "waveform_loglike_by_transient": waveform_loglike_by_transient(median, closed[0], config),
         "generating_values": {k: truth.get(k) for k in CALIBRATED if k in truth},
         "generating_structure": {k: truth.get(k) for k in ("dead_zone_position", "delay_position", "bandpass_gain")},
