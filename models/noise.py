@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 
-
 __all__ = ["band_limited_white_noise", "noise_std"]
 
 

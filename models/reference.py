@@ -8,7 +8,6 @@ periodic cycles; it is ~500x slower and meant for tests and the benchmark only.
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from .delay import DelayLine
@@ -17,7 +16,13 @@ from .hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 from .linear import bandpass_state_space
 from .noise import band_limited_white_noise
 from .nonlinearities import dead_zone, friction_offset, play_step, saturation
-from .simulate import DEFAULT_BOUND, DEFAULT_DT, SimulationDiverged, Trajectory, _check_grid
+from .simulate import (
+    DEFAULT_BOUND,
+    DEFAULT_DT,
+    SimulationDiverged,
+    Trajectory,
+    _check_grid,
+)
 
 __all__ = ["simulate_reference"]
 

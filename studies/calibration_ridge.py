@@ -29,7 +29,6 @@ import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-
 from discovery.calibration import Calibration, compare, synthetic_recording
 from discovery.calibration.ridge import RidgeAnalysis, robust_amplitude
 from discovery.calibration.runner import ConvergenceWarning

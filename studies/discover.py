@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.calibration import Calibration
+from discovery.calibration import Calibration, IllPosedLikelihoodWarning
 from discovery.calibration.priors import Uniform
 from discovery.calibration.runner import ConvergenceWarning
 from discovery.sindy import discover_structure
@@ -110,14 +110,19 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
 
 def waveform_loglike_by_transient(params, recording, config):
     """The phase-aligned waveform log-likelihood of ``params`` on ``recording`` after each of
-    ``config.transients`` (s); equal values mean the simulated cycle forgets its initial state."""
-    out = {}
+    ``config.transients`` (s), and the :class:`IllPosedLikelihoodWarning` the set-up gave if any;
+    equal values mean the simulated cycle forgets its initial state."""
+    loglike, warning = {}, None
     for transient in config.transients:
-        cal = Calibration(params, params=("dead_zone",), likelihood="waveform", window=config.window,
-                          transient=transient).setup([recording])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", IllPosedLikelihoodWarning)
+            cal = Calibration(params, params=("dead_zone",), likelihood="waveform",
+                              window=config.window, transient=transient).setup([recording])
         z = cal.log_posterior_.internal(np.array([[params.dead_zone]]))[0]
-        out[f"{transient:g} s"] = float(cal.log_posterior_(z))
-    return out
+        loglike[f"{transient:g} s"] = float(cal.log_posterior_(z))
+        ill = [str(w.message) for w in caught if issubclass(w.category, IllPosedLikelihoodWarning)]
+        warning = warning or (ill[0] if ill else None)
+    return {"loglike": loglike, "warning": warning}
 
 
 def describe(summary):
@@ -128,8 +133,11 @@ def describe(summary):
         truth = summary["generating_values"].get(name)
         print(f"  {name:10s} median {q['q50']:.4g}  90 % [{q['q05']:.4g}, {q['q95']:.4g}]"
               + (f"  (generating value {truth:.4g})" if truth is not None else ""))
+    by_transient = summary["waveform_loglike_by_transient"]
     print("waveform log-likelihood at the median by transient: "
-          + ", ".join(f"{k}: {v:.4g}" for k, v in summary["waveform_loglike_by_transient"].items()))
+          + ", ".join(f"{k}: {v:.4g}" for k, v in by_transient["loglike"].items()))
+    if by_transient["warning"]:
+        print(f"  {by_transient['warning']}")
 
 
 def main(argv=None):

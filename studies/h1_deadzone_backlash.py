@@ -30,7 +30,14 @@ from discovery.describing import (
     paper002_family,
     solve_backlash_and_dead_zone,
 )
-from models import CONTROLLER_A, CONTROLLER_B, M002, M001i, limit_cycle_features, simulate_batch
+from models import (
+    CONTROLLER_A,
+    CONTROLLER_B,
+    M002,
+    M001i,
+    limit_cycle_features,
+    simulate_batch,
+)
 
 from . import calibration_ridge
 from .common import pyplot, study_main

@@ -22,7 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.spectral import amplitude_spectrum, harmonic_table, lowpass_reconstruction
+from discovery.spectral import (
+    amplitude_spectrum,
+    harmonic_table,
+    lowpass_reconstruction,
+)
 from models import CONTROLLER_A, hypothesis, simulate
 from models.recording import load_recording
 

@@ -20,10 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
-from models import DelayPosition, InsufficientPeriodsError, hypothesis, limit_cycle_features, simulate_batch
-from models.recording import load_recording
-
 from discovery.spectral import lowpass_reconstruction, noise_floor
+from models import (
+    DelayPosition,
+    InsufficientPeriodsError,
+    hypothesis,
+    limit_cycle_features,
+    simulate_batch,
+)
+from models.recording import load_recording
 
 from .common import pyplot, study_main
 

@@ -5,6 +5,14 @@ Each study module exposes ``NAME``, a frozen ``Config``, ``QUICK`` and
 """
 from __future__ import annotations
 
-from . import discover, h1_deadzone_backlash, h2_friction_bandpass, h3_initial_conditions, h4_delay_position, h5_noise, reference_cycles
+from . import (
+    discover,
+    h1_deadzone_backlash,
+    h2_friction_bandpass,
+    h3_initial_conditions,
+    h4_delay_position,
+    h5_noise,
+    reference_cycles,
+)
 
 STUDIES = {module.NAME: module for module in (reference_cycles, h1_deadzone_backlash, h2_friction_bandpass, h3_initial_conditions, h4_delay_position, h5_noise, discover)}

@@ -1,8 +1,10 @@
-"""The features likelihood's covariance counts a cycle's own wander (M000) and not a periodic one's
-(M002), so a quasi-periodic record does not give a needle posterior."""
+"""A cycle that is not periodic (M000's band-pass loop): the features likelihood's covariance counts
+its wander (and not a periodic M002's), and the waveform likelihood warns."""
+import warnings
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from discovery.calibration import synthetic_recording
 from discovery.calibration.likelihood import FeatureTerm
@@ -26,3 +28,16 @@ def test_periodic_m002_cycle_has_no_wander(tmp_path):
     term = FeatureTerm(rec, 10.0, 6.0, 5e-4)
     assert np.all(term.wander_var == 0.0)
 
+
+
+def test_waveform_likelihood_warns_on_a_cycle_that_is_not_periodic(tmp_path):
+    from discovery.calibration import Calibration, IllPosedLikelihoodWarning
+
+    m000 = load_recording(DATA / "m000_closed_A.csv")
+    with pytest.warns(IllPosedLikelihoodWarning, match="m000_closed_A: the simulated cycle .* not periodic"):
+        Calibration("M000", params=("dead_zone",), likelihood="waveform").setup([m000])
+    rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 3, tmp_path / "m002.csv", keep_last=10.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", IllPosedLikelihoodWarning)
+        cal = Calibration("M002", params=("dead_zone",), likelihood="waveform").setup([rec])
+    assert cal.terms_[0].period_mismatch < 0.01 * cal.terms_[0].sigma_hat

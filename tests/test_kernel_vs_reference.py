@@ -2,7 +2,14 @@
 import numpy as np
 import pytest
 
-from models import CONTROLLER_A, ClosedLoop, OpenLoop, hypothesis, simulate, simulate_batch
+from models import (
+    CONTROLLER_A,
+    ClosedLoop,
+    OpenLoop,
+    hypothesis,
+    simulate,
+    simulate_batch,
+)
 from models.delay import DelayLine, transport_delay
 from models.reference import simulate_reference
 

@@ -5,7 +5,12 @@ import numpy as np
 import pytest
 
 from models import CONTROLLER_B, ActuatorParams, hypothesis, params_from_dict, simulate
-from models.recording import RecordingError, load_recording, recording_from_trajectory, save_recording
+from models.recording import (
+    RecordingError,
+    load_recording,
+    recording_from_trajectory,
+    save_recording,
+)
 
 
 def _write(tmp_path, text, meta={"kind": "open"}):

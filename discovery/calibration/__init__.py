@@ -11,7 +11,13 @@
 """
 from .backend import CheckpointBackend
 from .calibration import Calibration, load_recordings
-from .likelihood import DEFAULT_FEATURES, LIKELIHOODS, cycle_features, estimate_noise
+from .likelihood import (
+    DEFAULT_FEATURES,
+    LIKELIHOODS,
+    IllPosedLikelihoodWarning,
+    cycle_features,
+    estimate_noise,
+)
 from .priors import SIGMA, LogUniform, Prior, Uniform, default_prior, parse_prior
 from .results import ModelComparison, Posterior, PosteriorPredictive, compare
 from .runner import ConvergenceReport, ConvergenceWarning, default_moves, run_ensemble
@@ -23,6 +29,7 @@ __all__ = [
     "ConvergenceReport",
     "ConvergenceWarning",
     "DEFAULT_FEATURES",
+    "IllPosedLikelihoodWarning",
     "LIKELIHOODS",
     "LogUniform",
     "ModelComparison",

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models.hypotheses import ActuatorParams, hypothesis as get_hypothesis
+from models.hypotheses import ActuatorParams
+from models.hypotheses import hypothesis as get_hypothesis
 from models.recording import Recording, load_recording
 
 from .backend import CheckpointBackend

@@ -19,6 +19,7 @@ A diverging, invalid or non-oscillating simulation gets ``-inf``, never an excep
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -35,6 +36,7 @@ __all__ = [
     "estimate_noise",
     "cycle_features",
     "WaveformTerm",
+    "IllPosedLikelihoodWarning",
     "FeatureTerm",
     "make_term",
     "LIKELIHOODS",
@@ -178,10 +180,54 @@ class _ClosedLoopTerm:
         }
 
 
+class IllPosedLikelihoodWarning(UserWarning):
+    """The waveform likelihood of a record depends on more than the parameters."""
+
+
+#: A simulated cycle that differs from itself one period later by more than this many noise sds
+#: (rms) is not periodic; its phase-aligned waveform depends on the initial state.
+PERIOD_MISMATCH_LIMIT = 3.0
+
+
 class WaveformTerm(_ClosedLoopTerm):
-    """Phase-aligned output error of one closed-loop recording over its last ``window`` s."""
+    """Phase-aligned output error of one closed-loop recording over its last ``window`` s.
+
+    :meth:`setup` checks that the start parameters' simulated cycle is periodic and warns
+    (:class:`IllPosedLikelihoodWarning`) when it is not: a quasi-periodic cycle (M000's band-pass
+    loop) makes the likelihood a function of the initial state and the transient, and the
+    features likelihood is the one to use.
+    """
 
     kind = "waveform"
+
+    def setup(self, start_params, warm_start=True):
+        super().setup(start_params, warm_start)
+        self.period_mismatch = self.period_mismatch_of(start_params)
+        if self.period_mismatch > PERIOD_MISMATCH_LIMIT * self.sigma_hat:
+            warnings.warn(IllPosedLikelihoodWarning(
+                f"{self.name}: the simulated cycle of the start parameters is not periodic (one "
+                f"period later it differs by {self.period_mismatch:.3g} rad rms, "
+                f"{self.period_mismatch / self.sigma_hat:.0f}x the noise sd {self.sigma_hat:.3g} rad); "
+                "the waveform likelihood then depends on the initial state and the transient as "
+                "much as on the parameters. Use likelihood='features'."), stacklevel=2)
+        return self
+
+    def period_mismatch_of(self, params):
+        """RMS difference (rad) of ``params``' simulated cycle and itself one period later,
+        after the transient; 0 for a periodic cycle, NaN when it does not oscillate."""
+        delta, ok = self.simulate([params])
+        if not ok[0]:
+            return float("nan")
+        t = self.simulator.t
+        after = t >= self.transient
+        tm, m = t[after], delta[0, after]
+        c = _crossings(tm, m, float(np.mean(m)))
+        if c.size < 3:
+            return float("nan")
+        period = (c[-1] - c[0]) / (c.size - 1)
+        later = tm + period <= tm[-1]
+        shifted = np.interp(tm[later] + period, tm, m)
+        return float(np.sqrt(np.mean((shifted - m[later]) ** 2)))
 
     def align(self, delta_row):
         """Model on the data's window, shifted to it; ``None`` if it does not oscillate."""

@@ -229,13 +229,17 @@ class Posterior:
         curves = {}
         for term in lp.terms:
             if getattr(term, "kind", "") == "features":
-                from .likelihood import WaveformTerm
+                import warnings
+
+                from .likelihood import IllPosedLikelihoodWarning, WaveformTerm
 
                 wt = WaveformTerm(term.recording, term.window, term.transient, term.dt,
                                   name=term.name)
-                wt.setup(lp.base.replace(**{n: v for n, v in self.calibration.start_.items()
-                                            if n != SIGMA}),
-                         warm_start=term.warm_start is not None)
+                with warnings.catch_warnings():  # only drawn here, not a likelihood
+                    warnings.simplefilter("ignore", IllPosedLikelihoodWarning)
+                    wt.setup(lp.base.replace(**{n: v for n, v in self.calibration.start_.items()
+                                                if n != SIGMA}),
+                             warm_start=term.warm_start is not None)
                 pred = wt.predict(sets_ok)
             else:
                 pred = term.predict(sets_ok)

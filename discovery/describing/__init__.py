@@ -19,7 +19,13 @@ The approximation is honest about its limits: for M002 at controller A it predic
 where the simulator gives 8.60 (:data:`.actuator_loop.DF_CAVEAT`), and the exact inverse has no
 solution at 8.57 rad/s with a 7 ms output delay.
 """
-from .actuator_loop import BANDPASS_CAVEAT, DF_CAVEAT, ActuatorDescribingLoop, predict_limit_cycles, vehicle_controller_response
+from .actuator_loop import (
+    BANDPASS_CAVEAT,
+    DF_CAVEAT,
+    ActuatorDescribingLoop,
+    predict_limit_cycles,
+    vehicle_controller_response,
+)
 from .analytic import (
     backlash_df,
     dead_zone_df,
@@ -29,7 +35,15 @@ from .analytic import (
     relay_df,
     saturation_df,
 )
-from .elements import Chain, DeadZone, FrictionOffset, Gain, PlayOperator, Relay, Saturation
+from .elements import (
+    Chain,
+    DeadZone,
+    FrictionOffset,
+    Gain,
+    PlayOperator,
+    Relay,
+    Saturation,
+)
 from .errors import (
     AmplitudeBelowDeadZoneError,
     DescribingFunctionError,

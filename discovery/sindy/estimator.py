@@ -25,7 +25,6 @@ import pysindy as ps
 from scipy.optimize import minimize
 from sklearn.base import BaseEstimator
 
-
 from .candidates import Candidate
 from .forms import MOVING_FRACTION, TARGET, form_by_name
 from .simulation import load_recordings, score_on_recordings

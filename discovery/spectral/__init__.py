@@ -10,7 +10,11 @@ Every function takes ``(t, delta)`` arrays or a :class:`models.recording.Recordi
 from .amplitude import AmplitudeSpectrum, amplitude_spectrum
 from .harmonics import HarmonicTable, harmonic_table
 from .noise_floor import NoiseFloor, model_noise_psd, noise_floor
-from .reconstruction import DEFAULT_CUTOFF_HZ, LowPassReconstruction, lowpass_reconstruction
+from .reconstruction import (
+    DEFAULT_CUTOFF_HZ,
+    LowPassReconstruction,
+    lowpass_reconstruction,
+)
 from .samples import SpectralInputError, UniformSamples, as_uniform_samples
 
 __all__ = [

@@ -24,7 +24,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.features import CROSSING_HYSTERESIS, InsufficientPeriodsError, upward_mean_crossings
+from models.features import (
+    CROSSING_HYSTERESIS,
+    InsufficientPeriodsError,
+    upward_mean_crossings,
+)
 
 from .samples import as_uniform_samples
 
