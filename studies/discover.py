@@ -89,7 +89,8 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
                           backend=chain).fit(closed)
     mcmc_time = time.perf_counter() - t0
     post = cal.posterior_
-    median = params.replace(**{n: post.summary()["parameters"][n]["q50"] for n in CALIBRATED})
+    posterior = post.summary()
+    median = params.replace(**{n: posterior["parameters"][n]["q50"] for n in CALIBRATED})
     truth = closed[0].meta.get("parameters", {})
     summary = {
         "study": NAME, "config": asdict(config), "seed": seed,
@@ -97,7 +98,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
         "sindy_seconds": sindy_time, "mcmc_seconds": mcmc_time,
         "candidates": candidates, "skipped_forms": dict(est.skipped_),
         "best_form": best.form, "best_params": params.to_dict(),
-        "posterior": post.summary(),
+        "posterior": posterior,
         "likelihood_terms": [term.describe() for term in cal.terms_],  # observed features, sd, wander
         "waveform_loglike_by_transient": waveform_loglike_by_transient(median, closed[0], config),
         "generating_values": {k: truth.get(k) for k in CALIBRATED if k in truth},

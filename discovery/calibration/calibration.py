@@ -230,7 +230,7 @@ class Calibration:
             from scipy.optimize import minimize
 
             z0 = _profile_sigma(lp, z0, self.names_)
-            res = minimize(lambda z: -lp(z) if np.isfinite(lp(z)) else 1e300, z0,
+            res = minimize(_cost(lp), z0,
                            method="Nelder-Mead",
                            options={"maxfev": 150 * len(z0), "xatol": 1e-6, "fatol": 0.05,
                                     "initial_simplex": _simplex(z0, lp)})
@@ -300,18 +300,29 @@ def _profile_sigma(lp, z0, names):
 
     j = list(names).index(SIGMA)
     lo, hi = lp.priors[j].internal_bounds
+    full_cost = _cost(lp)
 
     def cost(v):
         z = z0.copy()
         z[j] = v
-        f = lp(z)
-        return -f if np.isfinite(f) else 1e300
+        return full_cost(z)
 
     res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4 * (hi - lo)})
     if res.fun < cost(z0[j]):
         z0 = z0.copy()
         z0[j] = res.x
     return z0
+
+
+def _cost(lp):
+    """``-lp(z)`` for the optimisers, one evaluation per call; a huge finite value where ``lp``
+    is ``-inf`` (Nelder-Mead and the bounded scalar search need finite costs)."""
+
+    def cost(z):
+        f = lp(z)
+        return -f if np.isfinite(f) else 1e300
+
+    return cost
 
 
 def _simplex(z0, lp):

@@ -288,7 +288,7 @@ class FeatureTerm(_ClosedLoopTerm):
     Covariance: the features' spread under the recording's sensor noise (Monte Carlo over
     ``n_mc`` noise draws), plus twice the cycle's own window-to-window wander measured on
     ``n_segments`` pieces of the window (zero for a periodic cycle; for M000's quasi-periodic
-    cycle the frequency of a 10 s window wanders ~0.3 %), plus an optional relative ``floor``.
+    cycle the frequency of a 10 s window wanders ~0.4 %), plus an optional relative ``floor``.
     """
 
     kind = "features"
@@ -323,20 +323,21 @@ class FeatureTerm(_ClosedLoopTerm):
         """Variance of the window's features from the cycle's own wander (beyond sensor noise).
 
         The window is cut into ``n_segments`` pieces (fewer if a piece would hold under three
-        periods). Where the spread of the pieces' features is
-        clearly (over 4x in variance) more than sensor noise makes it at that length (``n_mc``
-        noise draws spread over the pieces), the excess, divided by ``n_segments`` for the whole
-        window, is the wander; elsewhere zero. Zero too when a piece holds under two periods.
+        periods). Where the spread of the pieces' features is clearly (over 4x in variance) more
+        than sensor noise makes it at that length (``n_mc`` noise draws spread over the pieces),
+        the excess, divided by the number of pieces for the whole window, is the wander;
+        elsewhere zero. Zero too when a piece holds under two periods.
         """
         zero = np.zeros(len(self.features))
-        periods = (self.tau[-1] - self.tau[0]) * self.observed[self.features.index("frequency")] / (2 * math.pi) \
-            if "frequency" in self.features else np.inf
-        n_segments = int(min(n_segments, periods // 3))  # pieces of three periods at least
+        if "frequency" in self.features:
+            omega = self.observed[self.features.index("frequency")]
+            n_segments = min(n_segments, (self.tau[-1] - self.tau[0]) * omega / (2 * math.pi) // 3)
+        n_segments = int(n_segments)
         if n_segments < 2:
             return zero
-        edges = np.linspace(self.tau[0], self.tau[-1], int(n_segments) + 1)
+        edges = np.linspace(self.tau[0], self.tau[-1], n_segments + 1)
         rows, noise = [], []
-        per_piece = max(2, int(n_mc) // int(n_segments))
+        per_piece = max(2, int(n_mc) // n_segments)
         for lo, hi in zip(edges[:-1], edges[1:]):
             sel = (self.tau >= lo) & (self.tau <= hi)
             tau, d = self.tau[sel], self.data[sel]
