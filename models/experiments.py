@@ -82,7 +82,7 @@ CONTROLLER_A = ClosedLoop(kp=5.84, kd=0.062, mu=12.3)
 #: Paper 002 section 3, Fig. 3.
 CONTROLLER_B = ClosedLoop(kp=9.8, kd=0.06, mu=4.5)
 
-OPEN_LOOP_WAVEFORMS = ("step", "square", "sine", "samples")
+OPEN_LOOP_WAVEFORMS = ("step", "square", "sine", "samples", "piecewise")
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,7 +94,7 @@ class OpenLoop:
     Parameters
     ----------
     waveform : str
-        One of ``step``, ``square``, ``sine``, ``samples``.
+        One of ``step``, ``square``, ``sine``, ``samples``, ``piecewise``.
     amplitude : float
         Command amplitude (rad).
     frequency : float
@@ -105,6 +105,8 @@ class OpenLoop:
         Constant added to the command (rad).
     t_samples, u_samples : numpy.ndarray
         A sampled command for ``waveform='samples'``, linearly interpolated and held after its end.
+        For ``waveform='piecewise'``: the edge times (n) and the levels (n + 1) before, between
+        and after them.
     from_rest : bool
         Start the actuator at rest (``y = y' = x = 0``), as a bench test does, whatever initial
         conditions the hypothesis carries for its closed-loop runs. Default True.
@@ -131,6 +133,17 @@ class OpenLoop:
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
         if self.waveform in ("square", "sine") and self.frequency <= 0:
             raise ValueError(f"frequency must be > 0 for a {self.waveform} command")
+        if self.waveform == "piecewise":
+            t = np.atleast_1d(np.asarray(self.t_samples, dtype=float))
+            u = np.atleast_1d(np.asarray(self.u_samples, dtype=float))
+            if t.ndim != 1 or u.shape != (t.size + 1,):
+                raise ValueError("a piecewise command needs n edge times and n + 1 levels")
+            if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
+                raise ValueError("the piecewise command holds NaN or infinite values")
+            if np.any(np.diff(t) <= 0):
+                raise ValueError("the edge times of a piecewise command must be strictly increasing")
+            object.__setattr__(self, "t_samples", t)
+            object.__setattr__(self, "u_samples", u)
         if self.waveform == "samples":
             t = np.asarray(self.t_samples, dtype=float)
             u = np.asarray(self.u_samples, dtype=float)
@@ -163,6 +176,17 @@ class OpenLoop:
         """Any sampled command, linearly interpolated (held constant after the last sample)."""
         return cls("samples", t_samples=t, u_samples=u)
 
+    @classmethod
+    def piecewise(cls, edges, levels):
+        """A piecewise-constant command: ``levels[i]`` from ``edges[i-1]`` to ``edges[i]``.
+
+        ``u = levels[0]`` before the first edge and ``levels[-1]`` after the last; at an edge time
+        the new level holds (as :meth:`square` and :meth:`step`). Square waves of any phase, steps
+        and staircases known only as samples are replayed this way
+        (:func:`models.commands.command_from_samples`), with no ramp between samples.
+        """
+        return cls("piecewise", t_samples=edges, u_samples=levels)
+
     def command(self, t):
         """The command ``u(t)`` (rad) at the times ``t`` (s)."""
         t = np.asarray(t, dtype=float)
@@ -173,6 +197,8 @@ class OpenLoop:
             return np.where(phase < 0.5, self.amplitude, -self.amplitude) + self.offset
         if self.waveform == "sine":
             return self.amplitude * np.sin(2 * np.pi * self.frequency * t) + self.offset
+        if self.waveform == "piecewise":
+            return self.u_samples[np.searchsorted(self.t_samples, t, side="right")]
         return np.interp(t, self.t_samples, self.u_samples)
 
     def to_dict(self) -> dict:

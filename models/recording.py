@@ -93,9 +93,11 @@ class Recording:
         the sidecar names one (``waveform`` step/square/sine, as tvcid writes them), the record
         starts at t = 0 and the command reproduces every sample of ``u``; square edges then stay
         where they were, where replaying the samples linearly puts each edge half a sample early
-        (0.5 ms at 1 kHz, enough to bias an identified delay). Otherwise an ``OpenLoop`` replaying
-        the sampled ``u``.
+        (0.5 ms at 1 kHz, enough to bias an identified delay). Otherwise the command replayed from
+        its samples as what it is (:func:`models.commands.command_from_samples`: a sampled square
+        wave as a square wave with sub-sample edges, a smooth command interpolated).
         """
+        from .commands import command_from_samples
         from .experiments import OpenLoop
 
         if self.kind == "closed":
@@ -115,7 +117,7 @@ class Recording:
             scale = max(float(np.max(np.abs(self.u))), 1e-300)
             if exact is not None and np.allclose(exact.command(self.t), self.u, rtol=0.0, atol=1e-9 * scale):
                 return exact
-        return OpenLoop.from_samples(self.t - self.t[0], self.u)
+        return command_from_samples(self.t, self.u)
 
     def window(self, seconds):
         """``(t, delta)`` over the last ``seconds`` (all of it for ``None``)."""

@@ -1,0 +1,338 @@
+"""What a simulation is compared with, one recording each: limit-cycle features or output error.
+
+Every target turns a batch of simulated parameter sets into residuals in units of what the
+recording can resolve, scaled so that each recording's cost (the sum of its squared residuals) is
+their mean: about 1 for the generating model, whatever the experiment design (issue 11, item 2).
+Each recording then counts alike, however many samples it holds.
+
+* :class:`CycleTarget` (closed loop): the frequency (unit: ``FREQUENCY_TOLERANCE`` = 0.1 %) and the
+  complex harmonics 1..``N_HARMONICS`` of ``delta`` with their phases referred to the fundamental's
+  (unit: 0.3 % of the fundamental's amplitude), i.e. the cycle's waveform without its arbitrary phase;
+  each unit widened by the record's own wander between pieces of ``PERIODS`` periods (a cycle that
+  is not periodic, as the band-pass loop's, differs from piece to piece).
+  The frequency comes from mean crossings as MODELS.md measures it; the harmonics are Fourier
+  coefficients over whole periods. They need no phase alignment of the simulated cycle with the
+  record, and they stay defined for a cycle that is not periodic (the band-pass loop's), where a
+  phase-aligned waveform is not. A constant sensor offset only moves the mean, which is not
+  compared.
+* :class:`OutputTarget` (open loop): the output error of a simulation from rest with the replayed
+  command (:meth:`models.recording.Recording.experiment`), the constant sensor offset profiled out
+  (its least-squares value is the mean residual); unit: the sensor noise estimated from the record
+  (:func:`discovery.calibration.likelihood.estimate_noise`) with a floor of 0.1 % of its rms.
+
+A run that diverges or stops oscillating gets ``PENALTY`` residuals, never an exception.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from discovery.calibration.fastsim import BatchSimulator, output_rate_for
+from discovery.calibration.likelihood import estimate_noise
+from models.features import CROSSING_HYSTERESIS, upward_mean_crossings
+
+__all__ = [
+    "CycleTarget",
+    "OutputTarget",
+    "make_target",
+    "NoCycleError",
+    "N_HARMONICS",
+    "FREQUENCY_TOLERANCE",
+    "HARMONIC_TOLERANCE",
+    "OUTPUT_TOLERANCE",
+    "PENALTY",
+]
+
+N_HARMONICS = 7
+#: Relative errors that count as one unit of residual.
+FREQUENCY_TOLERANCE = 0.001
+HARMONIC_TOLERANCE = 0.003
+#: Floor of the open-loop output error's unit, relative to the record's rms: the RK4 error of the
+#: simulations' step (5e-4 s) against a fine one on a square-wave response (0.04-0.1 %).
+OUTPUT_TOLERANCE = 0.001
+#: Residual of every component of a run that diverged or does not oscillate.
+PENALTY = 1e4
+#: A simulated cycle under this fraction of the recorded amplitude does not count as oscillating.
+MIN_AMPLITUDE_RATIO = 0.2
+#: Seconds a closed-loop simulation runs before its features are taken, and periods measured.
+TRANSIENT = 4.0
+PERIODS = 6
+#: Output rate (Hz) of the closed-loop simulations: 35x the 7th harmonic of a 2 Hz cycle.
+SIMULATED_RATE = 500.0
+#: Relative peak-to-peak change that ends a record's stationary tail.
+TAIL_TOLERANCE = 0.15
+
+
+class NoCycleError(ValueError):
+    """A closed-loop recording shows no limit cycle (fewer than two whole periods)."""
+
+
+def phase_free_harmonics(t, x, omega, n_harmonics=N_HARMONICS):
+    """Complex harmonics 1..n of ``x`` at ``omega`` over ``t``, phases referred to the first's.
+
+    ``c_k exp(-i k arg c_1)``: invariant to a time shift of the cycle.
+    """
+    z = np.exp(-1j * omega * (t - t[0]))
+    xc = x - np.mean(x)
+    c = np.empty(n_harmonics, dtype=complex)
+    zk = z.copy()
+    for j in range(n_harmonics):  # powers of z: one complex exponential per sample, not n
+        c[j] = 2.0 / t.size * np.dot(zk, xc)
+        zk *= z
+    k = np.arange(1, n_harmonics + 1)
+    rot = np.exp(-1j * np.angle(c[0]))
+    return c * rot**k
+
+
+def _crossings(t, x, level):
+    i = np.flatnonzero((x[:-1] < level) & (x[1:] >= level))
+    return t[i] + (level - x[i]) / (x[i + 1] - x[i]) * (t[i + 1] - t[i])
+
+
+def stationary_tail(t, d, name="recording"):
+    """The end of a record over which the cycle's amplitude is settled.
+
+    A record may start with a transient or on another attractor (paper 000's small cycle: the
+    bundled controller-B record holds a 2.6e-4 rad cycle for 14 s before the large one). Periods
+    are taken between upward mean crossings of the last half; walking back from the end, the tail
+    keeps every period whose peak-to-peak amplitude is within ``TAIL_TOLERANCE`` of the median of
+    the last five.
+
+    Returns
+    -------
+    t, d : ndarray
+        The tail.
+    ups : ndarray
+        Upward mean crossings in it (at least three).
+
+    Raises
+    ------
+    NoCycleError
+        When the record's end holds fewer than two whole periods.
+    """
+    half = t >= 0.5 * (t[0] + t[-1])
+    amp = 0.5 * float(np.ptp(d[half]))
+    level = float(np.mean(d[half]))
+    ups = upward_mean_crossings(t, d, level, CROSSING_HYSTERESIS * amp) if amp > 0 else np.zeros(0)
+    if ups.size < 3:
+        raise NoCycleError(
+            f"{name}: no limit cycle in the record ({max(ups.size - 1, 0)} whole periods in its "
+            "second half; at least two are needed)")
+    idx = np.searchsorted(t, ups)
+    p2p = np.array([np.ptp(d[a:b]) for a, b in zip(idx[:-1], idx[1:])])
+    ref = float(np.median(p2p[-5:]))
+    first = p2p.size - 1
+    while first > 0 and abs(p2p[first - 1] / ref - 1.0) <= TAIL_TOLERANCE:
+        first -= 1
+    ups = ups[first:]
+    if ups.size < 3:
+        raise NoCycleError(f"{name}: the cycle's amplitude never settles (two whole periods alike "
+                           "are needed at the end of the record)")
+    sel = t >= ups[0] - 0.5 * (ups[1] - ups[0])
+    return t[sel], d[sel], ups
+
+
+def cycle_of(t, x):
+    """``(omega, harmonics, amplitude)`` of a noise-free simulated cycle, or ``None``."""
+    level = float(np.mean(x))
+    c = _crossings(t, x, level)
+    if c.size < 3:
+        return None
+    omega = 2 * math.pi * (c.size - 1) / (c[-1] - c[0])
+    sel = (t >= c[0]) & (t < c[-1])
+    return omega, phase_free_harmonics(t[sel], x[sel], omega), 0.5 * float(np.ptp(x))
+
+
+class CycleTarget:
+    """Frequency and phase-free harmonics of one closed-loop recording.
+
+    Parameters
+    ----------
+    recording : models.recording.Recording
+    dt : float
+        RK4 step of the simulations (s).
+    keep : float
+        Fraction of the record (its end) whose features are compared; the start may hold a
+        transient.
+    """
+
+    kind = "closed"
+
+    def __init__(self, recording, dt):
+        self.recording = recording
+        self.name = recording.path.stem if recording.path else "recording"
+        t_all, d_all = recording.t - recording.t[0], recording.delta
+        t, d, ups = stationary_tail(t_all, d_all, self.name)
+        self.tail_start = float(t[0])
+        self.omega = 2 * math.pi * (len(ups) - 1) / (ups[-1] - ups[0])
+        w = (t >= ups[0]) & (t < ups[-1])
+        self.harmonics = phase_free_harmonics(t[w], d[w], self.omega)
+        self.mean = float(np.mean(d[w]))
+        self.amplitude = 0.5 * float(np.ptp(d))
+        self.scale = abs(self.harmonics[0])
+        self.period = 2 * math.pi / self.omega
+        self.dt = float(dt)
+        self.initial = self._cycle_state(recording, t, d, ups)
+        exp = recording.experiment()
+        self.experiment = dataclasses.replace(exp, theta0=self.initial["theta0"],
+                                              thetad0=self.initial["thetad0"])
+        self.t_end = TRANSIENT + PERIODS * self.period * 1.3 + 0.2
+        self.simulator = BatchSimulator(self.experiment, self.t_end, self.dt,
+                                        rate=output_rate_for(self.dt, SIMULATED_RATE))
+        self.n_residuals = 1 + 2 * N_HARMONICS
+        self.wander = self._wander(t, d, np.asarray(ups))
+        floor = np.concatenate([[FREQUENCY_TOLERANCE * self.omega],
+                                np.full(2 * N_HARMONICS, HARMONIC_TOLERANCE * self.scale)])
+        #: one unit of each residual: the floor, widened by the cycle's own wander
+        self.unit = np.sqrt(floor**2 + self.wander**2)
+
+    def _features(self, omega, harmonics):
+        return np.concatenate([[omega], harmonics.real, harmonics.imag])
+
+    def _wander(self, t, d, ups):
+        """Spread of the features between pieces of ``PERIODS`` periods of the record.
+
+        A periodic cycle gives pieces alike (zero up to noise); the band-pass loop's cycle, not
+        locked to its 9-10 Hz oscillation, wanders from piece to piece, and a simulated piece of
+        the same length wanders as much, so that spread widens the residual's unit.
+        """
+        n_pieces = (ups.size - 1) // PERIODS
+        if n_pieces < 2:
+            return np.zeros(self.n_residuals)
+        rows = []
+        for j in range(n_pieces):
+            a, b = ups[j * PERIODS], ups[(j + 1) * PERIODS]
+            sel = (t >= a) & (t < b)
+            omega = 2 * math.pi * PERIODS / (b - a)
+            rows.append(self._features(omega, phase_free_harmonics(t[sel], d[sel], omega)))
+        return np.std(np.asarray(rows), axis=0, ddof=1)
+
+    def _cycle_state(self, recording, t, d, ups):
+        """The loop's state at an upward mean crossing of the recorded cycle.
+
+        From the cycle's Fourier series ``delta = mean + sum Re(a_k e^{i k w t})`` (whole periods
+        of the tail): ``x = delta``, ``y = delta'`` (the integrator's input), and the vehicle's
+        ``theta' = mu * integral(delta)`` and ``theta = -u/Kp - Kd theta'`` (the controller's
+        law, with the recorded command's mean). Started there, a simulation of a model close to
+        the data is close to its cycle: the slow growth of the cycle from a bare kick (over 10 s
+        at controller B) is skipped.
+        """
+        exp = recording.experiment()
+        w = (t >= ups[0]) & (t < ups[-1])
+        k = np.arange(1, N_HARMONICS + 1)
+        basis = np.exp(-1j * np.outer(k, self.omega * (t[w] - ups[0])))
+        a = 2.0 / w.sum() * (basis @ (d[w] - np.mean(d[w])))  # complex amplitudes at phase 0
+        kw = k * self.omega
+        x = float(np.sum(a.real))
+        y = float(np.sum((1j * kw * a).real))
+        thetad = float(exp.mu * np.sum((a / (1j * kw)).real))
+        u = recording.u[recording.t - recording.t[0] >= t[0]]
+        theta = float(-np.mean(u) / exp.kp - exp.kd * thetad) if exp.kp != 0 else 0.0
+        return {"theta0": theta, "thetad0": thetad, "x0": x, "y0": y}
+
+    def initial_conditions(self):
+        """Actuator initial conditions (fields of ActuatorParams) of every simulation."""
+        return {"x0": self.initial["x0"], "y0": self.initial["y0"], "yd0": 0.0}
+
+    def residuals_of_runs(self, delta, ok):
+        """Residuals ``(n, n_residuals)`` of simulated outputs ``delta`` (rows) on this target."""
+        t = self.simulator.t
+        after = t >= TRANSIENT
+        out = np.full((delta.shape[0], self.n_residuals), PENALTY)
+        for i in np.flatnonzero(ok):
+            m = delta[i, after]
+            if 0.5 * np.ptp(m) < MIN_AMPLITUDE_RATIO * self.amplitude:
+                continue
+            cyc = cycle_of(t[after], m)
+            if cyc is None:
+                continue
+            omega, harm, _ = cyc
+            out[i] = (self._features(omega, harm) - self._features(self.omega, self.harmonics)) / self.unit
+        out /= math.sqrt(self.n_residuals)
+        return out
+
+    def residuals(self, param_sets):
+        delta, ok = self.simulator.run(param_sets)
+        return self.residuals_of_runs(delta, ok)
+
+    def offset(self, param_sets):
+        """Mean of the record minus the simulated cycle's mean (a sensor offset), per set."""
+        delta, ok = self.simulator.run(param_sets)
+        after = self.simulator.t >= TRANSIENT
+        return np.where(ok, self.mean - np.nanmean(delta[:, after], axis=1), np.nan)
+
+    def describe(self):
+        return {"name": self.name, "kind": "closed", "experiment": self.experiment.to_dict(),
+                "frequency": self.omega, "amplitude": self.amplitude,
+                "H1": float(abs(self.harmonics[0])), "samples": int(self.recording.t.size),
+                "sample_rate": float(self.recording.sample_rate)}
+
+
+class OutputTarget:
+    """Output error of one open-loop recording, sensor offset profiled out."""
+
+    kind = "open"
+
+    def __init__(self, recording, dt):
+        self.recording = recording
+        self.name = recording.path.stem if recording.path else "recording"
+        self.experiment = recording.experiment()
+        self.tau = recording.t - recording.t[0]
+        self.data = recording.delta
+        self.dt = float(dt)
+        self.rms = float(np.std(self.data))
+        if not self.rms > 0:
+            raise ValueError(f"{self.name}: the output never moves (constant delta)")
+        self.simulator = BatchSimulator(
+            self.experiment, float(self.tau[-1]), self.dt,
+            rate=output_rate_for(self.dt, float(recording.sample_rate)))
+        self.n_residuals = self.tau.size
+        self.noise_sd = estimate_noise(self.data)
+        self.unit = math.hypot(self.noise_sd, OUTPUT_TOLERANCE * self.rms)
+        self._norm = 1.0 / (self.unit * math.sqrt(self.tau.size))
+
+    def initial_conditions(self):
+        return None  # from rest (OpenLoop.from_rest)
+
+    def _model(self, delta, ok):
+        model = np.full((delta.shape[0], self.tau.size), np.nan)
+        for i in np.flatnonzero(ok):
+            model[i] = np.interp(self.tau, self.simulator.t, delta[i])
+        return model
+
+    def residuals_of_runs(self, delta, ok):
+        res = self.data[None, :] - self._model(delta, ok)
+        res = res - np.mean(res, axis=1, keepdims=True)
+        out = res * self._norm
+        out[~np.all(np.isfinite(out), axis=1)] = PENALTY / math.sqrt(self.tau.size)
+        return out
+
+    def residuals(self, param_sets):
+        delta, ok = self.simulator.run(param_sets)
+        return self.residuals_of_runs(delta, ok)
+
+    def offset(self, param_sets):
+        delta, ok = self.simulator.run(param_sets)
+        return np.mean(self.data[None, :] - self._model(delta, ok), axis=1)
+
+    def noise(self, params):
+        """RMS of the output error at ``params`` (rad): the sensor noise if the model is right."""
+        res = self.data - self._model(*self.simulator.run([params]))[0]
+        return float(np.std(res))
+
+    def describe(self):
+        exp = self.experiment
+        return {"name": self.name, "kind": "open", "samples": int(self.tau.size),
+                "duration": float(self.tau[-1]), "sample_rate": float(self.recording.sample_rate),
+                "command": exp.waveform if exp.waveform != "piecewise"
+                else f"piecewise constant from samples ({exp.t_samples.size} edges)"}
+
+
+def make_target(recording, dt):
+    """The target of one recording by its kind."""
+    if recording.kind == "closed":
+        return CycleTarget(recording, dt)
+    return OutputTarget(recording, dt)
+

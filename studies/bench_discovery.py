@@ -1,0 +1,165 @@
+"""Discovery benchmark: random truths and designs, data from the reference path, read as measured.
+
+``python -m studies.bench_discovery [--quick] [--draws N] [--seed S] [--out DIR]``
+
+Each draw (:func:`studies.scenarios.draw_scenario`, seeded) is a truth over every structure of the
+grammar and an experiment design (limit cycles at 1-3 controller settings, open-loop squares and
+sines or none, 200 Hz or 1 kHz, noise, sensor offset, quantisation). Its recordings are made by
+the plain-Python reference simulator (a second implementation), written with measured-style
+sidecars (no hypothesis, no parameters, commands only as samples) and given to
+:class:`discovery.structure.StructureDiscovery`.
+
+Printed per structure class and overall, and written to ``DIR/bench.json``:
+
+* right winner; truth inside the reported indistinguishable set (merged structures count) with at
+  most 3 unmerged members;
+* errors of the identifiable coordinates of the truth's structure: a coordinate is identifiable
+  when the discovery's own objective at the truth pins it (local spread under 2 % in the log
+  coordinates, 0.05 in the friction split ``lam``, 2 % of the delay); its error is then checked
+  against 5 %;
+* timings.
+
+Goals (issue 11): right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
+parameters within 5 % in >= 90 %. ``--quick`` runs a handful of draws with smaller searches and
+asserts the same rates scaled down (at least half of the draws).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from discovery.structure import StructureDiscovery
+from discovery.structure.coordinates import SearchSpace
+from discovery.structure.search import local_sd
+
+from .scenarios import draw_scenario, write_recordings
+
+#: Identifiable: local spread below these (internal units) at the truth; error within ``ERROR``.
+SPREAD_LOG = 0.02
+SPREAD_LAM = 0.05
+SPREAD_DELAY = 0.02
+ERROR = 0.05
+
+
+def coordinate_errors(disc, truth, structure):
+    """Per coordinate of the truth's structure: truth's spread, the fit's error, identifiable."""
+    fit = next((f for f in disc.ranking_ if f.structure == structure), None)
+    if fit is None:
+        return {}
+    base = fit.params
+    space = SearchSpace(structure, base, {}, disc.dt)
+    objective = _objective_of(disc)
+    th_true = space.coordinates(truth.replace(x0=base.x0, y0=base.y0, yd0=base.yd0))
+    th_fit = space.coordinates(fit.params)
+    sd = local_sd(space, objective, th_true)
+    out = {}
+    for j, name in enumerate(space.names):
+        if name == "delay":
+            spread, err = sd[j] / th_true[j], abs(th_fit[j] / th_true[j] - 1.0)
+            ident = spread < SPREAD_DELAY
+        elif name == "lam":
+            spread, err = sd[j], abs(th_fit[j] - th_true[j])
+            ident = spread < SPREAD_LAM
+        else:
+            spread, err = sd[j], abs(math.expm1(th_fit[j] - th_true[j]))
+            ident = spread < SPREAD_LOG
+        out[name] = {"spread_at_truth": float(spread), "error": float(err), "identifiable": bool(ident),
+                     "within": bool(err <= ERROR)}
+    return out
+
+
+def _objective_of(disc):
+    from discovery.structure.search import Objective
+
+    return Objective(disc.targets_)
+
+
+def run_draw(seed, out_dir, quick):
+    scenario = draw_scenario(seed)
+    draw_dir = out_dir / f"draw{seed:03d}"
+    t0 = time.perf_counter()
+    paths = write_recordings(scenario, draw_dir)
+    t_data = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    disc = StructureDiscovery(seed=seed, quick=quick, use_sindy=not quick).fit(paths)
+    t_disc = time.perf_counter() - t0
+    truth_s = scenario.structure
+    in_set = [f for f in disc.indistinguishable_]
+    unmerged = [f for f in in_set if f.merged_into is None]
+    errors = coordinate_errors(disc, scenario.truth, truth_s)
+    ident = {k: v for k, v in errors.items() if v["identifiable"]}
+    return {
+        "seed": seed,
+        "structure": truth_s.name,
+        "design": scenario.to_dict(),
+        "winner": disc.best_.structure.name,
+        "right_winner": disc.best_.structure == truth_s,
+        "truth_in_set": any(f.structure == truth_s for f in in_set),
+        "set_size": len(unmerged),
+        "set": [f.structure.name for f in in_set],
+        "right_or_in_small_set": disc.best_.structure == truth_s
+        or (any(f.structure == truth_s for f in in_set) and len(unmerged) <= 3),
+        "coordinates": errors,
+        "identifiable_within": all(v["within"] for v in ident.values()),
+        "seconds_data": t_data,
+        "seconds_discovery": t_disc,
+    }
+
+
+def summarise(rows):
+    by = {}
+    for r in rows:
+        key = r["structure"].split("+")[0] + "+" + r["structure"].split("+")[1]
+        by.setdefault(key, []).append(r)
+    table = {}
+    for key, rs in sorted(by.items()) + [("overall", rows)]:
+        table[key] = {
+            "draws": len(rs),
+            "right_winner": float(np.mean([r["right_winner"] for r in rs])),
+            "right_or_in_set_le3": float(np.mean([r["right_or_in_small_set"] for r in rs])),
+            "identifiable_within_5pc": float(np.mean([r["identifiable_within"] for r in rs])),
+            "median_seconds": float(np.median([r["seconds_discovery"] for r in rs])),
+        }
+    return table
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="a handful of draws, small searches")
+    parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
+    parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
+    parser.add_argument("--out", default="results/bench_discovery", help="output directory")
+    args = parser.parse_args(argv)
+    n = args.draws or (2 if args.quick else 30)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for seed in range(args.seed, args.seed + n):
+        row = run_draw(seed, out, args.quick)
+        rows.append(row)
+        ident = {k: round(v["error"], 4) for k, v in row["coordinates"].items() if v["identifiable"]}
+        print(f"draw {seed}: truth {row['structure']}\n  winner {row['winner']} right={row['right_winner']} "
+              f"in set={row['truth_in_set']} (set {row['set_size']}) identifiable errors {ident} "
+              f"[{row['seconds_discovery']:.0f} s]", flush=True)
+        (out / "bench.json").write_text(json.dumps({"rows": rows, "table": summarise(rows)}, indent=2))
+    table = summarise(rows)
+    print(f"\n{'class':42s} draws  winner  right|set<=3  ident<=5%  median s")
+    for key, t in table.items():
+        print(f"{key:42s} {t['draws']:5d}  {t['right_winner']:6.2f}  {t['right_or_in_set_le3']:11.2f}  "
+              f"{t['identifiable_within_5pc']:9.2f}  {t['median_seconds']:8.0f}")
+    overall = table["overall"]
+    goal = 0.5 if args.quick else 0.9
+    ok = overall["right_or_in_set_le3"] >= goal and overall["identifiable_within_5pc"] >= goal
+    print(f"goal ({goal:.0%} of draws right or in a set <= 3, and identifiable within 5 %): "
+          f"{'met' if ok else 'NOT met'}")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

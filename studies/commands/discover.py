@@ -1,0 +1,199 @@
+"""``tvcid discover``: structure and parameters from the user's own recordings, then MCMC.
+
+Screening (SINDy seeds), fitting every structure by closed- and open-loop simulation, ranking by
+leave-one-recording-out error (:class:`discovery.structure.StructureDiscovery`), then the MCMC
+calibration of the winner on all recordings (:class:`discovery.calibration.Calibration`), its chain
+checkpointed so that a killed run resumes. Writes ``DIR/discovery.json`` and ``DIR/report.md`` with
+the figures beside them.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ._common import parse_assignments
+
+#: Parameters the MCMC samples when the winner has them (the linear block stays at its fit).
+CALIBRATED = ("dead_zone", "friction_offset", "backlash", "delay")
+
+
+def register(sub):
+    p = sub.add_parser(
+        "discover",
+        help="discover the actuator's structure and parameters from recordings, then calibrate",
+        description="Fit every structure of the model's grammar (dead zone on the error or the "
+        "velocity signal; delay at the output, before the integrator or before the first "
+        "integrator; friction offset, backlash, band-pass loop on/off) to all recordings by "
+        "simulation, rank them by leave-one-recording-out error, report the structures the data "
+        "cannot tell apart, and calibrate the winner with MCMC. Sidecars need only kind (and kp, "
+        "kd, mu, controller_rate in closed loop); hypothesis/parameters keys are ignored.",
+    )
+    p.add_argument("files", nargs="+", metavar="FILE.csv", help="recordings (CSV + JSON sidecar)")
+    p.add_argument("--fix", action="append", default=[], metavar="KEY=VALUE",
+                   help="a known parameter or structural choice, used in every structure "
+                   "(repeatable), e.g. --fix gain=305500 --fix delay_position=output")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    p.add_argument("--quick", action="store_true", help="smaller searches and a short chain")
+    p.add_argument("--max-steps", type=int, default=None, help="MCMC step cap (default 2000, quick 150)")
+    p.add_argument("--no-mcmc", action="store_true", help="stop after the ranking")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    fixed = parse_assignments(args.fix)
+    summary = discover(args.files, Path(args.out), fixed=fixed, seed=args.seed, quick=args.quick,
+                       max_steps=args.max_steps, mcmc=not args.no_mcmc,
+                       progress=not args.no_progress)
+    best = summary["structures"][0]
+    print(f"best: {best['structure']} (score {best['score']:.3g}, {best['criterion']})")
+    same = [s["structure"] for s in summary["structures"][1:] if s["indistinguishable_from_best"]]
+    if same:
+        print("indistinguishable from it: " + ", ".join(same))
+    post = summary.get("posterior")
+    if post:
+        for n, q in post["parameters"].items():
+            print(f"  {n:<16s} {q['q50']:.4g}  90 % [{q['q05']:.4g}, {q['q95']:.4g}]")
+        print(f"  converged: {post['converged']}")
+    print(f"wrote {Path(args.out) / 'discovery.json'}, {Path(args.out) / 'report.md'}")
+    return 0
+
+
+def _corrected(recordings, offsets):
+    """The recordings with their estimated sensor offset removed from ``delta``."""
+    from models.recording import Recording
+
+    out = []
+    for r in recordings:
+        name = r.path.stem if r.path else "recording"
+        cols = dict(r.columns)
+        cols["delta"] = r.delta - offsets.get(name, 0.0)
+        out.append(Recording(columns=cols, meta=r.meta, path=r.path))
+    return out
+
+
+def discover(files, out: Path, fixed=None, seed=0, quick=False, max_steps=None, mcmc=True,
+             progress=True):
+    """Run the whole discovery on ``files`` into ``out``; returns the ``discovery.json`` content."""
+    from discovery.calibration import Calibration
+    from discovery.calibration.priors import Uniform
+    from discovery.calibration.runner import ConvergenceWarning
+    from discovery.structure import StructureDiscovery, validate_recordings
+
+    recs = validate_recordings(files)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    disc = StructureDiscovery(fixed=fixed, seed=seed, quick=quick, progress=progress).fit(recs)
+    t_disc = time.perf_counter() - t0
+    best = disc.best_
+    summary = {
+        "recordings": [str(r.path) for r in recs],
+        "targets": [t.describe() for t in disc.targets_],
+        "fixed": {k: (v if not hasattr(v, "value") else v.value) for k, v in (fixed or {}).items()},
+        "structures": [f.to_dict() for f in disc.ranking_],
+        "indistinguishable": [f.structure.name for f in disc.indistinguishable_],
+        "pruned": disc.pruned_,
+        "sindy": disc.sindy_,
+        "sensor_offset": disc.offsets_,
+        "sensor_noise": disc.noise_,
+        "estimated": {"sensor_offset": "per recording, profiled (least squares) at the best fit",
+                      "sensor_noise": "open loop: rms output error at the best fit; closed loop: "
+                                      "second differences"},
+        "simulations": disc.n_simulations_,
+        "timings": {**disc.timings_},
+        "seed": seed,
+        "quick": quick,
+    }
+    if mcmc:
+        t0 = time.perf_counter()
+        p = best.params
+        names = [n for n in CALIBRATED
+                 if n in best.structure.parameter_names() and n not in (fixed or {})]
+        c = p.dead_zone - p.friction_offset
+        priors, start = {}, {}
+        if "delay" in names:
+            priors["delay"] = Uniform(1.2e-3 if p.delay > 1.2e-3 else 6e-4, max(3 * p.delay, 0.01))
+            start["delay"] = min(max(p.delay, priors["delay"].low * 1.05), priors["delay"].high * 0.95)
+        if "friction_offset" in names:
+            priors["friction_offset"] = Uniform(-1.5 * c, 0.3 * c)
+        tag = hashlib.sha256(json.dumps([summary["structures"][0]["params"], names, quick, seed],
+                                        sort_keys=True, default=str).encode()).hexdigest()[:10]
+        steps = max_steps or (150 if quick else 2000)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            cal = Calibration(p, params=tuple(names) + ("sigma",), priors=priors, start=start,
+                              likelihood="features", window=10.0, n_walkers=max(16, 4 * len(names) + 4),
+                              max_steps=steps, seed=seed, backend=out / f"chain-{tag}.h5",
+                              progress=progress).fit(_corrected(recs, disc.offsets_))
+        post = cal.posterior_
+        s = post.summary()
+        summary["posterior"] = {k: s[k] for k in ("parameters", "converged", "tau", "correlation",
+                                                 "iterations", "acceptance", "n_over_tau")}
+        summary["posterior"]["structure"] = best.structure.name
+        summary["posterior"]["chain"] = f"chain-{tag}.h5"
+        summary["timings"]["mcmc"] = time.perf_counter() - t0
+        from ..common import write_posterior_figures
+
+        write_posterior_figures(post, out, seed=seed)
+    summary["timings"]["discovery"] = t_disc
+    (out / "discovery.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+    (out / "report.md").write_text(report(summary))
+    return summary
+
+
+def _json_default(v):
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    if hasattr(v, "value"):
+        return v.value
+    return str(v)
+
+
+def report(summary) -> str:
+    """``report.md``: ranking table, what was fixed or estimated, posterior and figures."""
+    lines = ["# tvcid discover", "", "Recordings: " + ", ".join(summary["recordings"]), ""]
+    lines += ["## Ranking", "",
+              f"Criterion: {summary['structures'][0]['criterion']}. Indistinguishable: score within "
+              "0.5 per recording + 25 % of the best; a structure that only adds a component to one "
+              "of those without lowering its score is merged into it.", "",
+              "| rank | structure | score | in-sample cost | indistinguishable | merged into |",
+              "|---|---|---|---|---|---|"]
+    for i, s in enumerate(summary["structures"], 1):
+        lines.append(f"| {i} | `{s['structure']}` | {s['score']:.4g} | {s['cost']:.4g} | "
+                     f"{'yes' if s['indistinguishable_from_best'] else ''} | {s['merged_into'] or ''} |")
+    best = summary["structures"][0]
+    lines += ["", "## Best structure's parameters", "", "| parameter | value | local spread (coordinate) |",
+              "|---|---|---|"]
+    for k, v in best["params"].items():
+        lines.append(f"| {k} | {v} | |")
+    for k, v in best["coordinate_sd"].items():
+        lines.append(f"| ({k}) | | {v:.3g} |")
+    lines += ["", "## Fixed and estimated", "",
+              "Fixed: " + (", ".join(f"{k} = {v}" for k, v in summary["fixed"].items()) or "nothing"), ""]
+    for name, off in summary["sensor_offset"].items():
+        lines.append(f"- {name}: sensor offset {off:.3g} rad, noise sd {summary['sensor_noise'][name]:.3g} rad")
+    lines += ["", f"Estimated: {summary['estimated']['sensor_offset']}; noise: "
+              f"{summary['estimated']['sensor_noise']}.", ""]
+    if summary.get("pruned"):
+        lines += ["Pruned structures: " + "; ".join(f"`{k}`: {v}" for k, v in summary["pruned"].items()), ""]
+    post = summary.get("posterior")
+    if post:
+        lines += ["## MCMC calibration of the best structure", "",
+                  f"Converged: {post['converged']} ({post['iterations']} steps, acceptance "
+                  f"{post['acceptance']:.2f}).", "", "| parameter | median | 90 % interval |", "|---|---|---|"]
+        for n, q in post["parameters"].items():
+            lines.append(f"| {n} | {q['q50']:.4g} | [{q['q05']:.4g}, {q['q95']:.4g}] |")
+        lines += ["", "![corner](corner.png)", "", "![posterior predictive](predictive.png)", "",
+                  "![traces](traces.png)", ""]
+    lines += ["## Time", "", ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()), ""]
+    return "\n".join(lines)
+

@@ -1,0 +1,199 @@
+"""One seeded generator of random truths and experiment designs, shared by benchmarks and tests.
+
+Used by :mod:`studies.bench_discovery` and the discovery tests (and meant for the coverage
+benchmark of issue 12). Ranges (issue 11, item 6: parameters within a factor 2-3 of the papers'
+values, the linear block within +-30 % of paper 001's):
+
+* structure: uniform over :func:`models.structures.structure_space` (36 kept structures);
+* linear block: paper 001's ``K1 = 305500``, ``K2 = 202.1``, ``K3 = 14520`` each times U(0.7, 1.3);
+  ``K = 1.0697`` times U(0.85, 1.15);
+* dead zone: on the error log-uniform within a factor 2.5 of paper 002's 1.2e-3 rad; on the
+  velocity signal within a factor 2.5 of paper 001's 0.0083 rad/s; backlash within a factor 2.5 of
+  1.1625e-4 rad; delay log-uniform in [1, 8] ms; friction offset ``-U(0.3, 0.9) z``; band-pass loop
+  gain log-uniform in [30, 100], saturation log-uniform in [0.008, 0.02];
+* design: limit cycles at 1-3 controller settings (A, B, or Kp U(4, 12), Kd U(0.04, 0.08),
+  mu U(4, 14)), 20-40 s each; 0-2 open-loop squares or sines of 5-30 mrad at 0.3-3 Hz, 8-12 s;
+  200 Hz or 1 kHz acquisition; controller held at 200 Hz or continuous; sensor noise 1e-5 to
+  1e-4 rad; offset 0 or U(-3e-4, 3e-4) rad; quantisation 0 or 5e-6 to 3e-5 rad.
+
+Truths are redrawn until they oscillate at every closed-loop setting of the design. The recordings
+are made by the plain-Python reference path (:func:`models.reference.simulate_reference`, a second
+implementation) and written with measured-style sidecars: no hypothesis, no parameters, commands
+only as samples.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from models import ClosedLoop, OpenLoop, SimulationDiverged, limit_cycle_features, simulate
+from models.features import InsufficientPeriodsError
+from models.hypotheses import KICK_X0, ActuatorParams, DeadZonePosition
+from models.recording import save_recording
+from models.reference import simulate_reference
+from models.structures import Structure, structure_space
+
+__all__ = ["RecordingDesign", "Acquisition", "Scenario", "draw_truth", "draw_design",
+           "draw_scenario", "oscillates", "write_recordings"]
+
+CONTROLLERS = ((5.84, 0.062, 12.3), (9.8, 0.06, 4.5))
+#: Step (s) of the reference path that makes the data (the fits use 5e-4).
+DATA_DT = 2e-4
+
+
+@dataclass(frozen=True)
+class RecordingDesign:
+    """One recording: ``kind`` closed (kp, kd, mu, controller_rate) or open (waveform, amplitude
+    rad, frequency Hz); ``duration`` s; ``rate`` Hz of acquisition."""
+
+    kind: str
+    duration: float
+    rate: float
+    kp: float = 0.0
+    kd: float = 0.0
+    mu: float = 0.0
+    controller_rate: float | None = None
+    waveform: str = ""
+    amplitude: float = 0.0
+    frequency: float = 0.0
+
+    def experiment(self):
+        if self.kind == "closed":
+            return ClosedLoop(self.kp, self.kd, self.mu, sample_rate=self.controller_rate)
+        return getattr(OpenLoop, self.waveform)(self.amplitude, self.frequency)
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """Sensor: white noise sd (rad), constant offset (rad), quantisation step (rad, 0 = none)."""
+
+    noise_sd: float
+    offset: float
+    quantisation: float
+
+
+@dataclass(frozen=True)
+class Scenario:
+    truth: ActuatorParams
+    structure: Structure
+    recordings: tuple
+    acquisition: Acquisition
+    seed: int
+
+    def to_dict(self) -> dict:
+        return {"truth": self.truth.to_dict(), "structure": self.structure.name,
+                "recordings": [r.__dict__ for r in self.recordings],
+                "acquisition": self.acquisition.__dict__, "seed": self.seed}
+
+
+def _log_uniform(rng, centre, factor):
+    return float(centre * math.exp(rng.uniform(-math.log(factor), math.log(factor))))
+
+
+def draw_truth(rng, structure=None) -> ActuatorParams:
+    """A random truth of ``structure`` (drawn uniformly over the kept space when ``None``)."""
+    if structure is None:
+        kept, _ = structure_space()
+        structure = kept[int(rng.integers(len(kept)))]
+    velocity = structure.dead_zone_position is DeadZonePosition.VELOCITY
+    z = _log_uniform(rng, 0.0083 if velocity else 1.2e-3, 2.5)
+    values = dict(
+        gain=305500.0 * rng.uniform(0.7, 1.3), damping=202.1 * rng.uniform(0.7, 1.3),
+        stiffness=14520.0 * rng.uniform(0.7, 1.3), feedback_gain=1.0697 * rng.uniform(0.85, 1.15),
+        dead_zone=z, backlash=_log_uniform(rng, 1.1625e-4, 2.5),
+        delay=float(math.exp(rng.uniform(math.log(1e-3), math.log(8e-3)))),
+        friction_offset=-rng.uniform(0.3, 0.9) * z,
+        bandpass_gain=float(math.exp(rng.uniform(math.log(30.0), math.log(100.0)))),
+        bandpass_saturation=float(math.exp(rng.uniform(math.log(0.008), math.log(0.02)))),
+        x0=KICK_X0, y0=0.0, yd0=0.0,
+    )
+    for comp, fields in (("friction", ("friction_offset",)), ("backlash", ("backlash",)),
+                         ("bandpass", ("bandpass_gain", "bandpass_saturation"))):
+        if not getattr(structure, comp):
+            for f in fields:
+                values.pop(f)
+    return structure.to_params(**values)
+
+
+def oscillates(params, experiment) -> bool:
+    """A settled limit cycle of plausible size and frequency over the last 10 s of a 30 s run."""
+    try:
+        tr = simulate(params, experiment, 30.0, dt=DATA_DT)
+        f = tr.features(window=10.0)
+    except (SimulationDiverged, InsufficientPeriodsError, ValueError):
+        return False
+    return (f.n_periods >= 4 and 3e-4 <= f.amplitude <= 0.05 and 2.0 <= f.frequency <= 40.0
+            and abs(f.amplitude_drift) < 0.05)
+
+
+def draw_design(rng):
+    """``(recordings, acquisition)`` of a random experiment design."""
+    rate = float(rng.choice([200.0, 1000.0]))
+    ctrl_rate = 200.0 if rng.uniform() < 0.5 else None
+    pool = list(CONTROLLERS) + [(rng.uniform(4, 12), rng.uniform(0.04, 0.08), rng.uniform(4, 14))]
+    n_closed = int(rng.integers(1, 4))
+    picks = rng.permutation(len(pool))[:n_closed]
+    recs = [RecordingDesign("closed", float(rng.uniform(20, 40)), rate, *map(float, pool[i]),
+                            controller_rate=ctrl_rate) for i in picks]
+    for _ in range(int(rng.integers(0, 3))):
+        recs.append(RecordingDesign(
+            "open", float(rng.uniform(8, 12)), rate, waveform=str(rng.choice(["square", "sine"])),
+            amplitude=float(rng.uniform(5e-3, 30e-3)),
+            frequency=float(math.exp(rng.uniform(math.log(0.3), math.log(3.0))))))
+    acq = Acquisition(
+        noise_sd=float(math.exp(rng.uniform(math.log(1e-5), math.log(1e-4)))),
+        offset=0.0 if rng.uniform() < 0.3 else float(rng.uniform(-3e-4, 3e-4)),
+        quantisation=0.0 if rng.uniform() < 0.5 else float(math.exp(rng.uniform(math.log(5e-6), math.log(3e-5)))),
+    )
+    return tuple(recs), acq
+
+
+def draw_scenario(seed, structure=None, max_tries=200) -> Scenario:
+    """Design, then a truth redrawn until it oscillates at every closed-loop setting."""
+    rng = np.random.default_rng(seed)
+    recs, acq = draw_design(rng)
+    closed = [r.experiment() for r in recs if r.kind == "closed"]
+    for _ in range(max_tries):
+        truth = draw_truth(rng, structure)
+        if all(oscillates(truth, e) for e in closed):
+            return Scenario(truth, Structure.of_params(truth), recs, acq, int(seed))
+    raise RuntimeError(f"scenario {seed}: no truth of {structure or 'any structure'} oscillated "
+                       f"at every controller setting in {max_tries} draws")
+
+
+def write_recordings(scenario: Scenario, directory) -> list:
+    """Make the data with the reference path and write measured-style recordings; CSV paths."""
+    directory = Path(directory)
+    (directory / "truth").mkdir(parents=True, exist_ok=True)
+    acq = scenario.acquisition
+    paths = []
+    for i, rd in enumerate(scenario.recordings):
+        exp = rd.experiment()
+        lead = 10.0 if rd.kind == "closed" else 0.0
+        tr = simulate_reference(scenario.truth, exp, rd.duration + lead, dt=DATA_DT, rate=rd.rate)
+        keep = tr.t >= lead - 1e-9
+        t = tr.t[keep] - tr.t[keep][0]
+        rng = np.random.default_rng([scenario.seed, i])
+        delta = tr.delta[keep] + acq.noise_sd * rng.standard_normal(t.size) + acq.offset
+        if acq.quantisation > 0:
+            delta = acq.quantisation * np.round(delta / acq.quantisation)
+        meta = {"kind": rd.kind, "source": "simulated",
+                "generator": "studies/scenarios.py (reference path)"}
+        if rd.kind == "closed":
+            meta.update(kp=rd.kp, kd=rd.kd, mu=rd.mu, controller_rate=rd.controller_rate)
+        path = directory / f"rec{i:02d}_{rd.kind}.csv"
+        save_recording(path, {"t": t, "u": tr.u[keep], "delta": delta}, meta)
+        paths.append(path)
+    (directory / "truth" / "scenario.json").write_text(json.dumps(scenario.to_dict(), indent=2, default=str))
+    return paths
+
+
+def shortened(scenario: Scenario, closed=None, open_=None) -> Scenario:
+    """The scenario with shorter recordings (tests: the reference path costs ~0.3 s per s)."""
+    recs = tuple(replace(r, duration=(closed if r.kind == "closed" else open_) or r.duration)
+                 for r in scenario.recordings)
+    return replace(scenario, recordings=recs)
