@@ -8,9 +8,9 @@ the edge by about half a sample, at 200 Hz by 2.5 ms, the size of the delay bein
 * a **piecewise-constant** command (few samples where it changes) is replayed as levels and edges
   (:meth:`OpenLoop.piecewise`). Each observed edge lies in ``(t[k-1], t[k]]``, where ``k`` is the
   first sample at the new level. When the edges are regular (a square wave: edge ``j`` at
-  ``phase + j * half_period``), every edge narrows the common phase: the edge times are the
-  intersection of all those intervals, with the half period from a least-squares line through the
-  edge samples. Where the intervals leave no sub-sample information (edges on a grid commensurate
+  ``phase + j * half_period``), every edge narrows the common phase: the half period is scanned
+  around a least-squares line through the edge samples and the edges placed at the centroid of the
+  (phase, half period) values consistent with every interval. Where the intervals leave no sub-sample information (edges on a grid commensurate
   with the sampling) the latest feasible time is used, the zero-order hold, which is exact for the
   usual generator started on a sample. Irregular edges are held at their samples.
 * anything else is interpolated linearly between samples (the error of a 3 Hz sine sampled at
@@ -53,11 +53,19 @@ def regular_edge_times(t, k):
     half, _ = np.polyfit(j, 0.5 * (lo + hi), 1)
     if not np.all(np.abs(np.diff(hi) - half) <= 1.5 * dt):
         return None
-    # the common phase lies in every (lo_j - j*half, hi_j - j*half]
+    # (phase, half) with lo_j < phase + j*half <= hi_j for every edge: scan the half period
+    # around its least-squares value, keep the one leaving the widest interval of phases
+    halves = half + np.linspace(-2.0, 2.0, 801) * dt / max(k.size - 1, 1)
+    phase_lo = np.max(lo[None, :] - j[None, :] * halves[:, None], axis=1)
+    phase_hi = np.min(hi[None, :] - j[None, :] * halves[:, None], axis=1)
+    width = phase_hi - phase_lo
+    feasible = width >= 0
+    if not feasible.any():  # not a regular sequence after all: keep the samples
+        return hi
+    # the centroid of the feasible (phase, half) polygon
+    half = float(np.sum(halves[feasible] * width[feasible]) / np.sum(width[feasible]))
     phase_lo = float(np.max(lo - j * half))
     phase_hi = float(np.min(hi - j * half))
-    if phase_hi < phase_lo:  # the fitted half period is off by a hair: keep the samples
-        return hi
     if phase_hi - phase_lo >= 0.99 * dt:  # no sub-sample information: zero-order hold
         phase = phase_hi
     else:

@@ -218,8 +218,9 @@ def test_pool_with_map_is_accepted(short_record):
 
 
 def test_open_loop_command_rebuilt_from_sidecar(tmp_path):
-    """A square-wave test replayed from its 1 kHz samples has each edge 0.5 ms early (linear
-    interpolation); the sidecar's waveform gives the exact command, and the delay is unbiased."""
+    """A square-wave test replayed from its 1 kHz samples by linear interpolation has each edge
+    0.5 ms early; the sidecar's waveform gives the exact command, and so does the replay of the
+    samples as a piecewise-constant command (models.commands): the delay is unbiased in both."""
     import json as _json
 
     from models import OpenLoop
@@ -233,13 +234,13 @@ def test_open_loop_command_rebuilt_from_sidecar(tmp_path):
         meta.pop(key)
     (tmp_path / "sq.json").write_text(_json.dumps(meta))
     sampled = Calibration("M002", params=("delay",)).setup([load_recording(tmp_path / "sq.csv")])
-    assert sampled.terms_[0].describe()["command"] == "recorded samples"
+    assert sampled.terms_[0].describe()["command"].startswith("recorded samples, piecewise")
     base = M002()
     sets = [base.replace(delay=base.delay + d) for d in (0.0, 5e-4)]
     ll_exact = exact.terms_[0].loglike(sets, np.full(2, 1e-4))
     ll_sampled = sampled.terms_[0].loglike(sets, np.full(2, 1e-4))
     assert ll_exact[0] > ll_exact[1]  # the truth wins with the exact command
-    assert ll_sampled[1] > ll_sampled[0]  # the half-sample edge shift favours a longer delay
+    assert ll_sampled[0] > ll_sampled[1]  # and with the edges rebuilt from the samples
 
 
 def test_default_delay_prior_refuses_a_start_below_the_step():

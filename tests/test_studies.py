@@ -128,19 +128,15 @@ def test_h2_flags_the_seventh_harmonic_of_m001f_only(quick_results):
     assert band["M001f"] > 2 * max(band["M002"], band["M001i"])
 
 
-def test_discover_proposes_the_bandpass_structure_and_calibrates_it(quick_results):
+def test_discover_reports_the_generating_structure_and_its_threshold(quick_results):
+    """Quick run of the discover study (same function as ``tvcid discover``): M000's structure is
+    the winner or inside the reported indistinguishable set, the winner has the band-pass loop
+    and the dead zone on the velocity signal, and its threshold z - off is within 10 % of the
+    generating one (the full run's claims are in the README)."""
     summary = _summary(quick_results, "discover")
-    assert summary["best_form"] == "dead_zone_on_velocity_bandpass"  # the data's generator has the loop
-    assert summary["best_params"]["bandpass_gain"] > 0
-    post = summary["posterior"]["parameters"]
-    assert set(post) == {"dead_zone", "backlash", "delay"}
-    for name in ("dead_zone", "backlash"):  # right order of magnitude, within a factor 2
-        assert 0.5 < post[name]["q50"] / summary["generating_values"][name] < 2.0
-    assert post["delay"]["q05"] < summary["generating_values"]["delay"] < post["delay"]["q95"]
-    # M000's cycle is not periodic: the simulated waveform depends on the transient it follows
-    by_transient = summary["waveform_loglike_by_transient"]
-    first, second = by_transient["loglike"].values()
-    assert abs(first - second) > 1000
-    assert "not periodic" in by_transient["warning"]  # and the waveform likelihood says so
-    assert (quick_results / "discover" / "corner.png").exists()
-    assert (quick_results / "discover" / "predictive.png").exists()
+    assert summary["names_generating_structure"] or summary["generating_structure_in_set"]
+    assert "bandpass" in summary["best"] and summary["best"].startswith("dz_velocity")
+    assert abs(summary["errors_of_best"]["threshold_relative"]) < 0.10
+    assert summary["posterior"]["parameters"]  # the winner was calibrated
+    for name in ("report.md", "discovery.json", "corner.png", "predictive.png"):
+        assert (quick_results / "discover" / name).exists()

@@ -447,8 +447,9 @@ class OpenLoopTerm:
     def describe(self):
         return {"name": self.name, "kind": "open", "samples": int(self.n),
                 "duration": float(self.tau[-1]), "sigma_hat": self.sigma_hat,
-                "command": ("sidecar " + self.experiment.waveform
-                            if self.experiment.waveform != "samples" else "recorded samples")}
+                "command": {"samples": "recorded samples",
+                            "piecewise": "recorded samples, piecewise constant (edges rebuilt)"}.get(
+                                self.experiment.waveform, "sidecar " + self.experiment.waveform)}
 
 
 def make_term(recording, likelihood, window, transient, dt, name=None, features=DEFAULT_FEATURES,

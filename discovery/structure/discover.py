@@ -28,20 +28,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+from models.hypotheses import KICK_X0, ActuatorParams, DeadZonePosition, DelayPosition
 from models.recording import Recording, load_recording
 from models.structures import Structure, structure_space
 
-from .coordinates import SearchSpace
+from .coordinates import SearchSpace, UnknownParameterError
 from .search import Objective, global_search, local_sd, refine
 from .targets import make_target
 
 __all__ = ["StructureDiscovery", "StructureFit", "validate_recordings", "DiscoveryInputError"]
 
-#: Template of the fields a search does not set (paper 001's linear block, only a placeholder).
+#: Template of the fields a search does not set (paper 001's linear block, only a placeholder; the
+#: papers' kick x0 so that a reported model, simulated in closed loop, leaves the equilibrium).
 TEMPLATE = dict(gain=305500.0, damping=202.1, stiffness=14520.0, dead_zone=1e-3,
                 dead_zone_position=DeadZonePosition.ERROR, backlash=0.0, delay=2e-3,
-                delay_position=DelayPosition.OUTPUT)
+                delay_position=DelayPosition.OUTPUT, x0=KICK_X0)
 #: Indistinguishable: held-out score within ``TOL_ABS`` per recording plus ``TOL_REL`` of the best.
 TOL_ABS = 0.5
 TOL_REL = 0.25
@@ -240,6 +241,11 @@ class StructureDiscovery:
         timings = {}
         recs = validate_recordings(recordings)
         fixed = dict(self.fixed or {})
+        known = set(ActuatorParams.parameter_names())
+        unknown = sorted(set(fixed) - known)
+        if unknown:
+            raise UnknownParameterError(
+                f"unknown parameter(s) {', '.join(unknown)} in --fix; known: {', '.join(sorted(known))}")
         structural = {k: fixed.pop(k) for k in ("dead_zone_position", "delay_position") if k in fixed}
         kept, pruned = structure_space({**fixed, **structural})
         base = ActuatorParams(**{**TEMPLATE, **{k: v for k, v in fixed.items()

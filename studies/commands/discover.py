@@ -111,9 +111,12 @@ def discover(files, out: Path, fixed=None, seed=0, quick=False, max_steps=None, 
         "seed": seed,
         "quick": quick,
     }
+    _write(out, summary)  # the ranking survives whatever happens to the chain
     if mcmc:
         t0 = time.perf_counter()
-        p = best.params
+        closed = [t for t in disc.targets_ if t.kind == "closed"]
+        # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
+        p = best.params.replace(**closed[0].initial_conditions()) if closed else best.params
         names = [n for n in CALIBRATED
                  if n in best.structure.parameter_names() and n not in (fixed or {})]
         c = p.dead_zone - p.friction_offset
@@ -143,9 +146,13 @@ def discover(files, out: Path, fixed=None, seed=0, quick=False, max_steps=None, 
 
         write_posterior_figures(post, out, seed=seed)
     summary["timings"]["discovery"] = t_disc
+    _write(out, summary)
+    return summary
+
+
+def _write(out, summary):
     (out / "discovery.json").write_text(json.dumps(summary, indent=2, default=_json_default))
     (out / "report.md").write_text(report(summary))
-    return summary
 
 
 def _json_default(v):
@@ -194,6 +201,7 @@ def report(summary) -> str:
             lines.append(f"| {n} | {q['q50']:.4g} | [{q['q05']:.4g}, {q['q95']:.4g}] |")
         lines += ["", "![corner](corner.png)", "", "![posterior predictive](predictive.png)", "",
                   "![traces](traces.png)", ""]
-    lines += ["## Time", "", ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()), ""]
+    lines += ["## Time", "", ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()
+                                       if isinstance(v, (int, float))), ""]
     return "\n".join(lines)
 
