@@ -251,8 +251,6 @@ class StructureDiscovery:
         base = ActuatorParams(**{**TEMPLATE, **{k: v for k, v in fixed.items()
                                                 if k not in ("friction_offset", "backlash",
                                                              "bandpass_gain")}})
-        # fixed values of components are used where the structure has them
-        comp_fixed = {k: v for k, v in fixed.items()}
         targets = [make_target(r, self.dt) for r in recs]
         self.targets_ = targets
         objective = Objective(targets)
@@ -263,7 +261,7 @@ class StructureDiscovery:
                        "error": sindy_error}
         timings["sindy"] = time.perf_counter() - t0
 
-        spaces = {s: SearchSpace(s, base, _fixed_for(s, comp_fixed), self.dt) for s in kept}
+        spaces = {s: SearchSpace(s, base, _fixed_for(s, fixed), self.dt) for s in kept}
         fits = {}
         t0 = time.perf_counter()
         classes = sorted({(s.dead_zone_position, s.delay_position) for s in kept},
@@ -314,8 +312,6 @@ class StructureDiscovery:
         ranked = self._rank(fits, spaces, objective)
         timings["ranking"] = time.perf_counter() - t0
         best = ranked[0]
-        for f in ranked:
-            f.coordinate_sd = {}
         for f in [g for g in ranked if g.indistinguishable_from_best]:
             sd = local_sd(spaces[f.structure], objective, f.theta)
             f.coordinate_sd = dict(zip(spaces[f.structure].names, map(float, sd)))

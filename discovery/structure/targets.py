@@ -145,7 +145,15 @@ def cycle_of(t, x):
     return omega, phase_free_harmonics(t[sel], x[sel], omega), 0.5 * float(np.ptp(x))
 
 
-class CycleTarget:
+class _Target:
+    """What both targets share: simulate a batch, then score the runs."""
+
+    def residuals(self, param_sets):
+        delta, ok = self.simulator.run(param_sets)
+        return self.residuals_of_runs(delta, ok)
+
+
+class CycleTarget(_Target):
     """Frequency and phase-free harmonics of one closed-loop recording.
 
     Parameters
@@ -187,6 +195,7 @@ class CycleTarget:
                                 np.full(2 * N_HARMONICS, HARMONIC_TOLERANCE * self.scale)])
         #: one unit of each residual: the floor, widened by the cycle's own wander
         self.unit = np.sqrt(floor**2 + self.wander**2)
+        self._observed = self._features(self.omega, self.harmonics)
 
     def _features(self, omega, harmonics):
         return np.concatenate([[omega], harmonics.real, harmonics.imag])
@@ -249,13 +258,9 @@ class CycleTarget:
             if cyc is None:
                 continue
             omega, harm, _ = cyc
-            out[i] = (self._features(omega, harm) - self._features(self.omega, self.harmonics)) / self.unit
+            out[i] = (self._features(omega, harm) - self._observed) / self.unit
         out /= math.sqrt(self.n_residuals)
         return out
-
-    def residuals(self, param_sets):
-        delta, ok = self.simulator.run(param_sets)
-        return self.residuals_of_runs(delta, ok)
 
     def offset(self, param_sets):
         """Mean of the record minus the simulated cycle's mean (a sensor offset), per set."""
@@ -270,7 +275,7 @@ class CycleTarget:
                 "sample_rate": float(self.recording.sample_rate)}
 
 
-class OutputTarget:
+class OutputTarget(_Target):
     """Output error of one open-loop recording, sensor offset profiled out."""
 
     kind = "open"
@@ -308,10 +313,6 @@ class OutputTarget:
         out = res * self._norm
         out[~np.all(np.isfinite(out), axis=1)] = PENALTY / math.sqrt(self.tau.size)
         return out
-
-    def residuals(self, param_sets):
-        delta, ok = self.simulator.run(param_sets)
-        return self.residuals_of_runs(delta, ok)
 
     def offset(self, param_sets):
         delta, ok = self.simulator.run(param_sets)
