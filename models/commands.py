@@ -22,7 +22,8 @@ import numpy as np
 
 from .experiments import OpenLoop
 
-__all__ = ["command_from_samples", "is_piecewise_constant", "regular_edge_times"]
+__all__ = ["command_candidates", "command_from_samples", "is_piecewise_constant",
+           "regular_edge_times"]
 
 #: A command whose value changes at no more than this fraction of its samples is piecewise constant.
 PIECEWISE_FRACTION = 0.05
@@ -35,7 +36,7 @@ def is_piecewise_constant(u) -> bool:
     return u.size > 2 and changes <= PIECEWISE_FRACTION * (u.size - 1)
 
 
-def regular_edge_times(t, k):
+def regular_edge_times(t, k, unresolved="hold"):
     """Sub-sample edge times of a regular edge sequence, or ``None`` when it is not regular.
 
     Parameters
@@ -44,6 +45,11 @@ def regular_edge_times(t, k):
         Sample times (s), uniform.
     k : ndarray of int
         Index of the first sample after each edge (``k >= 1``).
+    unresolved : {"hold", "centre"}
+        Where the edges go when the samples leave their phase free over a whole sample (every
+        edge the same number of samples apart): at the first sample after each edge (a
+        zero-order hold, exact for a command on the acquisition's clock) or at the centre of
+        what the samples allow (least error on average for one that is not).
     """
     if k.size < 3:
         return None
@@ -66,11 +72,30 @@ def regular_edge_times(t, k):
     half = float(np.sum(halves[feasible] * width[feasible]) / np.sum(width[feasible]))
     phase_lo = float(np.max(lo - j * half))
     phase_hi = float(np.min(hi - j * half))
-    if phase_hi - phase_lo >= 0.99 * dt:  # no sub-sample information: zero-order hold
+    if phase_hi - phase_lo >= 0.99 * dt and unresolved == "hold":  # no sub-sample information
         phase = phase_hi
     else:
         phase = 0.5 * (phase_lo + phase_hi)
     return phase + j * half
+
+
+def command_candidates(t, u) -> list:
+    """Every reading of a sampled command the samples cannot decide between (one or two).
+
+    A square wave whose edges all fall the same number of samples apart leaves their sub-sample
+    phase open: on the acquisition's clock the edges sit at the samples, off it anywhere within
+    one sample. Both replays are returned (hold first); a fit keeps the one its model explains
+    better (:class:`discovery.structure.targets.OutputTarget`).
+    """
+    first = command_from_samples(t, u)
+    if first.waveform != "piecewise" or first.t_samples.size < 3:
+        return [first]
+    t = np.asarray(t, dtype=float) - float(t[0])
+    k = np.flatnonzero(np.diff(np.asarray(u, dtype=float))) + 1
+    centre = regular_edge_times(t, k, unresolved="centre")
+    if centre is None or np.allclose(centre, first.t_samples, rtol=0.0, atol=1e-9):
+        return [first]
+    return [first, OpenLoop.piecewise(centre, first.u_samples)]
 
 
 def command_from_samples(t, u) -> OpenLoop:

@@ -83,6 +83,9 @@ CONTROLLER_A = ClosedLoop(kp=5.84, kd=0.062, mu=12.3)
 CONTROLLER_B = ClosedLoop(kp=9.8, kd=0.06, mu=4.5)
 
 OPEN_LOOP_WAVEFORMS = ("step", "square", "sine", "samples", "piecewise")
+#: Points averaged per stage by :meth:`OpenLoop.solver_command` (an edge resolved to 1/32 of a
+#: stage's share).
+SOLVER_SUBSAMPLES = 32
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,6 +203,26 @@ class OpenLoop:
         if self.waveform == "piecewise":
             return self.u_samples[np.searchsorted(self.t_samples, t, side="right")]
         return np.interp(t, self.t_samples, self.u_samples)
+
+    def solver_command(self, t, dt):
+        """The command as the RK4 solver of step ``dt`` sees it at its stage times ``t``.
+
+        Smooth commands are sampled. A command with jumps (step, square, piecewise) is averaged
+        over the stage's share of Simpson's rule, which RK4 applies to the input: a node of the
+        step grid stands for ``dt/3`` around it, a half-step point for ``2 dt/3``. Sampled at the
+        stages, an edge between them would move to the next stage (up to half a step late: 0.25 ms
+        at 5e-4 s, several noise units of a square-wave response); averaged, the input's
+        integral is exact and the edge's effect lands within a small fraction of a step of its
+        time. Both the kernel (:mod:`models.simulate`) and the reference path use this.
+        """
+        t = np.asarray(t, dtype=float)
+        if self.waveform not in ("step", "square", "piecewise"):
+            return self.command(t)
+        on_node = np.mod(np.rint(2.0 * t / dt), 2) == 0
+        half_width = np.where(on_node, dt / 6.0, dt / 3.0)
+        offsets = (np.arange(SOLVER_SUBSAMPLES) + 0.5) / SOLVER_SUBSAMPLES * 2.0 - 1.0
+        pts = t[..., None] + half_width[..., None] * offsets
+        return self.command(pts).mean(axis=-1)
 
     def to_dict(self) -> dict:
         out = {

@@ -81,7 +81,7 @@ def simulate_reference(
 
     def command(t, st):
         if not closed:
-            return float(experiment.command(t))
+            return float(experiment.solver_command(t, dt))
         if hold is not None:
             return u_held
         return -experiment.kp * (st["theta"] + experiment.kd * st["thetad"])
@@ -152,4 +152,6 @@ def simulate_reference(
         if abs(state["x"]) > bound or abs(state["theta"]) > bound:
             raise SimulationDiverged(f"{params.name} (reference) exceeded the bound at t = {t:.4g} s")
     columns = np.array(rows).T
+    if not closed:  # u as commanded, not the solver's stage average
+        columns[1] = experiment.command(columns[0])
     return Trajectory(*columns, params=params, experiment=experiment, dt=dt)

@@ -242,7 +242,7 @@ def _pack_experiment(experiment, dt, n_steps, bound):
             ctrl[K.C_HOLD_STEPS] = hold
         u_cmd = np.zeros(1)
     elif isinstance(experiment, OpenLoop):
-        u_cmd = experiment.command(0.5 * dt * np.arange(2 * n_steps + 1))
+        u_cmd = experiment.solver_command(0.5 * dt * np.arange(2 * n_steps + 1), dt)
     else:
         raise TypeError(
             f"experiment must be a ClosedLoop or an OpenLoop, got {type(experiment).__name__}"
@@ -292,7 +292,15 @@ def simulate(
         raise SimulationDiverged(
             f"{params.name} diverged: the state {reason} at t = {step * dt:.4g} s"
         )
-    return Trajectory(*out, params=params, experiment=experiment, dt=dt)
+    return Trajectory(*_recorded_command(out, experiment), params=params, experiment=experiment,
+                      dt=dt)
+
+
+def _recorded_command(columns, experiment):
+    """Signal rows with ``u`` as commanded (the solver's stage averages are not a recording)."""
+    if isinstance(experiment, OpenLoop):
+        columns[1] = experiment.command(columns[0])
+    return columns
 
 
 _STATUS_NAMES = {K.OK: "ok", K.NON_FINITE: "non-finite", K.OUT_OF_BOUND: "out of bound"}

@@ -74,6 +74,11 @@ def coordinate_errors(disc, truth, structure):
     return out
 
 
+def truth_cost(disc, truth):
+    """The discovery's in-sample cost at the true parameters (each target's own initial state)."""
+    return float(_objective_of(disc).costs([truth])[0].sum())
+
+
 def _objective_of(disc):
     from discovery.structure.search import Objective
 
@@ -93,6 +98,8 @@ def run_draw(seed, out_dir, quick):
     in_set = [f for f in disc.indistinguishable_]
     unmerged = [f for f in in_set if f.merged_into is None]
     errors = coordinate_errors(disc, scenario.truth, truth_s)
+    own = next((f for f in disc.ranking_ if f.structure == truth_s), None)
+    at_truth = truth_cost(disc, scenario.truth)
     ident = {k: v for k, v in errors.items() if v["identifiable"]}
     return {
         "seed": seed,
@@ -106,10 +113,26 @@ def run_draw(seed, out_dir, quick):
         "right_or_in_small_set": disc.best_.structure == truth_s
         or (any(f.structure == truth_s for f in in_set) and len(unmerged) <= 3),
         "coordinates": errors,
+        # a fitted cost above the truth's own is a search failure, not a limit of the data
+        "cost_at_truth": at_truth,
+        "truth_structure_cost": None if own is None else own.cost,
+        "truth_structure_score": None if own is None else own.score,
+        "winner_cost": disc.best_.cost,
+        "winner_score": disc.best_.score,
         "identifiable_within": all(v["within"] for v in ident.values()),
         "seconds_data": t_data,
         "seconds_discovery": t_disc,
     }
+
+
+def failed_draw(seed, exc):
+    """The row of a draw whose discovery raised: wrong on every count."""
+    scenario = draw_scenario(seed)
+    return {"seed": seed, "structure": scenario.structure.name, "design": scenario.to_dict(),
+            "error": f"{type(exc).__name__}: {exc}", "winner": None, "right_winner": False,
+            "truth_in_set": False, "set_size": 0, "set": [], "right_or_in_small_set": False,
+            "coordinates": {}, "identifiable_within": False, "seconds_data": math.nan,
+            "seconds_discovery": math.nan}
 
 
 def summarise(rows):
@@ -124,7 +147,8 @@ def summarise(rows):
             "right_winner": float(np.mean([r["right_winner"] for r in rs])),
             "right_or_in_set_le3": float(np.mean([r["right_or_in_small_set"] for r in rs])),
             "identifiable_within_5pc": float(np.mean([r["identifiable_within"] for r in rs])),
-            "median_seconds": float(np.median([r["seconds_discovery"] for r in rs])),
+            "median_seconds": float(np.nanmedian([r["seconds_discovery"] for r in rs])),
+            "failed": int(sum("error" in r for r in rs)),
         }
     return table
 
@@ -141,7 +165,13 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for seed in range(args.seed, args.seed + n):
-        row = run_draw(seed, out, args.quick)
+        try:
+            row = run_draw(seed, out, args.quick)
+        except (ValueError, RuntimeError, ArithmeticError) as exc:  # a failed draw counts as wrong
+            row = failed_draw(seed, exc)
+            print(f"draw {seed}: FAILED {type(exc).__name__}: {exc}", flush=True)
+            rows.append(row)
+            continue
         rows.append(row)
         ident = {k: round(v["error"], 4) for k, v in row["coordinates"].items() if v["identifiable"]}
         print(f"draw {seed}: truth {row['structure']}\n  winner {row['winner']} right={row['right_winner']} "

@@ -10,15 +10,20 @@ Pipeline (issue 11):
    unseeded; nothing downstream depends on SINDy being right.
 3. **Fit** -- for every (dead-zone position, delay position) class, the largest structure without and
    with the band-pass loop gets a global search (differential evolution over the batch kernel) and
-   least-squares refinement from its best distinct candidates; every nested structure (no friction,
-   no backlash) is refined from its parent's optimum with the component removed.
-4. **Rank** -- by leave-one-recording-out error: each structure is refitted (locally, from its
-   optimum) without one recording and scored on it; the score is the sum over recordings. With one
-   recording the in-sample cost is the criterion (and the output says so).
-5. **Report what the data cannot decide** -- structures whose score is within ``tolerance`` of the
-   best are indistinguishable from it; a structure that only adds a component to an
-   indistinguishable one without lowering its score is merged into it (the output says which). The
-   local spread of each coordinate (:func:`.search.local_sd`) marks ridges.
+   least-squares refinement from its best distinct candidates, then from the better optima of the
+   structures that differ from it only in the delay's position; every nested structure (no
+   friction, no backlash) is refined from its parent's optimum with the component removed.
+   A structure that fits worse than one of its nested structures (a search failure: it can
+   reproduce them) is refined again from that optimum.
+4. **Rank** -- by two-fold out-of-sample error: each structure is refitted (locally, from its
+   optimum) on one half of every recording and scored on the other half, both ways round
+   (:meth:`StructureDiscovery._rank` says why not leave-one-recording-out).
+5. **Report what the data cannot decide** -- structures whose score is within
+   :func:`indistinguishable_margin` of the best (twice the standard error of the score
+   difference, from the disagreement of the two folds) are indistinguishable from it; a structure that only
+   adds a component to an indistinguishable one without beating it by that margin is merged into
+   it (the output says which). The local spread of each coordinate (:func:`.search.local_sd`)
+   marks ridges.
 """
 from __future__ import annotations
 
@@ -27,25 +32,32 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import brentq
 
 from models.hypotheses import KICK_X0, ActuatorParams, DeadZonePosition, DelayPosition
 from models.recording import Recording, load_recording
 from models.structures import Structure, structure_space
 
 from .coordinates import SearchSpace, UnknownParameterError
-from .search import Objective, global_search, local_sd, refine
+from .search import Objective, distinct_members, global_search, local_sd, refine
 from .targets import make_target
 
-__all__ = ["StructureDiscovery", "StructureFit", "validate_recordings", "DiscoveryInputError"]
+__all__ = ["StructureDiscovery", "StructureFit", "validate_recordings", "DiscoveryInputError",
+           "delay_moved", "indistinguishable_margin"]
 
 #: Template of the fields a search does not set (paper 001's linear block, only a placeholder; the
 #: papers' kick x0 so that a reported model, simulated in closed loop, leaves the equilibrium).
 TEMPLATE = dict(gain=305500.0, damping=202.1, stiffness=14520.0, dead_zone=1e-3,
                 dead_zone_position=DeadZonePosition.ERROR, backlash=0.0, delay=2e-3,
                 delay_position=DelayPosition.OUTPUT, x0=KICK_X0)
-#: Indistinguishable: held-out score within ``TOL_ABS`` per recording plus ``TOL_REL`` of the best.
-TOL_ABS = 0.5
-TOL_REL = 0.25
+#: Distinct members of a global search's final population refined locally (the best among them).
+N_STARTS = 3
+#: Floor of the margin within which a score is indistinguishable from the best, per recording
+#: (:func:`indistinguishable_margin`).
+TOL_ABS = 0.1
+#: Cost per recording at or above which a fit reproduces nothing (a fraction of a penalty run's
+#: 1e8 = ``PENALTY**2``: some recordings or residuals of every run diverged or did not oscillate).
+NO_FIT_COST = 1e6
 #: A recording whose output exceeds this (rad) is probably in degrees.
 MAX_ANGLE = 0.5
 
@@ -95,6 +107,7 @@ class StructureFit:
     indistinguishable_from_best: bool = False
     merged_into: str | None = None
     held_out: dict = field(default_factory=dict)
+    fold_costs: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -106,6 +119,7 @@ class StructureFit:
             "cost": self.cost,
             "cost_by_recording": self.cost_by_recording,
             "held_out": self.held_out,
+            "fold_costs": None if self.fold_costs is None else np.asarray(self.fold_costs).tolist(),
             "indistinguishable_from_best": self.indistinguishable_from_best,
             "merged_into": self.merged_into,
             "coordinate_sd": self.coordinate_sd,
@@ -229,8 +243,10 @@ class StructureDiscovery:
         starts = [space.coordinates(p) for p in seeds]
         de = global_search(space, objective, rng, seeds=starts, popsize=pop, maxiter=gens)
         best = refine(space, objective, de.theta, max_nfev=15 if self.quick else 30)
-        # a second start from the best SINDy seed guards against a population that missed it
-        for s in starts[:1]:
+        # runners-up of the population in other basins, and the best SINDy seed, are refined too:
+        # a short search often ends before one basin has won
+        others = distinct_members(de.population, de.population_costs, space, N_STARTS)[1:]
+        for s in others + starts[:1]:
             alt = refine(space, objective, s, max_nfev=15 if self.quick else 30)
             if alt.cost < best.cost:
                 best = alt
@@ -289,6 +305,7 @@ class StructureDiscovery:
             fr = self._fit_global(spaces[s], objective, rng, _valid(seeds, s))
             fits[s] = self._fit_record(s, spaces[s], fr, "global search (differential evolution, "
                                        "then least squares)", sindy.get(s.name, []))
+        self._cross_seed(fits, spaces, objective)
         timings["global"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -306,8 +323,15 @@ class StructureDiscovery:
                             max_nfev=15 if self.quick else 30)
                 origin = f"least squares from {parent.structure.name} with the component removed"
             fits[s] = self._fit_record(s, spaces[s], fr, origin, sindy.get(s.name, []))
+        self.repaired_ = self._repair_supersets(fits, spaces, objective)
         timings["nested"] = time.perf_counter() - t0
 
+        best_fit = min(fits.values(), key=lambda f: f.cost)
+        if best_fit.cost >= NO_FIT_COST * len(targets):
+            raise DiscoveryInputError(
+                f"no structure reproduces the recordings: every candidate diverged or stopped "
+                f"oscillating (best {best_fit.structure.name}, cost {best_fit.cost:.3g}); check the "
+                "fixed parameters and the sidecars' controller settings")
         t0 = time.perf_counter()
         ranked = self._rank(fits, spaces, objective)
         timings["ranking"] = time.perf_counter() - t0
@@ -335,39 +359,52 @@ class StructureDiscovery:
                             origin=origin, sindy_seeds=[p.to_dict() for p in seeds])
 
     def _rank(self, fits, spaces, objective):
-        """Leave-one-recording-out scores for the best in-sample fits; sets and merges."""
+        """Two-fold out-of-sample scores for the best in-sample fits; sets and merges.
+
+        Every recording is cut into two halves (:meth:`.targets.CycleTarget.halves`: the first and
+        second half of the cycle's periods; open loop: interleaved blocks). Each structure is
+        refitted (locally, from its optimum) on one half of every recording and scored on the
+        other, both ways round; the score is the mean of the two held-out costs. Unlike leaving a
+        whole recording out, every fold still sees every experiment, so a parameter that only one
+        experiment informs (a friction offset seen by a square wave alone) is not left free to
+        wander when that experiment is held out.
+        """
         order = sorted(fits.values(), key=lambda f: f.cost)
         targets = self.targets_
-        n = len(targets)
+        folds = [t.halves() for t in targets]
+        fit_on = [[h[k] for h in folds] for k in (0, 1)]
         candidates = order[: self.max_ranked]
-        if n == 1:
-            for f in order:
-                f.score, f.criterion = f.cost, "in-sample cost (one recording: nothing to hold out)"
-        else:
-            for f in order[self.max_ranked:]:
-                f.score, f.criterion = math.inf, "not ranked (in-sample cost far from the best)"
-            for f in _progress(candidates, "leave-one-recording-out", self.progress):
-                held = {}
-                for i, t in enumerate(targets):
-                    rest = targets[:i] + targets[i + 1:]
-                    fr = refine(spaces[f.structure], objective, f.theta,
-                                max_nfev=6 if self.quick else 12, targets=rest)
-                    held[t.name] = float(objective.costs([spaces[f.structure].params(fr.theta)],
-                                                         [t])[0, 0])
-                f.held_out = held
-                f.score = float(sum(held.values()))
-                f.criterion = "leave-one-recording-out cost (sum over recordings)"
+        for f in order[self.max_ranked:]:
+            f.score, f.criterion = math.inf, "not ranked (in-sample cost far from the best)"
+        for f in _progress(candidates, "two-fold out-of-sample ranking", self.progress):
+            per_unit = np.zeros((2, len(targets)))
+            for k in (0, 1):
+                fr = refine(spaces[f.structure], objective, f.theta,
+                            max_nfev=6 if self.quick else 12, targets=fit_on[k])
+                per_unit[k] = objective.costs([spaces[f.structure].params(fr.theta)],
+                                              fit_on[1 - k])[0]
+            f.fold_costs = per_unit
+            f.held_out = {t.name: float(per_unit[:, i].mean()) for i, t in enumerate(targets)}
+            f.score = float(per_unit.sum(axis=1).mean())
+            f.criterion = ("two-fold out-of-sample cost (fit on one half of every recording, "
+                           "scored on the other; mean of both ways)")
         ranked = sorted(order, key=lambda f: (f.score, f.cost))
-        best_score = ranked[0].score
-        tol = TOL_ABS * n + TOL_REL * best_score
-        inside = [f for f in ranked if f.score <= best_score + tol]
+        best = ranked[0]
+        n = len(targets)
+        inside = [best]
+        for f in ranked[1:]:
+            if not math.isfinite(f.score):
+                break
+            if f.score - best.score <= indistinguishable_margin(best.fold_costs, f.fold_costs, n):
+                inside.append(f)
         names = {f.structure: f for f in inside}
         for f in inside:
             f.indistinguishable_from_best = True
             # a superset that does not beat its nested structure is that structure
             for comp in f.structure.components:
                 sub = names.get(f.structure.without(comp))
-                if sub is not None and f.score >= sub.score - TOL_REL * sub.score:
+                if sub is not None and f.score >= sub.score - indistinguishable_margin(
+                        sub.fold_costs, f.fold_costs, n):
                     f.merged_into = sub.structure.name
                     break
         # the winner: the best-scoring structure that is not merged into a simpler one
@@ -375,6 +412,100 @@ class StructureDiscovery:
         ranked.remove(winner)
         ranked.insert(0, winner)
         return ranked
+
+    def _cross_seed(self, fits, spaces, objective, n_sources=2):
+        """Refine each searched structure from the better optima of its delay-position siblings.
+
+        Structures that differ only in where the delay sits describe nearly the same loop (a delay
+        inside the second-order block's own feedback reads, at low frequency, as a changed K2 and
+        K3 plus a delay after it), so one's optimum is a good start for another; a search that
+        missed its basin is caught here rather than ranked as if the structure were wrong.
+        """
+        for s in list(fits):
+            siblings = sorted((f for o, f in fits.items()
+                               if o != s and o.dead_zone_position == s.dead_zone_position
+                               and o.bandpass == s.bandpass and f.cost < fits[s].cost),
+                              key=lambda f: f.cost)[:n_sources]
+            for other in siblings:
+                moved = delay_moved(other.params, s.delay_position)
+                start = s.to_params(moved, **_widen(moved, s))
+                fr = refine(spaces[s], objective, spaces[s].coordinates(start),
+                            max_nfev=15 if self.quick else 30)
+                if fr.cost < fits[s].cost:
+                    old = fits[s]
+                    fits[s] = self._fit_record(s, spaces[s], fr, "least squares from the optimum of "
+                                               f"{other.structure.name}", [])
+                    fits[s].sindy_seeds = old.sindy_seeds
+
+    def _repair_supersets(self, fits, spaces, objective):
+        """Refit a structure that fits worse than one of its nested structures.
+
+        A superset can always reproduce its nested structure (the added component at zero), so
+        a higher cost is a search failure (the friction offset's discontinuity makes the
+        landscape rugged); the superset is refined from the nested optimum with the component
+        switched on small.
+        """
+        repaired = []
+        for s in sorted(fits, key=lambda s: len(s.components)):
+            for comp in s.components:
+                sub = fits.get(s.without(comp))
+                if sub is None or fits[s].cost <= sub.cost * (1 + 1e-3):
+                    continue
+                start = s.to_params(sub.params, **_widen(sub.params, s))
+                fr = refine(spaces[s], objective, spaces[s].coordinates(start),
+                            max_nfev=15 if self.quick else 30)
+                if fr.cost < fits[s].cost:
+                    old = fits[s]
+                    fits[s] = self._fit_record(s, spaces[s], fr, f"least squares from "
+                                               f"{sub.structure.name} with {comp} added", [])
+                    fits[s].sindy_seeds = old.sindy_seeds
+                    repaired.append(s.name)
+        return repaired
+
+
+def indistinguishable_margin(best_units, other_units, n_recordings):
+    """How much worse than the best a score may be and still not be told apart from it.
+
+    ``*_units`` are held-out costs ``(2 folds, n recordings)``. A recording's difference between
+    the structures is measured twice, once per fold; the disagreement of the two measures its
+    noise (the sd of their mean is ``|d0 - d1| / 2``). The margin is twice the standard error of
+    the score difference summed over recordings, with a floor of ``TOL_ABS`` per recording.
+    Recordings are not exchangeable (a square wave can decide what a sine cannot), so their
+    spread is not taken as noise.
+    """
+    d = np.asarray(other_units) - np.asarray(best_units)
+    se = math.sqrt(float(np.sum(((d[0] - d[1]) / 2.0) ** 2)))
+    return max(2.0 * se, TOL_ABS * n_recordings)
+
+
+def delay_moved(params, position):
+    """``params`` with the delay moved to ``position`` and the linear block changed to match.
+
+    Inside the second-order block's loop (``before_first_integrator``,
+    ``y'' = [K1 e - K2 y' - K3 y](t - Td)``) the block is ``K1 / (s^2 e^{s Td} + K2 s + K3)``;
+    after it, ``K1 e^{-s Td} / (s^2 + K2 s + K3)``. To first order in ``s Td`` they agree when, with
+    ``D = 1 + K2 Td`` of the outer form, ``K1, K3`` inside are the outer ones over ``D``, ``K2`` inside
+    is ``(K2 + K3 Td) / D`` and the delay inside is ``Td / D`` (M000's 1.7 ms inside reads as about
+    2.3 ms outside). The two outer positions (before the integrator, at the output) share the block.
+    """
+    inner = DelayPosition.BEFORE_FIRST_INTEGRATOR
+    src = params.delay_position
+    if (src is inner) == (position is inner):
+        return params.replace(delay_position=position)
+    k1, k2, k3, td = params.gain, params.damping, params.stiffness, params.delay
+    if position is inner:  # outer -> inner
+        d = 1.0 + k2 * td
+        return params.replace(gain=k1 / d, damping=(k2 + k3 * td) / d, stiffness=k3 / d,
+                              delay=td / d, delay_position=position)
+    # inner -> outer: the D whose outer block maps onto this inner one (K2 outer = (D - 1) / Td)
+    def mismatch(d):
+        return k2 * d - (d - 1.0) / (td * d) - k3 * td * d * d
+
+    if td <= 0 or mismatch(1.0) <= 0 or mismatch(20.0) >= 0:
+        return params.replace(delay_position=position)
+    d = brentq(mismatch, 1.0, 20.0)
+    return params.replace(gain=k1 * d, damping=(d - 1.0) / (td * d), stiffness=k3 * d,
+                          delay=td * d, delay_position=position)
 
 
 def _fixed_for(structure, fixed):

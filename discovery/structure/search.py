@@ -19,7 +19,7 @@ import numpy as np
 from scipy.optimize import differential_evolution, least_squares
 from scipy.stats import qmc
 
-__all__ = ["Objective", "FitResult", "global_search", "refine", "local_sd"]
+__all__ = ["Objective", "FitResult", "global_search", "refine", "local_sd", "distinct_members"]
 
 #: Finite-difference step of the Jacobian in internal coordinates (0.2 % in the logs).
 FD_STEP = 2e-3
@@ -129,7 +129,28 @@ def global_search(space, objective, rng, seeds=(), popsize=8, maxiter=40, target
         seed=np.random.default_rng(rng.integers(2**32)),
     )
     cbt = _batch_cost(space, objective, [res.x], targets)[0]
-    return FitResult(np.asarray(res.x), float(cbt.sum()), cbt, objective.n_evaluations - n0)
+    out = FitResult(np.asarray(res.x), float(cbt.sum()), cbt, objective.n_evaluations - n0)
+    out.population = np.asarray(res.population)
+    out.population_costs = np.asarray(res.population_energies)
+    return out
+
+
+def distinct_members(population, costs, space, n, min_distance=0.1):
+    """The ``n`` best members of a final population that lie apart from each other.
+
+    Distance in coordinates scaled by the box (``min_distance`` of its width): a population that
+    has not collapsed onto one basin keeps its runners-up, which local refinement may turn into
+    a better optimum than the best member's.
+    """
+    width = np.where(space.high > space.low, space.high - space.low, 1.0)
+    chosen = []
+    for i in np.argsort(costs):
+        x = (population[i] - space.low) / width
+        if all(np.max(np.abs(x - (c - space.low) / width)) >= min_distance for c in chosen):
+            chosen.append(population[i])
+        if len(chosen) == n:
+            break
+    return chosen
 
 
 def refine(space, objective, theta0, max_nfev=40, targets=None):

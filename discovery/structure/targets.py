@@ -24,6 +24,7 @@ A run that diverges or stops oscillating gets ``PENALTY`` residuals, never an ex
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
@@ -31,6 +32,7 @@ import numpy as np
 
 from discovery.calibration.fastsim import BatchSimulator, output_rate_for
 from discovery.calibration.likelihood import estimate_noise
+from models.commands import command_candidates
 from models.features import CROSSING_HYSTERESIS, upward_mean_crossings
 
 __all__ = [
@@ -61,8 +63,17 @@ TRANSIENT = 4.0
 PERIODS = 6
 #: Output rate (Hz) of the closed-loop simulations: 35x the 7th harmonic of a 2 Hz cycle.
 SIMULATED_RATE = 500.0
+#: Most upward mean crossings per period a cycle may have, and the tests that find them
+#: (:func:`fundamental_crossings`).
+MAX_CROSSINGS_PER_PERIOD = 3
+UNEQUAL_INTERVALS = 0.05
+REPEAT_RATIO = 0.3
 #: Relative peak-to-peak change that ends a record's stationary tail.
 TAIL_TOLERANCE = 0.15
+#: Whole periods each half of a cycle needs before the ranking splits it into two folds.
+MIN_HALF_PERIODS = 2
+#: Blocks an open-loop record is cut into for the ranking's folds (even blocks, odd blocks).
+OUTPUT_BLOCKS = 8
 
 
 class NoCycleError(ValueError):
@@ -86,9 +97,31 @@ def phase_free_harmonics(t, x, omega, n_harmonics=N_HARMONICS):
     return c * rot**k
 
 
-def _crossings(t, x, level):
-    i = np.flatnonzero((x[:-1] < level) & (x[1:] >= level))
-    return t[i] + (level - x[i]) / (x[i + 1] - x[i]) * (t[i + 1] - t[i])
+def fundamental_crossings(ups, sizes=None, max_multiple=MAX_CROSSINGS_PER_PERIOD):
+    """Every m-th of the upward mean crossings ``ups``, m the crossings per period of the cycle.
+
+    A cycle may cross its mean upwards more than once per period (a period-2 cycle with a large
+    and a small lobe, seen with a controller held at 200 Hz); then the intervals between
+    crossings, or the peak-to-peak ``sizes`` of the signal within them, repeat with period m and
+    their average is not the cycle. m > 1 is taken only when either differs by more than
+    ``UNEQUAL_INTERVALS`` from one interval to the next (a cycle that merely wanders, as the
+    band-pass loop's, varies ~1 %) and repeats at lag m: the spread of ``v[j+m] - v[j]`` under
+    ``REPEAT_RATIO`` of the spread of ``v`` (about sqrt(2) for values that vary at random).
+    """
+    ups = np.asarray(ups, dtype=float)
+    series = [np.diff(ups)] + ([np.asarray(sizes, dtype=float)] if sizes is not None else [])
+    series = [v for v in series if v.size >= 4 and np.std(v) > UNEQUAL_INTERVALS * np.mean(v)]
+    for m in range(2, max_multiple + 1):
+        for v in series:
+            if v.size >= 2 * m + 1 and np.std(v[m:] - v[:-m]) < REPEAT_RATIO * np.std(v):
+                return ups[::m]
+    return ups
+
+
+def _sizes(t, x, ups):
+    """Peak-to-peak of ``x`` between consecutive crossings ``ups``."""
+    idx = np.searchsorted(t, ups)
+    return np.array([np.ptp(x[a:b]) if b > a else 0.0 for a, b in zip(idx[:-1], idx[1:])])
 
 
 def stationary_tail(t, d, name="recording"):
@@ -116,12 +149,12 @@ def stationary_tail(t, d, name="recording"):
     amp = 0.5 * float(np.ptp(d[half]))
     level = float(np.mean(d[half]))
     ups = upward_mean_crossings(t, d, level, CROSSING_HYSTERESIS * amp) if amp > 0 else np.zeros(0)
+    ups = fundamental_crossings(ups, _sizes(t, d, ups))
     if ups.size < 3:
         raise NoCycleError(
             f"{name}: no limit cycle in the record ({max(ups.size - 1, 0)} whole periods in its "
             "second half; at least two are needed)")
-    idx = np.searchsorted(t, ups)
-    p2p = np.array([np.ptp(d[a:b]) for a, b in zip(idx[:-1], idx[1:])])
+    p2p = _sizes(t, d, ups)
     ref = float(np.median(p2p[-5:]))
     first = p2p.size - 1
     while first > 0 and abs(p2p[first - 1] / ref - 1.0) <= TAIL_TOLERANCE:
@@ -137,7 +170,10 @@ def stationary_tail(t, d, name="recording"):
 def cycle_of(t, x):
     """``(omega, harmonics, amplitude)`` of a noise-free simulated cycle, or ``None``."""
     level = float(np.mean(x))
-    c = _crossings(t, x, level)
+    # the record's crossings are counted with the same Schmitt trigger (a flat stretch of the
+    # cycle near its mean must not add crossings on one side only)
+    c = upward_mean_crossings(t, x, level, CROSSING_HYSTERESIS * 0.5 * float(np.ptp(x)))
+    c = fundamental_crossings(c, _sizes(t, x, c))
     if c.size < 3:
         return None
     omega = 2 * math.pi * (c.size - 1) / (c[-1] - c[0])
@@ -151,6 +187,14 @@ class _Target:
     def residuals(self, param_sets):
         delta, ok = self.simulator.run(param_sets)
         return self.residuals_of_runs(delta, ok)
+
+    def halves(self):
+        """Two targets on complementary halves of the record (the ranking's two folds).
+
+        They share this target's simulator: a fold changes what is compared, not what is
+        simulated.
+        """
+        return self._half(0), self._half(1)
 
 
 class CycleTarget(_Target):
@@ -196,6 +240,24 @@ class CycleTarget(_Target):
         #: one unit of each residual: the floor, widened by the cycle's own wander
         self.unit = np.sqrt(floor**2 + self.wander**2)
         self._observed = self._features(self.omega, self.harmonics)
+        self._tail = (t, d, np.asarray(ups))
+
+    def _half(self, k):
+        """The features of the first (k=0) or second (k=1) half of the tail's whole periods.
+
+        A tail of fewer than ``2 * MIN_HALF_PERIODS`` periods is not split (both folds see it
+        whole, so it adds no out-of-sample information).
+        """
+        t, d, ups = self._tail
+        n = ups.size - 1
+        half = copy.copy(self)
+        if n < 2 * MIN_HALF_PERIODS:
+            return half
+        u = ups[: n // 2 + 1] if k == 0 else ups[n // 2:]
+        w = (t >= u[0]) & (t < u[-1])
+        omega = 2 * math.pi * (u.size - 1) / (u[-1] - u[0])
+        half._observed = self._features(omega, phase_free_harmonics(t[w], d[w], omega))
+        return half
 
     def _features(self, omega, harmonics):
         return np.concatenate([[omega], harmonics.real, harmonics.imag])
@@ -284,19 +346,38 @@ class OutputTarget(_Target):
         self.recording = recording
         self.name = recording.path.stem if recording.path else "recording"
         self.experiment = recording.experiment()
+        # a sampled square wave whose edge phase the samples leave open is replayed both ways
+        self.experiments = ([self.experiment] if self.experiment.waveform != "piecewise"
+                            else command_candidates(recording.t, recording.u))
         self.tau = recording.t - recording.t[0]
         self.data = recording.delta
         self.dt = float(dt)
         self.rms = float(np.std(self.data))
         if not self.rms > 0:
             raise ValueError(f"{self.name}: the output never moves (constant delta)")
-        self.simulator = BatchSimulator(
-            self.experiment, float(self.tau[-1]), self.dt,
-            rate=output_rate_for(self.dt, float(recording.sample_rate)))
+        self.simulators = [BatchSimulator(e, float(self.tau[-1]), self.dt,
+                                          rate=output_rate_for(self.dt, float(recording.sample_rate)))
+                           for e in self.experiments]
+        self.simulator = self.simulators[0]
         self.n_residuals = self.tau.size
         self.noise_sd = estimate_noise(self.data)
         self.unit = math.hypot(self.noise_sd, OUTPUT_TOLERANCE * self.rms)
+        self._mask = slice(None)
         self._norm = 1.0 / (self.unit * math.sqrt(self.tau.size))
+
+    def _half(self, k):
+        """The even (k=0) or odd (k=1) of ``OUTPUT_BLOCKS`` consecutive blocks of the record.
+
+        Interleaved blocks, not the first and second half, so that each fold holds responses
+        to every part of the command (an early transient, late edges).
+        """
+        block = np.minimum((OUTPUT_BLOCKS * np.arange(self.tau.size)) // self.tau.size,
+                           OUTPUT_BLOCKS - 1)
+        half = copy.copy(self)
+        half._mask = np.flatnonzero(block % 2 == k)
+        half.n_residuals = half._mask.size
+        half._norm = 1.0 / (self.unit * math.sqrt(half._mask.size))
+        return half
 
     def initial_conditions(self):
         return None  # from rest (OpenLoop.from_rest)
@@ -308,27 +389,44 @@ class OutputTarget(_Target):
         return model
 
     def residuals_of_runs(self, delta, ok):
-        res = self.data[None, :] - self._model(delta, ok)
+        res = (self.data[None, :] - self._model(delta, ok))[:, self._mask]
         res = res - np.mean(res, axis=1, keepdims=True)
         out = res * self._norm
-        out[~np.all(np.isfinite(out), axis=1)] = PENALTY / math.sqrt(self.tau.size)
+        out[~np.all(np.isfinite(out), axis=1)] = PENALTY / math.sqrt(out.shape[1])
         return out
 
+    def _best_runs(self, param_sets):
+        """Per set, the run (and residuals) of the command reading it explains best."""
+        runs = [sim.run(param_sets) for sim in self.simulators]
+        res = [self.residuals_of_runs(d, ok) for d, ok in runs]
+        if len(runs) == 1:
+            return runs[0][0], res[0]
+        pick = np.argmin(np.column_stack([np.sum(r * r, axis=1) for r in res]), axis=1)
+        rows = np.arange(len(param_sets))
+        delta = np.stack([runs[j][0][i] for i, j in zip(rows, pick)])
+        return delta, np.stack([res[j][i] for i, j in zip(rows, pick)])
+
+    def residuals(self, param_sets):
+        return self._best_runs(param_sets)[1]
+
     def offset(self, param_sets):
-        delta, ok = self.simulator.run(param_sets)
-        return np.mean(self.data[None, :] - self._model(delta, ok), axis=1)
+        delta, _ = self._best_runs(param_sets)
+        return np.mean(self.data[None, :] - self._model(delta, np.isfinite(delta).all(axis=1)),
+                       axis=1)
 
     def noise(self, params):
         """RMS of the output error at ``params`` (rad): the sensor noise if the model is right."""
-        res = self.data - self._model(*self.simulator.run([params]))[0]
-        return float(np.std(res))
+        delta, _ = self._best_runs([params])
+        return float(np.std(self.data - self._model(delta, np.ones(1, bool))[0]))
 
     def describe(self):
         exp = self.experiment
         return {"name": self.name, "kind": "open", "samples": int(self.tau.size),
                 "duration": float(self.tau[-1]), "sample_rate": float(self.recording.sample_rate),
                 "command": exp.waveform if exp.waveform != "piecewise"
-                else f"piecewise constant from samples ({exp.t_samples.size} edges)"}
+                else f"piecewise constant from samples ({exp.t_samples.size} edges)"
+                + (", edge phase undecided by the samples: replayed both at the samples and "
+                   "centred, the better kept" if len(self.experiments) > 1 else "")}
 
 
 def make_target(recording, dt):

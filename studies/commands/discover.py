@@ -1,10 +1,12 @@
 """``tvcid discover``: structure and parameters from the user's own recordings, then MCMC.
 
 Screening (SINDy seeds), fitting every structure by closed- and open-loop simulation, ranking by
-leave-one-recording-out error (:class:`discovery.structure.StructureDiscovery`), then the MCMC
-calibration of the winner on all recordings (:class:`discovery.calibration.Calibration`), its chain
-checkpointed so that a killed run resumes. Writes ``DIR/discovery.json`` and ``DIR/report.md`` with
-the figures beside them.
+two-fold out-of-sample error (:class:`discovery.structure.StructureDiscovery`), then the MCMC
+calibration of the winner on all recordings (:class:`discovery.calibration.Calibration`). Nothing
+is lost to a killed run: ``discovery.json`` is written as soon as the ranking is done and carries a
+hash of the inputs, so a rerun with the same recordings and options reuses it instead of searching
+again, and the chain is checkpointed, so the MCMC resumes where it stopped. Writes
+``DIR/discovery.json`` and ``DIR/report.md`` with the figures beside them.
 """
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ def register(sub):
         description="Fit every structure of the model's grammar (dead zone on the error or the "
         "velocity signal; delay at the output, before the integrator or before the first "
         "integrator; friction offset, backlash, band-pass loop on/off) to all recordings by "
-        "simulation, rank them by leave-one-recording-out error, report the structures the data "
+        "simulation, rank them by two-fold out-of-sample error, report the structures the data "
         "cannot tell apart, and calibrate the winner with MCMC. Sidecars need only kind (and kp, "
         "kd, mu, controller_rate in closed loop); hypothesis/parameters keys are ignored.",
     )
@@ -81,18 +83,71 @@ def _corrected(recordings, offsets):
 
 def discover(files, out: Path, fixed=None, seed=0, quick=False, max_steps=None, mcmc=True,
              progress=True):
-    """Run the whole discovery on ``files`` into ``out``; returns the ``discovery.json`` content."""
-    from discovery.calibration import Calibration
-    from discovery.calibration.priors import Uniform
-    from discovery.calibration.runner import ConvergenceWarning
-    from discovery.structure import StructureDiscovery, validate_recordings
+    """Run the whole discovery on ``files`` into ``out``; returns the ``discovery.json`` content.
+
+    A finished ranking of the same inputs already in ``out`` is reused (``resumed_ranking``), and
+    an interrupted chain resumes from its checkpoint.
+    """
+    from discovery.structure import validate_recordings
+    from discovery.structure.targets import make_target
+    from models import params_from_dict
+    from models.structures import Structure
 
     recs = validate_recordings(files)
     out.mkdir(parents=True, exist_ok=True)
+    inputs = inputs_hash(recs, fixed, seed, quick)
+    previous = _previous_ranking(out, inputs)
+    if previous is not None:
+        summary = previous
+        summary["resumed_ranking"] = True
+        best_params = params_from_dict("custom", summary["structures"][0]["params"])
+        best_structure = Structure.parse(summary["structures"][0]["structure"])
+        closed = [make_target(r, 5e-4) for r in recs if r.kind == "closed"][:1]
+        offsets = summary["sensor_offset"]
+        t_disc = summary["timings"].get("discovery", 0.0)
+    else:
+        summary, best_params, best_structure, closed, offsets, t_disc = _rank_structures(
+            recs, fixed, seed, quick, progress, inputs)
+        _write(out, summary)  # the ranking survives whatever happens to the chain
+    if mcmc:
+        summary = _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixed,
+                             seed, quick, max_steps, progress, out)
+    summary["timings"]["discovery"] = t_disc
+    _write(out, summary)
+    return summary
+
+
+def inputs_hash(recs, fixed, seed, quick) -> str:
+    """Hash of what determines the ranking: every recording's data and sidecar, the options."""
+    h = hashlib.sha256()
+    for r in recs:
+        for name in sorted(r.columns):
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(r.columns[name], dtype=float).tobytes())
+        h.update(json.dumps(r.meta, sort_keys=True, default=str).encode())
+    h.update(json.dumps([{k: getattr(v, "value", v) for k, v in (fixed or {}).items()}, seed,
+                         bool(quick)], sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def _previous_ranking(out, inputs):
+    """A finished ranking of the same inputs in ``out``, or ``None``."""
+    path = out / "discovery.json"
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if summary.get("inputs") != inputs or not summary.get("structures"):
+        return None
+    return summary
+
+
+def _rank_structures(recs, fixed, seed, quick, progress, inputs):
+    from discovery.structure import StructureDiscovery
+
     t0 = time.perf_counter()
     disc = StructureDiscovery(fixed=fixed, seed=seed, quick=quick, progress=progress).fit(recs)
     t_disc = time.perf_counter() - t0
-    best = disc.best_
     summary = {
         "recordings": [str(r.path) for r in recs],
         "targets": [t.describe() for t in disc.targets_],
@@ -110,43 +165,52 @@ def discover(files, out: Path, fixed=None, seed=0, quick=False, max_steps=None, 
         "timings": {**disc.timings_},
         "seed": seed,
         "quick": quick,
+        "inputs": inputs,
+        "resumed_ranking": False,
     }
-    _write(out, summary)  # the ranking survives whatever happens to the chain
-    if mcmc:
-        t0 = time.perf_counter()
-        closed = [t for t in disc.targets_ if t.kind == "closed"]
-        # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
-        p = best.params.replace(**closed[0].initial_conditions()) if closed else best.params
-        names = [n for n in CALIBRATED
-                 if n in best.structure.parameter_names() and n not in (fixed or {})]
-        c = p.dead_zone - p.friction_offset
-        priors, start = {}, {}
-        if "delay" in names:
-            priors["delay"] = Uniform(1.2e-3 if p.delay > 1.2e-3 else 6e-4, max(3 * p.delay, 0.01))
-            start["delay"] = min(max(p.delay, priors["delay"].low * 1.05), priors["delay"].high * 0.95)
-        if "friction_offset" in names:
-            priors["friction_offset"] = Uniform(-1.5 * c, 0.3 * c)
-        tag = hashlib.sha256(json.dumps([summary["structures"][0]["params"], names, quick, seed],
-                                        sort_keys=True, default=str).encode()).hexdigest()[:10]
-        steps = max_steps or (150 if quick else 2000)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            cal = Calibration(p, params=tuple(names) + ("sigma",), priors=priors, start=start,
-                              likelihood="features", window=10.0, n_walkers=max(16, 4 * len(names) + 4),
-                              max_steps=steps, seed=seed, backend=out / f"chain-{tag}.h5",
-                              progress=progress).fit(_corrected(recs, disc.offsets_))
-        post = cal.posterior_
-        s = post.summary()
-        summary["posterior"] = {k: s[k] for k in ("parameters", "converged", "tau", "correlation",
-                                                 "iterations", "acceptance", "n_over_tau")}
-        summary["posterior"]["structure"] = best.structure.name
-        summary["posterior"]["chain"] = f"chain-{tag}.h5"
-        summary["timings"]["mcmc"] = time.perf_counter() - t0
-        from ..common import write_posterior_figures
-
-        write_posterior_figures(post, out, seed=seed)
     summary["timings"]["discovery"] = t_disc
-    _write(out, summary)
+    closed = [t for t in disc.targets_ if t.kind == "closed"]
+    return summary, disc.best_.params, disc.best_.structure, closed, disc.offsets_, t_disc
+
+
+def _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixed, seed, quick,
+               max_steps, progress, out):
+    """MCMC of the winner on all recordings (offsets removed), checkpointed; adds ``posterior``."""
+    from discovery.calibration import Calibration
+    from discovery.calibration.priors import Uniform
+    from discovery.calibration.runner import ConvergenceWarning
+
+    t0 = time.perf_counter()
+    # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
+    p = best_params.replace(**closed[0].initial_conditions()) if closed else best_params
+    names = [n for n in CALIBRATED
+             if n in best_structure.parameter_names() and n not in (fixed or {})]
+    c = p.dead_zone - p.friction_offset
+    priors, start = {}, {}
+    if "delay" in names:
+        priors["delay"] = Uniform(1.2e-3 if p.delay > 1.2e-3 else 6e-4, max(3 * p.delay, 0.01))
+        start["delay"] = min(max(p.delay, priors["delay"].low * 1.05), priors["delay"].high * 0.95)
+    if "friction_offset" in names:
+        priors["friction_offset"] = Uniform(-1.5 * c, 0.3 * c)
+    tag = hashlib.sha256(json.dumps([summary["structures"][0]["params"], names, quick, seed],
+                                    sort_keys=True, default=str).encode()).hexdigest()[:10]
+    steps = max_steps or (150 if quick else 2000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        cal = Calibration(p, params=tuple(names) + ("sigma",), priors=priors, start=start,
+                          likelihood="features", window=10.0, n_walkers=max(16, 4 * len(names) + 4),
+                          max_steps=steps, seed=seed, backend=out / f"chain-{tag}.h5",
+                          progress=progress).fit(_corrected(recs, offsets))
+    post = cal.posterior_
+    s = post.summary()
+    summary["posterior"] = {k: s[k] for k in ("parameters", "converged", "tau", "correlation",
+                                             "iterations", "acceptance", "n_over_tau")}
+    summary["posterior"]["structure"] = best_structure.name
+    summary["posterior"]["chain"] = f"chain-{tag}.h5"
+    summary["timings"]["mcmc"] = time.perf_counter() - t0
+    from ..common import write_posterior_figures
+
+    write_posterior_figures(post, out, seed=seed)
     return summary
 
 
@@ -170,8 +234,9 @@ def report(summary) -> str:
     lines = ["# tvcid discover", "", "Recordings: " + ", ".join(summary["recordings"]), ""]
     lines += ["## Ranking", "",
               f"Criterion: {summary['structures'][0]['criterion']}. Indistinguishable: score within "
-              "0.5 per recording + 25 % of the best; a structure that only adds a component to one "
-              "of those without lowering its score is merged into it.", "",
+              "twice the standard error of the difference from the best (from the disagreement of "
+              "the two folds; at least 0.1 per recording); a structure that only adds a component "
+              "to one of those without beating it by that margin is merged into it.", "",
               "| rank | structure | score | in-sample cost | indistinguishable | merged into |",
               "|---|---|---|---|---|---|"]
     for i, s in enumerate(summary["structures"], 1):

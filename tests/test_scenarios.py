@@ -1,0 +1,88 @@
+"""The shared generator of truths and designs (studies/scenarios.py): seeded, in its stated ranges,
+over the whole structure space, and its recordings read as measured data."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from models.hypotheses import DeadZonePosition
+from models.recording import load_recording
+from models.structures import structure_space
+from studies.scenarios import (draw_design, draw_scenario, draw_truth, oscillates, shortened,
+                               write_recordings)
+
+
+def test_same_seed_same_scenario_other_seed_other():
+    a, b, c = draw_scenario(11), draw_scenario(11), draw_scenario(12)
+    assert a.to_dict() == b.to_dict()
+    assert a.to_dict() != c.to_dict()
+
+
+def test_truths_cover_every_kept_structure_within_the_stated_ranges():
+    rng = np.random.default_rng(0)
+    kept, _ = structure_space()
+    seen = set()
+    for _ in range(600):
+        p = draw_truth(rng)
+        seen.add(p.dead_zone_position.value + p.delay_position.value
+                 + str((p.friction_offset != 0, p.backlash != 0, p.bandpass_gain != 0)))
+        assert 0.7 * 305500 <= p.gain <= 1.3 * 305500
+        assert 0.7 * 202.1 <= p.damping <= 1.3 * 202.1
+        assert 0.7 * 14520 <= p.stiffness <= 1.3 * 14520
+        assert 0.85 * 1.0697 <= p.feedback_gain <= 1.15 * 1.0697
+        centre = 0.0083 if p.dead_zone_position is DeadZonePosition.VELOCITY else 1.2e-3
+        assert centre / 2.5 <= p.dead_zone <= centre * 2.5
+        assert 1e-3 <= p.delay <= 8e-3
+        if p.friction_offset != 0:
+            assert -0.9 * p.dead_zone <= p.friction_offset <= -0.3 * p.dead_zone
+        if p.backlash != 0:
+            assert 1.1625e-4 / 2.5 <= p.backlash <= 1.1625e-4 * 2.5
+        if p.bandpass_gain != 0:
+            assert 30 <= p.bandpass_gain <= 100 and 0.008 <= p.bandpass_saturation <= 0.02
+    assert len(seen) == len(kept)
+
+
+def test_designs_within_the_stated_ranges():
+    rng = np.random.default_rng(1)
+    n_open, rates = [], set()
+    for _ in range(300):
+        recs, acq = draw_design(rng)
+        closed = [r for r in recs if r.kind == "closed"]
+        assert 1 <= len(closed) <= 3
+        n_open.append(len(recs) - len(closed))
+        for r in recs:
+            rates.add(r.rate)
+            if r.kind == "closed":
+                assert 20 <= r.duration <= 40 and r.controller_rate in (None, 200.0)
+            else:
+                assert r.waveform in ("square", "sine")
+                assert 5e-3 <= r.amplitude <= 30e-3 and 0.3 <= r.frequency <= 3.0
+                assert 8 <= r.duration <= 12
+        assert 1e-5 <= acq.noise_sd <= 1e-4 and abs(acq.offset) <= 3e-4
+        assert acq.quantisation == 0 or 5e-6 <= acq.quantisation <= 3e-5
+    assert set(n_open) == {0, 1, 2} and rates == {200.0, 1000.0}
+
+
+def test_drawn_truth_oscillates_at_every_setting_and_recordings_read_as_measured(tmp_path):
+    sc = shortened(draw_scenario(5), closed=12.0, open_=4.0)
+    for rd in sc.recordings:
+        if rd.kind == "closed":
+            assert oscillates(sc.truth, rd.experiment())
+    paths = write_recordings(sc, tmp_path)
+    assert len(paths) == len(sc.recordings)
+    for path, rd in zip(paths, sc.recordings):
+        meta = json.loads(path.with_suffix(".json").read_text())
+        assert "hypothesis" not in meta and "parameters" not in meta
+        rec = load_recording(path)
+        assert rec.kind == rd.kind
+        assert rec.sample_rate == pytest.approx(rd.rate, rel=1e-6)
+        assert rec.t[-1] == pytest.approx(rd.duration, abs=2.0 / rd.rate)
+        if rd.kind == "closed":
+            assert (rec.meta["kp"], rec.meta["kd"], rec.meta["mu"]) == (rd.kp, rd.kd, rd.mu)
+        else:  # the command is in the samples only, no waveform in the sidecar
+            assert "waveform" not in meta
+            assert np.ptp(rec.u) == pytest.approx(2 * rd.amplitude, rel=0.05)
+    truth = json.loads((tmp_path / "truth" / "scenario.json").read_text())
+    assert truth["structure"] == sc.structure.name
+    assert math.isclose(truth["truth"]["dead_zone"], sc.truth.dead_zone)
