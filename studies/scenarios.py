@@ -43,6 +43,9 @@ __all__ = ["RecordingDesign", "Acquisition", "Scenario", "draw_truth", "draw_des
 CONTROLLERS = ((5.84, 0.062, 12.3), (9.8, 0.06, 4.5))
 #: Step (s) of the reference path that makes the data (the fits use 5e-4).
 DATA_DT = 2e-4
+#: Seconds at the end of a 30 s run over which a truth's cycle must be settled
+#: (:func:`discovery.structure.targets.stationary_tail`).
+MIN_SETTLED = 8.0
 
 
 @dataclass(frozen=True)
@@ -120,14 +123,22 @@ def draw_truth(rng, structure=None) -> ActuatorParams:
 
 
 def oscillates(params, experiment) -> bool:
-    """A settled limit cycle of plausible size and frequency over the last 10 s of a 30 s run."""
+    """A settled limit cycle of plausible size and frequency over the last 10 s of a 30 s run.
+
+    Settled as discovery reads a record: its stationary tail (the periods whose peak-to-peak stays
+    within 15 % of the last ones') covers at least ``MIN_SETTLED`` s.
+    """
+    from discovery.structure.targets import NoCycleError, stationary_tail
+
     try:
         tr = simulate(params, experiment, 30.0, dt=DATA_DT)
         f = tr.features(window=10.0)
-    except (SimulationDiverged, InsufficientPeriodsError, ValueError):
+        tail_t, _, _ = stationary_tail(tr.t, tr.delta)
+    except (SimulationDiverged, InsufficientPeriodsError, NoCycleError, ValueError):
         return False
+    # a settled cycle, not an irregular oscillation whose amplitude changes from period to period
     return (f.n_periods >= 4 and 3e-4 <= f.amplitude <= 0.05 and 2.0 <= f.frequency <= 40.0
-            and abs(f.amplitude_drift) < 0.05)
+            and abs(f.amplitude_drift) < 0.05 and tail_t[-1] - tail_t[0] >= MIN_SETTLED)
 
 
 def draw_design(rng):

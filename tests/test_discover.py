@@ -172,6 +172,16 @@ def test_period_two_cycle_is_measured_at_its_fundamental():
     assert np.median(np.diff(ups)) == pytest.approx(0.63, rel=1e-3)
     jitter = np.cumsum(0.15 + 0.002 * rng.standard_normal(200))  # 1.3 % wander, one crossing each
     assert fundamental_crossings(jitter).size == jitter.size
+    # period 1 whose peaks alternate by +-15 % (a narrow bump, as a beat with a held controller
+    # gives): its sizes repeat at lag 2, but its harmonic at half the frequency is small, so it is
+    # measured at its own period, and the alternation does not cut the stationary tail
+    period = 0.4
+    k = np.floor((t - 0.1) / period + 0.5)
+    bump = 0.3 * np.where(k % 2 == 0, 1.0, -1.0) * np.exp(-(((t - 0.1 - k * period) / 0.01) ** 2))
+    y = np.sin(2 * np.pi / period * t) + bump + 1e-4 * rng.standard_normal(t.size)
+    t_tail, _, ups = stationary_tail(t, y)
+    assert t_tail[-1] - t_tail[0] > 20.0
+    assert np.median(np.diff(ups)) == pytest.approx(0.4, rel=1e-2)
 
 
 def test_delay_moved_into_the_block_keeps_the_cycle():

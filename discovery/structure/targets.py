@@ -68,6 +68,7 @@ SIMULATED_RATE = 500.0
 MAX_CROSSINGS_PER_PERIOD = 3
 UNEQUAL_INTERVALS = 0.05
 REPEAT_RATIO = 0.3
+SUBHARMONIC_FRACTION = 0.2
 #: Relative peak-to-peak change that ends a record's stationary tail.
 TAIL_TOLERANCE = 0.15
 #: Whole periods each half of a cycle needs before the ranking splits it into two folds.
@@ -97,7 +98,7 @@ def phase_free_harmonics(t, x, omega, n_harmonics=N_HARMONICS):
     return c * rot**k
 
 
-def fundamental_crossings(ups, sizes=None, max_multiple=MAX_CROSSINGS_PER_PERIOD):
+def fundamental_crossings(ups, sizes=None, max_multiple=MAX_CROSSINGS_PER_PERIOD, signal=None):
     """Every m-th of the upward mean crossings ``ups``, m the crossings per period of the cycle.
 
     A cycle may cross its mean upwards more than once per period (a period-2 cycle with a large
@@ -106,7 +107,9 @@ def fundamental_crossings(ups, sizes=None, max_multiple=MAX_CROSSINGS_PER_PERIOD
     their average is not the cycle. m > 1 is taken only when either differs by more than
     ``UNEQUAL_INTERVALS`` from one interval to the next (a cycle that merely wanders, as the
     band-pass loop's, varies ~1 %) and repeats at lag m: the spread of ``v[j+m] - v[j]`` under
-    ``REPEAT_RATIO`` of the spread of ``v`` (about sqrt(2) for values that vary at random).
+    ``REPEAT_RATIO`` of the spread of ``v`` (about sqrt(2) for values that vary at random), and,
+    when ``signal = (t, x)`` is given, its harmonic at the m-fold period is at least
+    ``SUBHARMONIC_FRACTION`` of the largest.
     """
     ups = np.asarray(ups, dtype=float)
     series = [np.diff(ups)] + ([np.asarray(sizes, dtype=float)] if sizes is not None else [])
@@ -114,8 +117,25 @@ def fundamental_crossings(ups, sizes=None, max_multiple=MAX_CROSSINGS_PER_PERIOD
     for m in range(2, max_multiple + 1):
         for v in series:
             if v.size >= 2 * m + 1 and np.std(v[m:] - v[:-m]) < REPEAT_RATIO * np.std(v):
+                if signal is not None and not _subharmonic_present(*signal, ups[::m]):
+                    return ups
                 return ups[::m]
     return ups
+
+
+def _subharmonic_present(t, x, ups):
+    """True when the cycle measured between crossings ``ups`` has a real first harmonic.
+
+    A period-1 cycle whose lobes merely alternate a little (beating with a controller's hold)
+    repeats at lag 2 too, but its harmonic at half its frequency is small: measured at that
+    half, its features would hang on a first harmonic made of noise and drift.
+    """
+    w = (t >= ups[0]) & (t < ups[-1])
+    if w.sum() < 8:
+        return False
+    omega = 2 * math.pi * (ups.size - 1) / (ups[-1] - ups[0])
+    c = np.abs(phase_free_harmonics(t[w], x[w], omega))
+    return bool(c[0] >= SUBHARMONIC_FRACTION * np.max(c))
 
 
 def _sizes(t, x, ups):
@@ -129,9 +149,9 @@ def stationary_tail(t, d, name="recording"):
 
     A record may start with a transient or on another attractor (paper 000's small cycle: the
     bundled controller-B record holds a 2.6e-4 rad cycle for 14 s before the large one). Periods
-    are taken between upward mean crossings of the last half; walking back from the end, the tail
-    keeps every period whose peak-to-peak amplitude is within ``TAIL_TOLERANCE`` of the median of
-    the last five.
+    are taken between upward mean crossings; walking back from the end, the tail keeps every
+    period whose peak-to-peak amplitude over it and the next period is within ``TAIL_TOLERANCE``
+    of the median of the last five.
 
     Returns
     -------
@@ -149,12 +169,16 @@ def stationary_tail(t, d, name="recording"):
     amp = 0.5 * float(np.ptp(d[half]))
     level = float(np.mean(d[half]))
     ups = upward_mean_crossings(t, d, level, CROSSING_HYSTERESIS * amp) if amp > 0 else np.zeros(0)
-    ups = fundamental_crossings(ups, _sizes(t, d, ups))
+    ups = fundamental_crossings(ups, _sizes(t, d, ups), signal=(t, d))
     if ups.size < 3:
         raise NoCycleError(
             f"{name}: no limit cycle in the record ({max(ups.size - 1, 0)} whole periods in its "
             "second half; at least two are needed)")
+    # peak-to-peak over two periods: lobes that alternate (a beat with a held controller) do not
+    # cut the tail, a change of attractor does
     p2p = _sizes(t, d, ups)
+    if ups.size >= 4:
+        p2p = np.maximum(p2p[:-1], p2p[1:])
     ref = float(np.median(p2p[-5:]))
     first = p2p.size - 1
     while first > 0 and abs(p2p[first - 1] / ref - 1.0) <= TAIL_TOLERANCE:
@@ -173,7 +197,7 @@ def cycle_of(t, x):
     # the record's crossings are counted with the same Schmitt trigger (a flat stretch of the
     # cycle near its mean must not add crossings on one side only)
     c = upward_mean_crossings(t, x, level, CROSSING_HYSTERESIS * 0.5 * float(np.ptp(x)))
-    c = fundamental_crossings(c, _sizes(t, x, c))
+    c = fundamental_crossings(c, _sizes(t, x, c), signal=(t, x))
     if c.size < 3:
         return None
     omega = 2 * math.pi * (c.size - 1) / (c[-1] - c[0])
