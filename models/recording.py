@@ -45,6 +45,10 @@ def _tool_version():
 TOOL_VERSION = _tool_version()
 
 
+#: Largest departure of a time step from the typical one, relative to it (timestamp jitter).
+UNIFORM_TOLERANCE = 0.05
+
+
 class RecordingError(ValueError):
     """A recording (CSV or sidecar) is malformed; the message names the file and the culprit."""
 
@@ -169,6 +173,14 @@ def _validate_columns(columns, path):
     if np.any(steps <= 0):
         k = int(np.flatnonzero(steps <= 0)[0])
         _fail(path, f"column 't' is not strictly increasing (data row {k + 2})")
+    # spectra, features and weak-form integrals all assume a uniform grid: refuse, never guess
+    typical = float(np.median(steps))
+    off = np.abs(steps - typical)
+    if off.max() > UNIFORM_TOLERANCE * typical:
+        k = int(np.argmax(off))
+        _fail(path, f"column 't' is not uniformly sampled: step {steps[k]:.6g} s between data rows "
+                    f"{k + 1} and {k + 2} (the typical step is {typical:.6g} s); resample the record "
+                    "to a uniform grid or split it at the gap")
 
 
 def _read_csv(path):

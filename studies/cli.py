@@ -25,12 +25,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from models import SimulationDiverged
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"tvcid {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except SimulationDiverged as exc:  # a loop the parameters make unstable is the user's input
+        print(f"tvcid {args.command}: error: {exc} (the loop is unstable with these parameters "
+              "and controller settings)", file=sys.stderr)
         return 2
 
 

@@ -1,8 +1,10 @@
 """The ``tvcid simulate`` and ``tvcid features`` commands."""
 import json
 
+import numpy as np
 import pytest
 
+from models.recording import save_recording
 from studies.cli import main
 
 
@@ -34,12 +36,21 @@ def test_simulate_open_loop_with_overrides(tmp_path):
         (["simulate", "M9", "--out", "x.csv"], "unknown hypothesis 'M9'"),
         (["simulate", "M002", "--set", "backlash=-1", "--out", "x.csv"], "backlash must be >= 0"),
         (["simulate", "M002", "--dt", "0", "--out", "x.csv"], "dt must be"),
+        # a loop that diverges: one line, not a SimulationDiverged traceback (issue 14)
+        (["simulate", "M002", "--kp", "500", "--kd", "0.062", "--mu", "12.3", "--out", "x.csv"],
+         "the loop is unstable with these parameters"),
+        # SINDy on a record that never moves: named, not a ZeroDivisionError (issue 14)
+        (["sindy", "const.csv"], "const.csv: column 'delta' is constant"),
     ],
 )
 def test_cli_errors_name_the_culprit(tmp_path, capsys, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)
+    if "const.csv" in args:
+        t = np.arange(2000) / 1000.0
+        save_recording(tmp_path / "const.csv", {"t": t, "u": 0 * t, "delta": 0 * t}, {"kind": "open"})
     assert main(args) == 2
-    assert message in capsys.readouterr().err
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
 
 
 def test_every_command_has_help(capsys):

@@ -162,6 +162,10 @@ class WeakSINDyActuator(BaseEstimator):
         start = time.perf_counter()
         forms = self._validate()
         self.recordings_ = load_recordings(recordings)
+        for rec in self.recordings_:  # a regression on an output that never moves has no scale
+            if not np.ptp(rec.delta) > 0:
+                raise ValueError(f"{rec.path or 'recording'}: column 'delta' is constant; SINDy "
+                                 "needs a recording in which the actuator moves")
         tf = self.test_functions or BumpTestFunctions(0.045)
         fixed = dict(self.thresholds or {})
         margin = max(self.max_delay, fixed.get("delay", 0.0)) + 0.005
