@@ -429,13 +429,8 @@ class StructureDiscovery:
             for other in siblings:
                 moved = delay_moved(other.params, s.delay_position)
                 start = s.to_params(moved, **_widen(moved, s))
-                fr = refine(spaces[s], objective, spaces[s].coordinates(start),
-                            max_nfev=15 if self.quick else 30)
-                if fr.cost < fits[s].cost:
-                    old = fits[s]
-                    fits[s] = self._fit_record(s, spaces[s], fr, "least squares from the optimum of "
-                                               f"{other.structure.name}", [])
-                    fits[s].sindy_seeds = old.sindy_seeds
+                self._keep_better(fits, spaces, objective, s, start,
+                                  f"least squares from the optimum of {other.structure.name}")
 
     def _repair_supersets(self, fits, spaces, objective):
         """Refit a structure that fits worse than one of its nested structures.
@@ -452,15 +447,21 @@ class StructureDiscovery:
                 if sub is None or fits[s].cost <= sub.cost * (1 + 1e-3):
                     continue
                 start = s.to_params(sub.params, **_widen(sub.params, s))
-                fr = refine(spaces[s], objective, spaces[s].coordinates(start),
-                            max_nfev=15 if self.quick else 30)
-                if fr.cost < fits[s].cost:
-                    old = fits[s]
-                    fits[s] = self._fit_record(s, spaces[s], fr, f"least squares from "
-                                               f"{sub.structure.name} with {comp} added", [])
-                    fits[s].sindy_seeds = old.sindy_seeds
+                if self._keep_better(fits, spaces, objective, s, start,
+                                     f"least squares from {sub.structure.name} with {comp} added"):
                     repaired.append(s.name)
         return repaired
+
+    def _keep_better(self, fits, spaces, objective, s, start, origin):
+        """Refine ``s`` from ``start``; replace its fit (keeping SINDy's seeds) if the cost drops."""
+        fr = refine(spaces[s], objective, spaces[s].coordinates(start),
+                    max_nfev=15 if self.quick else 30)
+        if fr.cost >= fits[s].cost:
+            return False
+        seeds = fits[s].sindy_seeds
+        fits[s] = self._fit_record(s, spaces[s], fr, origin, [])
+        fits[s].sindy_seeds = seeds
+        return True
 
 
 def indistinguishable_margin(best_units, other_units, n_recordings):
