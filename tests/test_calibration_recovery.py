@@ -77,37 +77,15 @@ def test_cli_fit_writes_outputs_and_resumes(tmp_path, limit_cycle, capsys):
 def test_cli_run_killed_with_sigkill_resumes_without_losing_a_step(tmp_path, limit_cycle):
     """``tvcid fit`` killed by SIGKILL mid-run continues from DIR/chain.h5: the finished chain
     equals an uninterrupted run's, step for step."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
     import emcee
+    from sigkill import kill_once_checkpointed
 
     args = [str(limit_cycle.path), "--hypothesis", "M002", "--params", "backlash,dead_zone",
             "--walkers", "16", "--window", "3", "--transient", "3", "--seed", "4",
             "--max-steps", "120", "--no-progress"]
     killed = tmp_path / "killed"
-    cmd = [sys.executable, "-c", "import sys; from studies.cli import main; sys.exit(main(sys.argv[1:]))",
-           "fit", *args, "--out", str(killed)]
-    err = tmp_path / "stderr.txt"
-    with err.open("w") as err_file:
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err_file)
-    saved, deadline = 0, time.time() + 120
-    while time.time() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-        try:
-            saved = emcee.backends.HDFBackend(str(killed / "chain.h5"), read_only=True).iteration
-        except Exception:  # not created yet, or being written
-            continue
-        if saved >= 20:
-            break
-    # a reader holding chain.h5 must not kill the run (CheckpointBackend waits for it)
-    assert proc.poll() is None and saved < 120, \
-        f"the run ended before it could be killed ({saved} steps seen): {err.read_text()[-500:]}"
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    kill_once_checkpointed(["fit", *args, "--out", str(killed)], "chain.h5", killed, min_steps=20,
+                           max_steps=120, stderr_path=tmp_path / "stderr.txt", timeout=120)
     partial = emcee.backends.HDFBackend(str(killed / "chain.h5"), read_only=True).iteration
     assert 20 <= partial < 120
     with warnings.catch_warnings():

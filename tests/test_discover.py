@@ -112,37 +112,14 @@ def test_killed_discover_resumes_ranking_and_chain(tmp_path):
     """``tvcid discover`` killed by SIGKILL during its MCMC: the rerun reuses the ranking (same
     inputs hash, no new search) and continues the chain; the finished chain equals an
     uninterrupted run's, step for step."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
     import emcee
+    from sigkill import kill_once_checkpointed
 
     args = [DATA, *ONE_STRUCTURE, "--quick", "--seed", "2", "--max-steps", "60", "--no-progress"]
     killed = tmp_path / "killed"
-    cmd = [sys.executable, "-c", "import sys; from studies.cli import main; sys.exit(main(sys.argv[1:]))",
-           "discover", *args, "--out", str(killed)]
-    err = tmp_path / "stderr.txt"
-    with err.open("w") as err_file:
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err_file)
-    saved, deadline = 0, time.time() + 600
-    while time.time() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-        chains = list(killed.glob("chain-*.h5"))
-        if not chains:
-            continue
-        try:
-            saved = emcee.backends.HDFBackend(str(chains[0]), read_only=True).iteration
-        except Exception:  # being created or written
-            continue
-        if saved >= 10:
-            break
-    assert proc.poll() is None and saved < 60, \
-        f"the run ended before it could be killed ({saved} steps seen): {err.read_text()[-500:]}"
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    kill_once_checkpointed(["discover", *args, "--out", str(killed)], "chain-*.h5", killed,
+                           min_steps=10, max_steps=60, stderr_path=tmp_path / "stderr.txt",
+                           timeout=600)
     ranking = json.loads((killed / "discovery.json").read_text())
     assert "posterior" not in ranking and ranking["structures"]
     assert main(["discover", *args, "--out", str(killed)]) == 0
