@@ -48,6 +48,26 @@ TOOL_VERSION = _tool_version()
 #: Largest departure of a time step from the typical one, relative to it (timestamp jitter).
 UNIFORM_TOLERANCE = 0.05
 
+#: Largest recording read, bytes (~6 million rows of ``t, u, delta``: 100 minutes at 1 kHz). The
+#: reader holds the whole table in memory; split longer acquisitions.
+MAX_RECORDING_BYTES = 256 * 2**20
+
+#: Largest |u| or |delta| accepted, rad. A nozzle deflects a few degrees; values beyond 0.5 rad
+#: (29 degrees) are almost surely degrees written as radians.
+MAX_ANGLE = 0.5
+
+#: Units the sidecar may declare for ``u`` and ``delta``, with their factor to radians.
+ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0, "degree": math.pi / 180.0, "degrees": math.pi / 180.0}
+
+#: Sidecar keys tvcid reads or writes. Other keys are kept as free-form provenance, unless they
+#: look like a misspelling of one of these (a typo would silently drop a setting).
+KNOWN_SIDECAR_KEYS = (
+    "kind", "kp", "kd", "mu", "controller_rate", "sample_rate", "units",
+    "waveform", "amplitude", "frequency", "start", "offset", "from_rest",
+    "hypothesis", "parameters", "seed", "dt", "source", "description", "generator",
+    "tool", "tool_version", "theta0", "thetad0", "numbers", "papers",
+)
+
 
 class RecordingError(ValueError):
     """A recording (CSV or sidecar) is malformed; the message names the file and the culprit."""
@@ -141,17 +161,44 @@ def _fail(path, message):
     raise RecordingError(f"{path}: {message}")
 
 
+def _is_number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _validate_meta(meta, path):
+    import difflib
+
     if not isinstance(meta, dict):
         _fail(path, "sidecar must be a JSON object")
+    for key in meta:
+        if key in KNOWN_SIDECAR_KEYS:
+            continue
+        near = difflib.get_close_matches(str(key), KNOWN_SIDECAR_KEYS, n=1, cutoff=0.8)
+        if near:
+            _fail(path, f"unknown sidecar key '{key}' (did you mean '{near[0]}'?)")
     kind = meta.get("kind")
     if kind not in KINDS:
         _fail(path, f"sidecar 'kind' must be one of {', '.join(KINDS)} (got {kind!r})")
     if kind == "closed":
         for key in ("kp", "kd", "mu"):
             value = meta.get(key)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+            if not _is_number(value):
                 _fail(path, f"closed-loop sidecar needs a finite number '{key}' (got {value!r})")
+        rate = meta.get("controller_rate")
+        if rate is not None and not (_is_number(rate) and rate > 0):
+            _fail(path, f"sidecar 'controller_rate' must be a positive number of Hz or null (got {rate!r})")
+    rate = meta.get("sample_rate")
+    if rate is not None and not (_is_number(rate) and rate > 0):
+        _fail(path, f"sidecar 'sample_rate' must be a positive number of Hz (got {rate!r})")
+    units = meta.get("units", {})
+    if not isinstance(units, dict):
+        _fail(path, f"sidecar 'units' must be an object such as {{\"delta\": \"rad\"}} (got {units!r})")
+    if units.get("t", "s") != "s":
+        _fail(path, f"sidecar 'units' of 't' must be \"s\" (got {units['t']!r}); convert the time column to seconds")
+    for name in ("u", "delta"):
+        if name in units and units[name] not in ANGLE_UNITS:
+            _fail(path, f"sidecar 'units' of '{name}' must be one of {', '.join(ANGLE_UNITS)} "
+                        f"(got {units[name]!r})")
 
 
 def _validate_columns(columns, path):
@@ -181,14 +228,38 @@ def _validate_columns(columns, path):
         _fail(path, f"column 't' is not uniformly sampled: step {steps[k]:.6g} s between data rows "
                     f"{k + 1} and {k + 2} (the typical step is {typical:.6g} s); resample the record "
                     "to a uniform grid or split it at the gap")
+    for name in ("u", "delta"):
+        peak = int(np.argmax(np.abs(columns[name])))
+        if abs(columns[name][peak]) > MAX_ANGLE:
+            _fail(path, f"column '{name}' reaches {columns[name][peak]:.6g} at data row {peak + 1}, above "
+                        f"{MAX_ANGLE} rad: degrees? Convert to radians or declare "
+                        f'"units": {{"{name}": "deg"}} in the sidecar')
 
 
 def _read_csv(path):
     try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
+        size = Path(path).stat().st_size
+        if size > MAX_RECORDING_BYTES:
+            _fail(path, f"file holds {size:,} bytes, more than the {MAX_RECORDING_BYTES:,} "
+                        f"({MAX_RECORDING_BYTES // 2**20} MiB) tvcid reads at once; split the record "
+                        "or decimate it")
+        raw = Path(path).read_bytes()
+    except IsADirectoryError:
+        raise RecordingError(f"{path}: is a directory, not a CSV file") from None
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read ({exc.strerror})") from None
+    if b"\x00" in raw[:65536]:
+        _fail(path, "not a text CSV file (it holds NUL bytes: binary, or UTF-16 text; save it as "
+                    "UTF-8 CSV)")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        _fail(path, f"not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line}); save it as UTF-8 CSV")
+    try:
+        rows = list(csv.reader(text.splitlines()))
+    except csv.Error as exc:
+        _fail(path, f"not a readable CSV file ({exc})")
     rows = [r for r in rows if r and any(c.strip() for c in r)]
     if not rows:
         _fail(path, "file is empty")
@@ -238,11 +309,21 @@ def load_recording(path) -> Recording:
         raise RecordingError(f"{side}: invalid JSON ({exc.msg} at line {exc.lineno})") from None
     _validate_meta(meta, side)
     columns = _read_csv(path)
-    _validate_columns(columns, path)
     meta = dict(meta)
-    meta.setdefault("units", dict(DEFAULT_UNITS))
+    units = dict(meta.get("units", {}))
+    for name in ("u", "delta"):  # declared degrees are converted here, once, and said so in units
+        if name in columns and ANGLE_UNITS.get(units.get(name, "rad"), 1.0) != 1.0:
+            columns[name] = columns[name] * ANGLE_UNITS[units[name]]
+            units[name] = "rad"
+    _validate_columns(columns, path)
+    meta["units"] = {**DEFAULT_UNITS, **units}
     measured = 1.0 / float(np.median(np.diff(columns["t"])))
-    meta.setdefault("sample_rate", measured)
+    if meta.get("sample_rate") is None:
+        meta["sample_rate"] = measured
+    declared = meta["sample_rate"]
+    if abs(declared - measured) > UNIFORM_TOLERANCE * measured:
+        _fail(path, f"sidecar 'sample_rate' {declared:g} Hz disagrees with column 't' "
+                    f"({measured:.6g} Hz from its median step)")
     return Recording(columns=columns, meta=meta, path=path)
 
 

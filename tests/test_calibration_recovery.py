@@ -74,9 +74,13 @@ def test_cli_fit_writes_outputs_and_resumes(tmp_path, limit_cycle, capsys):
         assert corr.shape == (2, 2) and np.allclose(np.diag(corr), 1.0)
 
 
-def test_cli_run_killed_with_sigkill_resumes_without_losing_a_step(tmp_path, limit_cycle):
-    """``tvcid fit`` killed by SIGKILL mid-run continues from DIR/chain.h5: the finished chain
-    equals an uninterrupted run's, step for step."""
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM", "SIGINT"])
+def test_cli_run_interrupted_resumes_without_losing_a_step(tmp_path, limit_cycle, sig):
+    """``tvcid fit`` killed (SIGKILL), terminated (SIGTERM: status 130, one line) or stopped by
+    Ctrl-C (SIGINT) mid-run continues from DIR/chain.h5: the finished chain equals an
+    uninterrupted run's, step for step."""
+    import signal
+
     import emcee
     from sigkill import kill_once_checkpointed
 
@@ -85,7 +89,8 @@ def test_cli_run_killed_with_sigkill_resumes_without_losing_a_step(tmp_path, lim
             "--max-steps", "120", "--no-progress"]
     killed = tmp_path / "killed"
     kill_once_checkpointed(["fit", *args, "--out", str(killed)], "chain.h5", killed, min_steps=20,
-                           max_steps=120, stderr_path=tmp_path / "stderr.txt", timeout=120)
+                           max_steps=120, stderr_path=tmp_path / "stderr.txt", timeout=120,
+                           sig=getattr(signal, sig))
     partial = emcee.backends.HDFBackend(str(killed / "chain.h5"), read_only=True).iteration
     assert 20 <= partial < 120
     with warnings.catch_warnings():

@@ -22,20 +22,14 @@ def _write(path, delta, kind="closed", **meta):
 
 @pytest.mark.parametrize("case, expected", [
     ("none", "the following arguments are required"),
-    ("degrees", "degrees"),
-    ("units", "expects rad"),
     ("no_cycle", "no limit cycle"),
     ("unknown_fix", "unknown parameter(s) dead_band"),
 ])
 def test_bad_input_is_one_line_error(tmp_path, capsys, case, expected):
+    """Discovery's own refusals (the recording-level catalogue is tests/test_bad_input_cli.py)."""
     t = np.arange(8000) / 1000.0
     args = ["discover", "--no-mcmc", "--no-progress", "--quick", "--out", str(tmp_path / "out")]
-    if case == "degrees":
-        args.insert(1, _write(tmp_path / "deg.csv", 0.3 * np.sin(8.6 * t) * 57.3))
-    elif case == "units":
-        args.insert(1, _write(tmp_path / "mixed.csv", 5e-3 * np.sin(8.6 * t),
-                              units={"t": "s", "u": "rad", "delta": "deg"}))
-    elif case == "no_cycle":
+    if case == "no_cycle":
         args.insert(1, _write(tmp_path / "flat.csv", 1e-3 * np.exp(-t)))
     elif case == "unknown_fix":
         args[1:1] = [DATA, "--fix", "dead_band=1e-3"]
@@ -108,10 +102,13 @@ def test_never_oscillating_structure_is_one_line_error(capsys):
     assert "no structure reproduces the recordings" in err and len(err.splitlines()) == 1
 
 
-def test_killed_discover_resumes_ranking_and_chain(tmp_path):
-    """``tvcid discover`` killed by SIGKILL during its MCMC: the rerun reuses the ranking (same
-    inputs hash, no new search) and continues the chain; the finished chain equals an
-    uninterrupted run's, step for step."""
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGINT"])
+def test_killed_discover_resumes_ranking_and_chain(tmp_path, sig):
+    """``tvcid discover`` killed by SIGKILL, or stopped by Ctrl-C (SIGINT: status 130, one line),
+    during its MCMC: the rerun reuses the ranking (same inputs hash, no new search) and continues
+    the chain; the finished chain equals an uninterrupted run's, step for step."""
+    import signal
+
     import emcee
     from sigkill import kill_once_checkpointed
 
@@ -119,7 +116,7 @@ def test_killed_discover_resumes_ranking_and_chain(tmp_path):
     killed = tmp_path / "killed"
     kill_once_checkpointed(["discover", *args, "--out", str(killed)], "chain-*.h5", killed,
                            min_steps=10, max_steps=60, stderr_path=tmp_path / "stderr.txt",
-                           timeout=600)
+                           timeout=600, sig=getattr(signal, sig))
     ranking = json.loads((killed / "discovery.json").read_text())
     assert "posterior" not in ranking and ranking["structures"]
     assert main(["discover", *args, "--out", str(killed)]) == 0

@@ -76,5 +76,5 @@ def test_open_loop_sidecar_rebuilds_the_analytic_command(tmp_path):
     rec = load_recording(save_recording(tmp_path / "sq.csv", *recording_from_trajectory(tr)))
     replay = simulate(hypothesis("M002"), rec.experiment(), 2.0)
     np.testing.assert_array_equal(replay.delta, tr.delta)  # edges exactly where they were
-    hand = _write(tmp_path, "t,u,delta\n0,0,0\n1,1,0\n2,1,0\n")
+    hand = _write(tmp_path, "t,u,delta\n0,0,0\n1,0.01,0\n2,0.01,0\n")
     assert load_recording(hand).experiment().waveform == "samples"

@@ -270,10 +270,12 @@ class Calibration:
                 with backend.open("r") as f:
                     old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
                 if old is not None and old != config:
+                    stored, now = json.loads(old), json.loads(config)
+                    changed = sorted(k for k in set(stored) | set(now) if stored.get(k) != now.get(k))
+                    diff = "; ".join(f"{k}: {stored.get(k)!r} -> {now.get(k)!r}" for k in changed)
                     raise ValueError(
-                        f"{path} holds a run with a different set-up; use another output "
-                        f"(stored: {old}; now: {config})"
-                    )
+                        f"{path} holds a run with a different set-up ({diff}); it is kept: choose "
+                        "another output directory, or delete it to start again")
             with backend.open("a") as f:
                 g = f.require_group(_H5_GROUP)
                 g.attrs["config"] = config

@@ -126,6 +126,7 @@ class _ClosedLoopTerm:
             raise ValueError(f"{name or recording.path}: not a closed-loop recording")
         self.recording = recording
         self.name = name or (recording.path.stem if recording.path else "recording")
+        self.source = str(recording.path) if recording.path else self.name  # for error messages
         self.experiment = recording.experiment()
         self.window = window
         self.transient = float(transient)
@@ -133,7 +134,7 @@ class _ClosedLoopTerm:
         self.tau, self.data = _data_window(recording, window)
         span = self.tau[-1]
         if self.tau.size < 10:
-            raise ValueError(f"{self.name}: the window holds {self.tau.size} samples")
+            raise ValueError(f"{self.source}: the window holds {self.tau.size} samples")
         self.sigma_hat = estimate_noise(self.data)
         self.level = float(np.mean(self.data))
         self.amplitude = 0.5 * float(np.max(self.data) - np.min(self.data))
@@ -142,7 +143,7 @@ class _ClosedLoopTerm:
         )
         if ups.size < 3:
             raise ValueError(
-                f"{self.name}: the recording shows no limit cycle over its last {span:.3g} s "
+                f"{self.source}: the recording shows no limit cycle over its last {span:.3g} s "
                 f"({max(ups.size - 1, 0)} whole periods; at least two are needed)"
             )
         k = np.arange(ups.size)

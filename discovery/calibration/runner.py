@@ -19,7 +19,10 @@ moves, any backend, any pool (an object with ``.map``). :func:`run_ensemble` add
 """
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
+import threading
 import warnings
 from dataclasses import asdict, dataclass
 
@@ -126,6 +129,34 @@ def convergence_report(sampler, tau_factor=50.0, new_steps=0, wall_time=0.0) -> 
     )
 
 
+@contextlib.contextmanager
+def deferred_interrupts():
+    """SIGINT (Ctrl-C) and SIGTERM set ``flag["signal"]`` instead of interrupting at once.
+
+    emcee's likelihood wrapper prints a traceback for any exception raised inside the likelihood,
+    an interruption included; deferred, the sampling loop stops between steps, after the step's
+    checkpoint. A second signal interrupts at once. Only in the main thread (elsewhere a no-op).
+    """
+    flag = {"signal": None}
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def defer(signum, frame):
+        if flag["signal"] is not None:
+            raise KeyboardInterrupt("interrupted twice")
+        flag["signal"] = signum
+
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s in previous:
+        signal.signal(s, defer)
+    try:
+        yield flag
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+
+
 def run_ensemble(
     log_prob,
     initial,
@@ -214,8 +245,15 @@ def run_ensemble(
             break
         it = sampler.iteration
         n = min(check_every - it % check_every, max_steps - it)
-        sampler.run_mcmc(state, n, progress=progress,
-                         progress_kwargs={"desc": f"steps {it}-{it + n} of <= {max_steps}"})
+        # emcee's run_mcmc, step by step: an interruption waits for the step's checkpoint
+        last = state if state is not None else sampler._previous_state
+        with deferred_interrupts() as interrupt:
+            for last in sampler.sample(last, iterations=n, progress=progress, progress_kwargs={
+                    "desc": f"steps {it}-{it + n} of <= {max_steps}"}):
+                if interrupt["signal"] is not None:
+                    sampler._previous_state = last
+                    raise KeyboardInterrupt(f"interrupted after step {sampler.iteration}")
+        sampler._previous_state = last
         state = None  # continue from the sampler's (or backend's) last state
         report = convergence_report(sampler, tau_factor)
     report = convergence_report(

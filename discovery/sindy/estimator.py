@@ -25,6 +25,8 @@ import pysindy as ps
 from scipy.optimize import minimize
 from sklearn.base import BaseEstimator
 
+from models.features import CROSSING_HYSTERESIS, upward_mean_crossings
+
 from .candidates import Candidate
 from .forms import MOVING_FRACTION, TARGET, form_by_name
 from .simulation import load_recordings, score_on_recordings
@@ -166,6 +168,15 @@ class WeakSINDyActuator(BaseEstimator):
             if not np.ptp(rec.delta) > 0:
                 raise ValueError(f"{rec.path or 'recording'}: column 'delta' is constant; SINDy "
                                  "needs a recording in which the actuator moves")
+            if rec.kind == "closed":  # the ranking compares cycles: two periods at least
+                amp = 0.5 * float(np.ptp(rec.delta))
+                ups = upward_mean_crossings(rec.t, rec.delta, float(np.mean(rec.delta)),
+                                            CROSSING_HYSTERESIS * amp)
+                if ups.size < 3:
+                    raise ValueError(
+                        f"{rec.path or 'recording'}: the closed-loop record of "
+                        f"{rec.t[-1] - rec.t[0]:.4g} s holds {max(ups.size - 1, 0)} whole period(s) "
+                        "of the cycle; SINDy and its ranking need at least two")
         tf = self.test_functions or BumpTestFunctions(0.045)
         fixed = dict(self.thresholds or {})
         margin = max(self.max_delay, fixed.get("delay", 0.0)) + 0.005

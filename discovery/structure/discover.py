@@ -263,6 +263,10 @@ class StructureDiscovery:
             raise UnknownParameterError(
                 f"unknown parameter(s) {', '.join(unknown)} in --fix; known: {', '.join(sorted(known))}")
         structural = {k: fixed.pop(k) for k in ("dead_zone_position", "delay_position") if k in fixed}
+        for key, enum in (("dead_zone_position", DeadZonePosition), ("delay_position", DelayPosition)):
+            if key in structural and structural[key] not in {e.value for e in enum} | set(enum):
+                raise ValueError(f"--fix {key}={structural[key]!r}: choose one of "
+                                 f"{', '.join(e.value for e in enum)}")
         kept, pruned = structure_space({**fixed, **structural})
         base = ActuatorParams(**{**TEMPLATE, **{k: v for k, v in fixed.items()
                                                 if k not in ("friction_offset", "backlash",

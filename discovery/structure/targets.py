@@ -240,7 +240,7 @@ class CycleTarget(_Target):
         self.recording = recording
         self.name = recording.path.stem if recording.path else "recording"
         t_all, d_all = recording.t - recording.t[0], recording.delta
-        t, d, ups = stationary_tail(t_all, d_all, self.name)
+        t, d, ups = stationary_tail(t_all, d_all, str(recording.path or self.name))
         self.tail_start = float(t[0])
         self.omega = 2 * math.pi * (len(ups) - 1) / (ups[-1] - ups[0])
         w = (t >= ups[0]) & (t < ups[-1])
@@ -378,7 +378,7 @@ class OutputTarget(_Target):
         self.dt = float(dt)
         self.rms = float(np.std(self.data))
         if not self.rms > 0:
-            raise ValueError(f"{self.name}: the output never moves (constant delta)")
+            raise ValueError(f"{recording.path or self.name}: the output never moves (constant delta)")
         self.simulators = [BatchSimulator(e, float(self.tau[-1]), self.dt,
                                           rate=output_rate_for(self.dt, float(recording.sample_rate)))
                            for e in self.experiments]

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 
 from models.experiments import CONTROLLER_A, ClosedLoop
@@ -46,3 +47,23 @@ def print_json(obj):
 
 class Formatter(argparse.ArgumentDefaultsHelpFormatter):
     pass
+
+
+def positive_seconds(text):
+    """argparse type: a window length in seconds, > 0."""
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0 s (got {text})")
+    return value
+
+
+@contextlib.contextmanager
+def about_file(path):
+    """Name ``path`` in a ValueError raised while analysing it (unless the message names it)."""
+    try:
+        yield
+    except ValueError as exc:
+        message = str(exc)
+        if str(path) in message:
+            raise
+        raise ValueError(f"{path}: {message}") from None

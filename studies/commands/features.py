@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from models.recording import load_recording
 
-from ._common import print_json
+from ._common import about_file, positive_seconds, print_json
 
 
 def register(sub):
@@ -14,13 +14,15 @@ def register(sub):
         "harmonics of delta and delta' up to the 11th, and amplitude drift of a recording.",
     )
     p.add_argument("file", metavar="FILE.csv", help="recording (CSV with a JSON sidecar)")
-    p.add_argument("--window", type=float, default=None, metavar="S", help="use the last S seconds (default: all)")
+    p.add_argument("--window", type=positive_seconds, default=None, metavar="S", help="use the last S seconds (default: all)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    feats = load_recording(args.file).features(window=args.window)
+    recording = load_recording(args.file)
+    with about_file(args.file):
+        feats = recording.features(window=args.window)
     if args.json:
         print_json(feats.to_dict())
     else:

@@ -1,9 +1,11 @@
 """``tvcid simulate``: run a hypothesis closed or open loop and write a recording."""
 from __future__ import annotations
 
+import numpy as np
+
 from models.experiments import OpenLoop
 from models.hypotheses import HYPOTHESES, hypothesis
-from models.recording import recording_from_trajectory, save_recording
+from models.recording import MAX_ANGLE, recording_from_trajectory, save_recording
 from models.simulate import DEFAULT_DT, DEFAULT_RATE, simulate
 
 from ._common import add_controller_arguments, controller_from_args, parse_assignments
@@ -44,6 +46,11 @@ def run(args) -> int:
     else:
         experiment = controller_from_args(args)
     trajectory = simulate(params, experiment, args.t_end, dt=args.dt, rate=args.rate)
+    peak = float(np.max(np.abs(trajectory.delta)))
+    if peak > MAX_ANGLE:  # a recording tvcid would refuse to read back (degrees suspected)
+        raise ValueError(f"{params.name}: the output reaches {peak:.3g} rad, beyond the {MAX_ANGLE} rad "
+                         "an actuator record may hold (the loop is unstable or nearly so with these "
+                         "parameters and controller settings)")
     columns, meta = recording_from_trajectory(trajectory)
     path = save_recording(args.out, columns, meta)
     print(f"wrote {path} ({trajectory.t.size} samples)")

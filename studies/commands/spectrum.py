@@ -4,7 +4,7 @@ from __future__ import annotations
 from discovery.spectral import harmonic_table, lowpass_reconstruction, noise_floor
 from models.recording import load_recording
 
-from ._common import print_json
+from ._common import about_file, positive_seconds, print_json
 
 
 def register(sub):
@@ -16,7 +16,7 @@ def register(sub):
         "noise power that matches it (paper 000 section 4.3).",
     )
     p.add_argument("file", metavar="FILE.csv", help="recording (CSV with a JSON sidecar)")
-    p.add_argument("--window", type=float, default=None, metavar="S", help="use the last S seconds (default: all)")
+    p.add_argument("--window", type=positive_seconds, default=None, metavar="S", help="use the last S seconds (default: all)")
     p.add_argument("--n-harmonics", type=int, default=11, help="harmonics in the table")
     p.add_argument("--signal", choices=("derivative", "delta"), default="derivative", help="signal of the harmonic table")
     p.add_argument("--raise-factor", type=float, default=3.0, help="flag harmonics this many times above their neighbours")
@@ -32,9 +32,10 @@ def run(args) -> int:
     recording = load_recording(args.file)
     source = recording if args.window is None else recording.window(args.window)
     source_args = (source,) if args.window is None else source
-    table = harmonic_table(*source_args, n_harmonics=args.n_harmonics,
-                           derivative=args.signal == "derivative", raise_factor=args.raise_factor)
-    floor = noise_floor(*source_args, band_hz=tuple(args.band), noise_band=args.noise_band)
+    with about_file(args.file):
+        table = harmonic_table(*source_args, n_harmonics=args.n_harmonics,
+                               derivative=args.signal == "derivative", raise_factor=args.raise_factor)
+        floor = noise_floor(*source_args, band_hz=tuple(args.band), noise_band=args.noise_band)
     out = {
         "file": str(args.file),
         "signal": table.signal,
