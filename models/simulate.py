@@ -364,5 +364,12 @@ def simulate_batch(
         dt, n_steps, decimation, out, status,
     )
     t = dt * decimation * np.arange(out.shape[2])
+    commands = {}
+    for i, exp in enumerate(experiments):  # u as commanded, as simulate records it
+        if isinstance(exp, OpenLoop):
+            if id(exp) not in commands:
+                commands[id(exp)] = exp.command(t)
+            ran = ~np.isnan(out[i, 0])  # samples after a divergence stay NaN
+            out[i, 1, ran] = commands[id(exp)][ran]
     names = np.array([_STATUS_NAMES[c] for c in status[:, 0]])
     return BatchResult(t=t, signals=out, status=names, stop_time=status[:, 1] * dt)
