@@ -8,6 +8,7 @@ part of tvcid reads recordings through :func:`load_recording`.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from dataclasses import dataclass, field
@@ -257,7 +258,7 @@ def _read_csv(path):
         line = raw[: exc.start].count(b"\n") + 1
         _fail(path, f"not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line}); save it as UTF-8 CSV")
     try:
-        rows = list(csv.reader(text.splitlines()))
+        rows = list(csv.reader(io.StringIO(text, newline="")))  # quoted names may hold line breaks
     except csv.Error as exc:
         _fail(path, f"not a readable CSV file ({exc})")
     rows = [r for r in rows if r and any(c.strip() for c in r)]
@@ -304,9 +305,14 @@ def load_recording(path) -> Recording:
             f"{path}: missing sidecar {side.name} (a JSON object with at least 'kind')"
         )
     try:
-        meta = json.loads(side.read_text())
+        meta = json.loads(side.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise RecordingError(f"{side}: invalid JSON ({exc.msg} at line {exc.lineno})") from None
+    except UnicodeDecodeError as exc:
+        raise RecordingError(f"{side}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x}); save the "
+                             "sidecar as UTF-8 JSON") from None
+    except OSError as exc:
+        raise RecordingError(f"{side}: cannot read ({exc.strerror})") from None
     _validate_meta(meta, side)
     columns = _read_csv(path)
     meta = dict(meta)
@@ -336,14 +342,18 @@ def save_recording(path, columns: dict, meta: dict) -> Path:
     lengths = {v.size for v in columns.values()}
     if len(lengths) != 1:
         raise RecordingError(f"{path}: columns have unequal lengths {sorted(lengths)}")
-    path.parent.mkdir(parents=True, exist_ok=True)
     names = list(columns)
-    with open(path, "w", newline="") as fh:
+    for name in names:  # what the reader would give back differently
+        if not isinstance(name, str) or name != name.strip() or not name:
+            raise RecordingError(f"{path}: column name {name!r} is empty or has leading/trailing "
+                                 "whitespace (the reader strips it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh)
         writer.writerow(names)
         for row in zip(*(columns[n] for n in names)):
             writer.writerow([repr(float(v)) for v in row])
-    sidecar_path(path).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    sidecar_path(path).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     return path
 
 

@@ -106,10 +106,10 @@ def _settings(n):
 # ------------------------------------------------------------------------------------------------
 # recording format
 
-#: Characters of extra column names: CSV delimiters and quotes, non-ASCII letters. No white space
-#: (the reader strips header cells) and no line breaks: the reader splits the text into lines
-#: before parsing the CSV, so a name holding one does not come back (issue 14 report).
-NAME_CHARS = "abcxyzABXYZ019_-.()/[],\"'θδµ°"
+#: Characters of extra column names: CSV delimiters and quotes, non-ASCII letters, line breaks
+#: (quoted by the writer, kept by the reader). Leading or trailing white space is refused by
+#: save_recording (the reader strips header cells), so names are drawn without it at the ends.
+NAME_CHARS = "abcxyzABXYZ019_-.()/[],\"'θδµ°\n\r\u2028\x85"
 
 
 @st.composite
@@ -123,7 +123,8 @@ def finite_tables(draw):
     angle = st.floats(-0.4, 0.4)  # the reader refuses more than MAX_ANGLE = 0.5 rad
     columns["u"] = draw(arrays(float, n, elements=angle))
     columns["delta"] = draw(arrays(float, n, elements=angle))
-    names = draw(st.lists(st.text(NAME_CHARS, min_size=1, max_size=8), max_size=3, unique=True))
+    names = draw(st.lists(st.text(NAME_CHARS, min_size=1, max_size=8).filter(lambda x: x == x.strip()),
+                          max_size=3, unique=True))
     for name in names:
         if name not in columns:
             columns[name] = draw(arrays(float, n, elements=st.floats(**FINITE)))
