@@ -8,7 +8,7 @@ import pytest
 
 from discovery.calibration import synthetic_recording
 from discovery.calibration.likelihood import FeatureTerm
-from models import CONTROLLER_A, M002
+from models import CONTROLLER_A, CONTROLLER_B, M002
 from models.recording import load_recording
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -18,9 +18,38 @@ def test_m000_cycle_wanders_beyond_its_sensor_noise():
     term = FeatureTerm(load_recording(DATA / "m000_closed_A.csv"), 10.0, 6.0, 5e-4)
     freq = term.features.index("frequency")
     wander_sd = np.sqrt(term.wander_var[freq])
-    # M000's band-pass loop leaves the 10 s frequency wandering by a few tenths of a percent
+    # M000's band-pass loop leaves the 10 s frequency wandering: the estimate is 0.43 % at A, far
+    # above what the sensor noise alone spreads it (< 0.01 %)
     assert 1e-3 < wander_sd / term.observed[freq] < 1e-2
-    assert np.sqrt(term.cov_hat[freq, freq]) > 1.4 * wander_sd
+    noise_var = term.cov_hat[freq, freq] - 2.0 * term.wander_var[freq]
+    assert np.sqrt(noise_var) < 0.1 * wander_sd
+
+
+@pytest.mark.parametrize("name, controller", [("A", CONTROLLER_A), ("B", CONTROLLER_B)])
+def test_m000_wander_estimate_against_the_spread_of_many_windows(name, controller):
+    """The wander is estimated from four 2.5 s pieces of the record's one 10 s window. Measured
+    independently: the features of 40 disjoint 10 s windows (20-420 s) of the same M000 at the same
+    controller with another noise seed (7; the bundled records use 1 and 2). When this was written
+    the estimate was 1.1-3.8x the windows' spread at A and 3.9-7.5x at B (per feature; frequency:
+    0.43 % vs 0.12 % at A, 0.36 % vs 0.06 % at B): conservative, so asserted as between 1x and 8x.
+    Every window lies within 2 sd of the record's features under the covariance (largest |z| 1.2),
+    which it would not without the wander (the frequency's noise-only sd is < 0.01 %)."""
+    from models import hypothesis, simulate
+
+    term = FeatureTerm(load_recording(DATA / f"m000_closed_{name}.csv"), 10.0, 6.0, 5e-4)
+    meta = load_recording(DATA / f"m000_closed_{name}.csv").meta
+    params = hypothesis("M000", noise_seed=7, noise_power=meta["parameters"]["noise_power"],
+                        noise_band=meta["parameters"]["noise_band"])
+    tr = simulate(params, controller, 420.0, rate=1000.0)
+    windows = []
+    for start in np.arange(20.0, 420.0, 10.0):
+        sel = (tr.t >= start) & (tr.t < start + 10.0)
+        windows.append(term._data_features_at(tr.t[sel] - start, tr.delta[sel]))
+    windows = np.array(windows)
+    ratio = np.sqrt(term.wander_var) / np.std(windows, axis=0, ddof=1)
+    assert np.all((ratio >= 1.0) & (ratio <= 8.0)), dict(zip(term.features, ratio.round(2)))
+    z = (windows - term.observed) / np.sqrt(np.diag(term.cov_hat))
+    assert np.max(np.abs(z)) < 2.0, dict(zip(term.features, np.abs(z).max(axis=0).round(2)))
 
 
 def test_periodic_m002_cycle_has_no_wander(tmp_path):

@@ -7,18 +7,27 @@ from studies.cli import main
 
 
 def test_df_predict_json(capsys):
-    assert main(["df", "predict", "M002", "--kp", "9.8", "--kd", "0.06", "--mu", "4.5", "--json"]) == 0
+    args = ["df", "predict", "M002", "--kp", "9.8", "--kd", "0.06", "--mu", "4.5", "--compare", "--json"]
+    assert main(args) == 0
     out = json.loads(capsys.readouterr().out)
     (cycle,) = out["limit_cycles"]
     assert set(cycle) >= {"amplitude", "frequency", "stable"}
     assert cycle["stable"] is True
+    # regression pin: value printed by `tvcid df predict M002 --kp 9.8 --kd 0.06 --mu 4.5 --json` at
+    # commit 4c7fbe5, not an independent reference
     assert cycle["frequency"] == pytest.approx(6.83, abs=0.01)
     assert cycle["amplitude"] == pytest.approx(7.66e-3, rel=0.005)
+    # independent: the simulated cycle at B is MODELS.md's reconstruction (6.73e-3 rad at 6.67 rad/s)
+    cmp = out["comparison"]
+    assert cmp["simulated_amplitude"] == pytest.approx(6.73e-3, abs=0.005e-3)
+    assert cmp["simulated_frequency"] == pytest.approx(6.67, abs=0.005)
+    assert 0 < cmp["frequency_error"] < 0.05  # the DF runs high, as at A (+3.3 %)
 
 
 def test_df_predict_compare_reports_the_difference(capsys):
     assert main(["df", "predict", "M002", "--compare", "--frequency-range", "1", "50", "--json"]) == 0
     cmp = json.loads(capsys.readouterr().out)["comparison"]
+    # MODELS.md: simulated 8.60 rad/s, the DF 8.88 (+3.3 %)
     assert cmp["simulated_frequency"] == pytest.approx(8.60, abs=0.01)
     assert cmp["frequency_error"] == pytest.approx(0.033, abs=0.005)
 

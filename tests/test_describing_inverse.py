@@ -21,7 +21,8 @@ M002 = hypothesis("M002")
 def test_corrected_family_reproduces_models_md():
     family = paper002_family(**HWIL, controller=CONTROLLER_A, params=M002)
     np.testing.assert_allclose(family.backlash_half_width, FAMILY_BACKLASH_HALF_WIDTHS)
-    assert np.max(np.abs(family.dead_zone / MODELS_FAMILY - 1)) < 0.01
+    # MODELS.md prints 4 digits (rounding up to 0.05 %); measured: 0.030 % at most (README)
+    assert np.max(np.abs(family.dead_zone / MODELS_FAMILY - 1)) < 5e-4
     assert family.delay == pytest.approx(7e-3)
     rows = family.to_dict()["family"]
     assert rows[4] == {"backlash_half_width": 4.364e-4, "dead_zone": pytest.approx(1.333e-3, rel=0.01)}
@@ -52,7 +53,8 @@ def test_exact_balance_inverts_a_predicted_cycle():
 
 def test_paper001_describing_function():
     (pair,) = solve_backlash_and_dead_zone(**HWIL, controller=CONTROLLER_A, params=hypothesis("M001i"))
-    assert pair.backlash_half_width == pytest.approx(1.237e-4, rel=0.01)
+    # MODELS.md: f = 1.237e-4 (4 digits); measured 1.2347e-4, -0.18 % (README: 1.235e-4)
+    assert pair.backlash_half_width == pytest.approx(1.237e-4, rel=2.5e-3)
     (later,) = solve_backlash_and_dead_zone(**HWIL, controller=CONTROLLER_A, params=hypothesis("M001i", delay=5.89e-3))
     assert later.backlash_half_width == pytest.approx(1.1625e-4, rel=0.01)
     assert later.dead_zone == pytest.approx(7.83e-3, rel=0.01)

@@ -70,14 +70,24 @@ def test_no_raised_harmonic_without_the_bandpass_loop():
         assert table.ratio[6] < 0.1
 
 
-@pytest.mark.parametrize("power, band, seed", [(1e-11, 500.0, 3), (4e-11, 100.0, 11)])
-def test_noise_floor_recovers_the_injected_power(power, band, seed):
-    params = hypothesis("M002", noise_power=power, noise_band=band, noise_seed=seed)
-    tr = simulate(params, CONTROLLER_A, 40.0)
-    sl = tr.window(30)
-    floor = noise_floor(tr.t[sl], tr.delta[sl], noise_band=band)
-    assert floor.power == pytest.approx(power, rel=0.2)
-    assert floor.std == pytest.approx(np.sqrt(power * 2 * band), rel=0.1)
+@pytest.mark.parametrize("power, band", [(1e-11, 500.0), (4e-11, 100.0)])
+def test_noise_floor_recovers_the_injected_power(power, band):
+    """M002 at controller A, last 30 s of 40 s, noise seeds 0-9: every matched power within 10 % of
+    the injected one and their mean within 3 % (measured when this was written: errors within
+    9.3 % and 8.3 %, mean -1.0 % and -0.4 %, sd 6.1 % and 3.6 % over the ten seeds; the
+    discovery.spectral.noise_floor docstring and the README state the same)."""
+    errors, std_errors = [], []
+    for seed in range(10):
+        params = hypothesis("M002", noise_power=power, noise_band=band, noise_seed=seed)
+        tr = simulate(params, CONTROLLER_A, 40.0)
+        sl = tr.window(30)
+        floor = noise_floor(tr.t[sl], tr.delta[sl], noise_band=band)
+        errors.append(floor.power / power - 1)
+        std_errors.append(floor.std / np.sqrt(power * 2 * band) - 1)
+    errors = np.array(errors)
+    assert np.max(np.abs(errors)) < 0.10, errors.round(3)
+    assert abs(np.mean(errors)) < 0.03, errors.round(3)
+    assert np.max(np.abs(std_errors)) < 0.05, np.round(std_errors, 3)  # sqrt of the power
 
 
 def test_noise_floor_of_held_noise_on_a_sine():
