@@ -97,6 +97,10 @@ class Calibration:
         Find the maximum a posteriori (Nelder-Mead) before placing the walkers around it.
     stop_when_converged : bool
         False runs every chain to ``max_steps`` (e.g. to map a ridge).
+    spread : {"axes", "hessian"}
+        Initial walkers around the maximum a posteriori: a ball with each axis' own sd, or along
+        the principal axes of the Hessian there, spread over the prior along ridges the data do not
+        constrain (:func:`_principal_axes`).
     """
 
     def __init__(self, hypothesis, params=("backlash", "dead_zone", "delay", SIGMA),
@@ -104,7 +108,7 @@ class Calibration:
                  features=DEFAULT_FEATURES, window=10.0, transient=6.0, dt=5e-4, n_walkers=16,
                  max_steps=4000, check_every=100, tau_factor=50.0, moves=None, pool=None,
                  backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
-                 stop_when_converged=True):
+                 stop_when_converged=True, spread="axes"):
         self.hypothesis = hypothesis
         self.params = params
         self.priors = priors
@@ -127,6 +131,7 @@ class Calibration:
         self.warm_start = warm_start
         self.optimize_start = optimize_start
         self.stop_when_converged = stop_when_converged
+        self.spread = spread
 
     # -- set-up ---------------------------------------------------------------------------------
     def _base(self):
@@ -166,6 +171,8 @@ class Calibration:
                 raise ValueError(f"{name} must be a positive integer (got {v!r})")
         if not (isinstance(self.dt, (int, float)) and self.dt > 0):
             raise ValueError(f"dt must be > 0 (got {self.dt!r})")
+        if self.spread not in ("axes", "hessian"):
+            raise ValueError(f"spread must be 'axes' or 'hessian' (got {self.spread!r})")
         if self.transient < 0:
             raise ValueError(f"transient must be >= 0 (got {self.transient})")
         base = self._base()
@@ -239,10 +246,14 @@ class Calibration:
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
         scale = _axis_scales(lp, z0)
         ndim = len(z0)
+        axes = np.diag(0.5 * scale)
+        if self.spread == "hessian":
+            axes = _principal_axes(lp, z0, scale)
+        self.initial_axes_ = axes
         out = np.empty((self.n_walkers, ndim))
         filled = 0
         for _ in range(100):
-            trial = z0 + 0.5 * scale * rng.standard_normal((self.n_walkers, ndim))
+            trial = z0 + rng.standard_normal((self.n_walkers, ndim)) @ axes.T
             ok = np.isfinite(lp(trial))
             take = trial[ok][: self.n_walkers - filled]
             out[filled: filled + len(take)] = take
@@ -335,6 +346,67 @@ def _simplex(z0, lp):
         z[j] += scale[j]
         simplex.append(z)
     return np.array(simplex)
+
+
+def _principal_axes(lp, z0, scale):
+    """Columns: the posterior's principal axes at ``z0``, each as long as its sd.
+
+    From the Hessian of ``lp`` by central differences (steps ``scale``, the per-axis sds, so
+    each probe moves ``lp`` by ~0.5), all probes in one vectorised call. Along a direction the
+    data barely constrain (a ridge: an eigenvalue near zero or positive), the sd is a quarter of
+    the prior box's extent through ``z0`` in that direction, so the walkers start spread along the
+    ridge instead of in a ball that must crawl along it. Falls back to the axis sds when the
+    probes fail.
+    """
+    ndim = len(z0)
+    h = np.asarray(scale, dtype=float)
+    pts = [z0]
+    for i in range(ndim):
+        for si in (1, -1):
+            z = z0.copy()
+            z[i] += si * h[i]
+            pts.append(z)
+    for i in range(ndim):
+        for j in range(i + 1, ndim):
+            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+                z = z0.copy()
+                z[i] += si * h[i]
+                z[j] += sj * h[j]
+                pts.append(z)
+    f = np.asarray(lp(np.array(pts)), dtype=float)
+    if not np.all(np.isfinite(f)):
+        return np.diag(0.5 * h)
+    f0, k = f[0], 1
+    hess = np.empty((ndim, ndim))
+    for i in range(ndim):
+        hess[i, i] = (f[k] - 2 * f0 + f[k + 1]) / h[i] ** 2
+        k += 2
+    for i in range(ndim):
+        for j in range(i + 1, ndim):
+            fpp, fpm, fmp, fmm = f[k:k + 4]
+            hess[i, j] = hess[j, i] = (fpp - fpm - fmp + fmm) / (4 * h[i] * h[j])
+            k += 4
+    # in units of the axis sds, so that eigenvalues compare across parameters
+    precision = -hess * np.outer(h, h)
+    vals, vecs = np.linalg.eigh(precision)
+    lows = np.array([p.internal_bounds[0] for p in lp.priors])
+    highs = np.array([p.internal_bounds[1] for p in lp.priors])
+    axes = np.empty((ndim, ndim))
+    for m in range(ndim):
+        v = vecs[:, m] * h  # direction in internal coordinates, one unit = one eigen-sd at 1
+        extent = _box_extent(z0, v, lows, highs)
+        sd = 1.0 / math.sqrt(vals[m]) if vals[m] > 0 else math.inf
+        axes[:, m] = v * min(sd, 0.25 * extent)
+    return axes
+
+
+def _box_extent(z0, v, lows, highs):
+    """Length (in multiples of ``v``) of the line ``z0 + t v`` inside the box ``[lows, highs]``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (lows - z0) / v, (highs - z0) / v
+    lo = np.where(v != 0, np.minimum(a, b), -np.inf)
+    hi = np.where(v != 0, np.maximum(a, b), np.inf)
+    return float(np.min(hi) - np.max(lo))
 
 
 def _axis_scales(lp, z0):

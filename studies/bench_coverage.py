@@ -1,0 +1,229 @@
+"""Coverage benchmark of the calibration: do the 90 % intervals hold the truth 90 % of the time?
+
+``python -m studies.bench_coverage [--quick] [--draws N] [--seed S] [--out DIR]``
+
+Hypothesis: with the right structure, :class:`discovery.calibration.Calibration` returns 90 %
+intervals that contain the truth in 80-97 % of seeded draws per parameter, and the truth's rank
+among the posterior samples is uniform (simulation-based calibration). Deciding figure:
+``DIR/ranks.png`` (rank histograms per parameter; flat is calibrated, U-shaped is overconfident,
+a hump is underconfident) and the coverage table in ``DIR/bench.json``.
+
+Each draw comes from the generator shared with the discovery benchmark
+(:func:`studies.scenarios.draw_scenario`: a truth over every structure, an experiment design with
+limit cycles at 1-3 controller settings, open-loop tests or none, 200 Hz or 1 kHz acquisition,
+noise, sensor offset, quantisation); every third draw is forced onto a structure with a friction
+offset and a dead zone on the velocity signal (the ridge the limit cycle leaves between them).
+Its recordings are made by the plain-Python reference path and read back as measured
+(sidecars without truth). The calibration gets the true structure and the true linear block, and
+samples the thresholds, the delay and the friction offset present in the structure, from a
+start perturbed by 30 % (log-normal), under priors that are the generator's own ranges widened
+by 1.5x (so the truths are draws from a distribution close to the prior). Closed-loop records
+enter through the limit-cycle features, open-loop ones through the output error.
+
+Written: ``DIR/bench.json`` (config, one row per draw with truths, quantiles, ranks, convergence,
+wall time and simulated seconds; coverage and rank histograms per parameter) and
+``DIR/ranks.png``. ``--quick`` (CI) runs two short draws with short chains and checks only that
+every row is complete and that coverage and ranks are computed from the rows.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .scenarios import draw_scenario, shortened, write_recordings
+
+#: Parameters sampled when the truth's structure has them.
+SAMPLED = ("dead_zone", "backlash", "delay", "friction_offset")
+#: Centres and factors of the generator's ranges (studies/scenarios.py, draw_truth).
+DEAD_ZONE_CENTRE = {"error": 1.2e-3, "velocity": 0.0083}
+BACKLASH_CENTRE = 1.1625e-4
+RANGE_FACTOR = 2.5
+DELAY_RANGE = (1e-3, 8e-3)
+#: How much wider than the generator's ranges the priors are.
+PRIOR_WIDENING = 1.5
+LEVEL = 0.90
+RANK_BINS = 10
+
+
+@dataclass(frozen=True)
+class Config:
+    draws: int = 30
+    seed: int = 2000
+    walkers: int = 24
+    max_steps: int = 1500
+    window: float = 10.0
+    transient: float = 20.0
+    dt: float = 5e-4
+    spread: str = "hessian"
+    closed_seconds: float | None = None
+    open_seconds: float | None = None
+    start_scatter: float = 0.3
+
+
+QUICK = Config(draws=2, walkers=16, max_steps=40, transient=6.0, closed_seconds=16.0, open_seconds=6.0)
+
+
+def priors_for(structure):
+    """The generator's ranges, widened by ``PRIOR_WIDENING``, for the sampled parameters."""
+    from discovery.calibration.priors import LogUniform, Uniform
+
+    w = RANGE_FACTOR * PRIOR_WIDENING
+    z = DEAD_ZONE_CENTRE[structure.dead_zone_position.value]
+    priors = {"dead_zone": LogUniform(z / w, z * w),
+              "delay": LogUniform(DELAY_RANGE[0] / PRIOR_WIDENING, DELAY_RANGE[1] * PRIOR_WIDENING)}
+    if structure.backlash:
+        priors["backlash"] = LogUniform(BACKLASH_CENTRE / w, BACKLASH_CENTRE * w)
+    if structure.friction:
+        priors["friction_offset"] = Uniform(-z * w, 0.0)
+    return priors
+
+
+def _start(truth, priors, rng, scatter):
+    out = {}
+    for n, p in priors.items():
+        v = getattr(truth, n) * math.exp(scatter * rng.standard_normal())
+        out[n] = float(min(max(v, p.low + 0.02 * (p.high - p.low)), p.high - 0.02 * (p.high - p.low)))
+    return out
+
+
+def run_draw(index, config: Config, workdir: Path) -> dict:
+    from discovery.calibration import Calibration
+    from discovery.calibration.runner import ConvergenceWarning
+    from models.structures import Structure, structure_space
+
+    seed = config.seed + index
+    structure = None
+    if index % 3 == 2:  # a ridge: dead zone on the velocity signal and a friction offset
+        kept, _ = structure_space()
+        ridge = [s for s in kept if s.friction and s.dead_zone_position.value == "velocity"]
+        structure = ridge[int(np.random.default_rng(seed).integers(len(ridge)))]
+    scenario = draw_scenario(seed, structure=structure)
+    if config.closed_seconds or config.open_seconds:
+        scenario = shortened(scenario, closed=config.closed_seconds, open_=config.open_seconds)
+    paths = write_recordings(scenario, workdir / f"draw{index:03d}")
+    truth = scenario.truth
+    structure = Structure.of_params(truth)
+    priors = priors_for(structure)
+    names = tuple(n for n in SAMPLED if n in priors)
+    rng = np.random.default_rng([seed, 1])
+    start = _start(truth, priors, rng, config.start_scatter)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        cal = Calibration(truth, params=names, priors=priors, start=start, likelihood="features",
+                          window=config.window, transient=config.transient, dt=config.dt,
+                          n_walkers=config.walkers, max_steps=config.max_steps, seed=seed,
+                          spread=config.spread).fit(paths)
+    wall = time.perf_counter() - t0
+    post, rep = cal.posterior_, cal.report_
+    per_eval = sum((config.window + config.transient) if t.kind != "waveform" else float(t.tau[-1])
+                   for t in cal.terms_)
+    row = {"index": index, "seed": seed, "structure": structure.name,
+           "design": [r.__dict__ for r in scenario.recordings],
+           "acquisition": scenario.acquisition.__dict__,
+           "wall_s": wall, "iterations": rep.iterations, "converged": bool(rep.converged),
+           "tau": [float(t) for t in rep.tau], "acceptance": float(rep.acceptance),
+           "simulated_seconds": float(rep.iterations * config.walkers * per_eval),
+           "parameters": {}}
+    for j, n in enumerate(names):
+        lo, hi = post.interval(n, LEVEL)
+        value = float(getattr(truth, n))
+        row["parameters"][n] = {
+            "truth": value, "q05": float(lo), "q50": float(np.median(post.samples[:, j])),
+            "q95": float(hi), "inside": bool(lo <= value <= hi),
+            "rank": float(np.mean(post.samples[:, j] < value)),
+            "prior": [priors[n].low, priors[n].high],
+            "relative_width": float((hi - lo) / abs(value)) if value else None,
+        }
+    return row
+
+
+def summarise(rows) -> dict:
+    """Coverage (truth inside the 90 % interval) and rank histograms per parameter."""
+    out = {}
+    names = sorted({n for r in rows for n in r["parameters"]})
+    for n in names:
+        cells = [r["parameters"][n] for r in rows if n in r["parameters"]]
+        ranks = np.array([c["rank"] for c in cells])
+        hist, _ = np.histogram(ranks, bins=RANK_BINS, range=(0.0, 1.0))
+        out[n] = {"draws": len(cells), "coverage": float(np.mean([c["inside"] for c in cells])),
+                  "rank_histogram": hist.tolist(),
+                  "median_relative_width": float(np.median([c["relative_width"] for c in cells]))}
+    out["_all"] = {"draws": len(rows), "converged": int(sum(r["converged"] for r in rows)),
+                   "median_wall_s": float(np.median([r["wall_s"] for r in rows])),
+                   "median_simulated_seconds": float(np.median([r["simulated_seconds"] for r in rows]))}
+    return out
+
+
+def plot_ranks(summary, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [n for n in summary if not n.startswith("_")]
+    fig, axes = plt.subplots(1, len(names), figsize=(3.2 * len(names), 2.8), squeeze=False)
+    for ax, n in zip(axes[0], names):
+        h = summary[n]["rank_histogram"]
+        ax.bar(np.arange(RANK_BINS) / RANK_BINS, h, width=1 / RANK_BINS, align="edge", color="0.6")
+        ax.axhline(summary[n]["draws"] / RANK_BINS, color="k", lw=0.8, ls="--")
+        ax.set_title(f"{n}\ncoverage {summary[n]['coverage']:.0%} of {summary[n]['draws']}")
+        ax.set_xlabel("rank of the truth")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="two short draws (CI)")
+    parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
+    parser.add_argument("--seed", type=int, default=None, help="seed of the first draw (default 2000)")
+    parser.add_argument("--max-steps", type=int, default=None, help="MCMC step cap per draw")
+    parser.add_argument("--out", default="results/bench_coverage", help="output directory")
+    args = parser.parse_args(argv)
+    config = QUICK if args.quick else Config()
+    overrides = {k: v for k, v in (("draws", args.draws), ("seed", args.seed),
+                                   ("max_steps", args.max_steps)) if v is not None}
+    config = Config(**{**asdict(config), **overrides})
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "bench.json"
+    rows = []
+    if path.exists():  # resume: keep finished draws of the same config
+        old = json.loads(path.read_text())
+        if old.get("config") == asdict(config):
+            rows = old["rows"]
+    done = {r["index"] for r in rows}
+    for i in range(config.draws):
+        if i in done:
+            continue
+        row = run_draw(i, config, out / "data")
+        rows.append(row)
+        cells = ", ".join(f"{n} {'in ' if c['inside'] else 'OUT'} rank {c['rank']:.2f}"
+                          for n, c in row["parameters"].items())
+        print(f"draw {i} ({row['structure']}): {cells}; {row['iterations']} steps, "
+              f"{row['wall_s']:.0f} s", flush=True)
+        summary = summarise(rows)
+        path.write_text(json.dumps({"config": asdict(config), "rows": rows, "summary": summary},
+                                   indent=2))
+    summary = summarise(rows)
+    path.write_text(json.dumps({"config": asdict(config), "rows": rows, "summary": summary}, indent=2))
+    plot_ranks(summary, out / "ranks.png")
+    for n, s in summary.items():
+        if not n.startswith("_"):
+            print(f"{n:16s} coverage {s['coverage']:.0%} of {s['draws']}  ranks {s['rank_histogram']}")
+    print(f"wrote {path}, {out / 'ranks.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
