@@ -11,6 +11,7 @@
 """
 from .backend import CheckpointBackend
 from .calibration import Calibration, load_recordings
+from .checks import PredictiveCheck, predictive_check
 from .likelihood import (
     DEFAULT_FEATURES,
     LIKELIHOODS,
@@ -24,6 +25,8 @@ from .runner import ConvergenceReport, ConvergenceWarning, default_moves, run_en
 from .synthetic import synthetic_recording
 
 __all__ = [
+    "PredictiveCheck",
+    "predictive_check",
     "Calibration",
     "CheckpointBackend",
     "ConvergenceReport",

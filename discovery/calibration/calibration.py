@@ -97,6 +97,12 @@ class Calibration:
         Find the maximum a posteriori (Nelder-Mead) before placing the walkers around it.
     stop_when_converged : bool
         False runs every chain to ``max_steps`` (e.g. to map a ridge).
+    discrepancy : bool
+        Inflate each recording's likelihood for model discrepancy, set once at the maximum a
+        posteriori (:func:`.likelihood.waveform_inflation`, :func:`.likelihood.features_inflation`):
+        a wrong or slightly wrong model then gets intervals as wide as its misfit warrants instead
+        of needles; a right model keeps factor 1. Stored in the checkpoint so a resumed chain uses
+        the same factors. Learned attribute ``inflation_`` (one factor per recording).
     spread : {"axes", "hessian"}
         Initial walkers around the maximum a posteriori: a ball with each axis' own sd, or along
         the principal axes of the Hessian there, spread over the prior along ridges the data do not
@@ -108,7 +114,7 @@ class Calibration:
                  features=DEFAULT_FEATURES, window=10.0, transient=6.0, dt=5e-4, n_walkers=16,
                  max_steps=4000, check_every=100, tau_factor=50.0, moves=None, pool=None,
                  backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
-                 stop_when_converged=True, spread="axes"):
+                 stop_when_converged=True, spread="axes", discrepancy=True):
         self.hypothesis = hypothesis
         self.params = params
         self.priors = priors
@@ -132,6 +138,7 @@ class Calibration:
         self.optimize_start = optimize_start
         self.stop_when_converged = stop_when_converged
         self.spread = spread
+        self.discrepancy = discrepancy
 
     # -- set-up ---------------------------------------------------------------------------------
     def _base(self):
@@ -157,6 +164,7 @@ class Calibration:
             "dt": self.dt,
             "n_walkers": self.n_walkers,
             "recordings": [t.describe()["name"] for t in self.terms_],
+            "discrepancy": bool(self.discrepancy),
         }
 
     def setup(self, recordings):
@@ -226,6 +234,7 @@ class Calibration:
         for term in self.terms_:
             term.setup(start_params, warm_start=self.warm_start)
         self.log_posterior_ = LogPosterior(base, names, priors, self.terms_, sigma_fixed)
+        self.inflation_ = [t.inflation for t in self.terms_]
         self.truths_ = truths_from_recordings(self.recordings_, names, base.name)
         return self
 
@@ -244,6 +253,8 @@ class Calibration:
             if np.isfinite(lp(res.x)):
                 z0 = _profile_sigma(lp, res.x, self.names_)
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
+        if self.discrepancy:
+            self._set_inflation(lp, z0)
         scale = _axis_scales(lp, z0)
         ndim = len(z0)
         axes = np.diag(0.5 * scale)
@@ -261,6 +272,20 @@ class Calibration:
             if filled == self.n_walkers:
                 return out
         raise RuntimeError("could not place the walkers where the posterior is finite")
+
+    def _set_inflation(self, lp, z0):
+        """Each term's discrepancy inflation at ``z0`` (the MAP), kept in the checkpoint."""
+        x = lp.natural(z0)[0]
+        params = lp.params_for(x)
+        sigma = float(lp.sigmas(x[None, :])[0])
+        for term in self.terms_:
+            term.inflation = 1.0
+            if params is not None:
+                term.inflation = float(term.discrepancy(params, sigma))
+        self.inflation_ = [t.inflation for t in self.terms_]
+        if self.backend is not None:
+            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
+                f.require_group(_H5_GROUP).attrs["inflation"] = json.dumps(self.inflation_)
 
     # -- fit ------------------------------------------------------------------------------------
     def fit(self, recordings):
@@ -280,6 +305,11 @@ class Calibration:
             if path.exists():
                 with backend.open("r") as f:
                     old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
+                    stored = f[_H5_GROUP].attrs.get("inflation") if _H5_GROUP in f else None
+                if stored is not None and old == config:  # resuming: the factors of the start
+                    self.inflation_ = [float(v) for v in json.loads(stored)]
+                    for term, value in zip(self.terms_, self.inflation_):
+                        term.inflation = value
                 if old is not None and old != config:
                     stored, now = json.loads(old), json.loads(config)
                     changed = sorted(k for k in set(stored) | set(now) if stored.get(k) != now.get(k))

@@ -46,6 +46,53 @@ __all__ = [
 LIKELIHOODS = ("waveform", "features")
 DEFAULT_FEATURES = ("frequency", "H1", "H3", "H5", "H7")
 _LOG_2PI = math.log(2 * math.pi)
+
+#: Tail probability beyond which the misfit at the maximum a posteriori counts as model
+#: discrepancy (and inflates the likelihood's covariance).
+DISCREPANCY_P = 0.05
+
+
+def waveform_inflation(residuals, sigma) -> float:
+    """Variance inflation of an output-error likelihood for model discrepancy.
+
+    At the maximum a posteriori a right model leaves the sensor's white noise; a wrong or slightly
+    wrong one leaves a smooth misfit, larger than the noise and correlated from sample to sample,
+    which a white-noise likelihood reads as thousands of independent confirmations (needle
+    posteriors). The variance is multiplied by the misfit's excess over the noise, ``mean r^2 /
+    sigma^2``, and divided by the AR(1) effective-sample fraction ``(1 - rho) / (1 + rho)`` of
+    the residuals' lag-1 autocorrelation ``rho`` (a generalised-Bayes tempering by what the
+    residuals really hold). Each factor counts only beyond three standard errors of a white
+    residual (``sqrt(2/n)`` for the variance ratio, ``1/sqrt(n)`` for ``rho``), so a right model
+    keeps 1.
+    """
+    r = np.asarray(residuals, dtype=float)
+    r = r[np.isfinite(r)]
+    n = r.size
+    if n < 10 or not sigma > 0:
+        return 1.0
+    r = r - np.mean(r)
+    ss = float(np.sum(r * r))
+    if ss <= 0.0:
+        return 1.0
+    ratio = ss / n / float(sigma) ** 2
+    rho = float(np.sum(r[1:] * r[:-1])) / ss
+    excess = ratio if ratio > 1.0 + 3.0 * math.sqrt(2.0 / n) else 1.0
+    fraction = (1.0 - rho) / (1.0 + rho) if rho > 3.0 / math.sqrt(n) else 1.0
+    return float(excess / max(fraction, 1.0 / n))
+
+
+def features_inflation(whitened) -> float:
+    """Covariance inflation of a features likelihood for model discrepancy: ``chi2 / k`` of the
+    whitened residuals at the maximum a posteriori when ``chi2`` lies beyond the ``1 -
+    DISCREPANCY_P`` quantile of a chi-square with ``k`` degrees of freedom, else 1."""
+    from scipy.stats import chi2 as chi2_dist
+
+    z = np.asarray(whitened, dtype=float)
+    if not np.all(np.isfinite(z)):
+        return 1.0
+    k, q = z.size, float(np.sum(z * z))
+    return q / k if q > chi2_dist.ppf(1.0 - DISCREPANCY_P, k) else 1.0
+
 #: A simulated cycle smaller than this fraction of the recorded one counts as not oscillating.
 MIN_AMPLITUDE_RATIO = 0.2
 
@@ -127,6 +174,8 @@ class _ClosedLoopTerm:
         self.recording = recording
         self.name = name or (recording.path.stem if recording.path else "recording")
         self.source = str(recording.path) if recording.path else self.name  # for error messages
+        #: likelihood variance inflation for model discrepancy (set at the MAP by Calibration)
+        self.inflation = 1.0
         self.experiment = recording.experiment()
         self.window = window
         self.transient = float(transient)
@@ -273,7 +322,7 @@ class WaveformTerm(_ClosedLoopTerm):
 
     def loglike(self, param_sets, sigma, pointwise=False):
         res = self.residuals(param_sets)
-        sigma = np.asarray(sigma, dtype=float)[:, None]
+        sigma = np.asarray(sigma, dtype=float)[:, None] * math.sqrt(self.inflation)
         ll = -0.5 * (res / sigma) ** 2 - np.log(sigma) - 0.5 * _LOG_2PI
         ll = np.where(np.isfinite(ll), ll, -np.inf)
         return ll if pointwise else ll.sum(axis=1)
@@ -281,6 +330,10 @@ class WaveformTerm(_ClosedLoopTerm):
     def predict(self, param_sets):
         """Aligned model waveforms on the data's window (NaN rows for invalid runs)."""
         return self.data[None, :] - self.residuals(param_sets)
+
+    def discrepancy(self, params, sigma) -> float:
+        """:func:`waveform_inflation` of the residuals at ``params``."""
+        return waveform_inflation(self.residuals([params])[0], sigma)
 
 
 class FeatureTerm(_ClosedLoopTerm):
@@ -387,10 +440,20 @@ class FeatureTerm(_ClosedLoopTerm):
                 out[i] = f
         return out
 
+    def whitened_residuals(self, params, sigma):
+        """Residuals of the features at ``params`` in units of their sd (no inflation)."""
+        r = self.observed - self.model_features([params])[0]
+        return self._whiten @ r / (float(sigma) / self.sigma_hat)
+
+    def discrepancy(self, params, sigma) -> float:
+        """:func:`features_inflation` at ``params``."""
+        return features_inflation(self.whitened_residuals(params, sigma))
+
     def loglike(self, param_sets, sigma, pointwise=False):
         feats = self.model_features(param_sets)
         scale = np.asarray(sigma, dtype=float) / self.sigma_hat
         r = self.observed[None, :] - feats
+        scale = scale * math.sqrt(self.inflation)
         z = np.sum(self._whiten[None, :, :] * r[:, None, :], axis=2) / scale[:, None]
         k = len(self.features)
         ll = -0.5 * z**2 - np.log(scale)[:, None] - 0.5 * _LOG_2PI - 0.5 * self._logdet / k
@@ -428,6 +491,7 @@ class OpenLoopTerm:
         self.n = self.tau.size
         self.sigma_hat = estimate_noise(self.data)
         self.data_rate = float(recording.sample_rate)
+        self.inflation = 1.0  # model-discrepancy inflation (Calibration sets it at the MAP)
         self.warm_start = None
         self.simulator = None
 
@@ -445,11 +509,19 @@ class OpenLoopTerm:
             out[i] = np.interp(self.tau, self.simulator.t, delta[i])
         return out
 
-    def loglike(self, param_sets, sigma, pointwise=False):
+    def residuals(self, param_sets):
+        """Data - model, with a constant sensor offset profiled out (one number against
+        thousands of samples); NaN rows for invalid runs."""
         res = self.data[None, :] - self.predict(param_sets)
-        # a constant sensor offset, profiled out (one number against thousands of samples)
-        res = res - np.mean(res, axis=1, keepdims=True)
-        sigma = np.asarray(sigma, dtype=float)[:, None]
+        return res - np.mean(res, axis=1, keepdims=True)
+
+    def discrepancy(self, params, sigma) -> float:
+        """:func:`waveform_inflation` of the residuals at ``params``."""
+        return waveform_inflation(self.residuals([params])[0], sigma)
+
+    def loglike(self, param_sets, sigma, pointwise=False):
+        res = self.residuals(param_sets)
+        sigma = np.asarray(sigma, dtype=float)[:, None] * math.sqrt(self.inflation)
         ll = -0.5 * (res / sigma) ** 2 - np.log(sigma) - 0.5 * _LOG_2PI
         ll = np.where(np.isfinite(ll), ll, -np.inf)
         return ll if pointwise else ll.sum(axis=1)

@@ -143,7 +143,25 @@ class Posterior:
                 "matrix": [[float(v) for v in row] for row in corr],
             },
             "map": self.map,
+            # per recording, in the order of the recordings (1: no model-discrepancy inflation)
+            "inflation": list(getattr(self.calibration, "inflation_", None) or []),
+            "at_prior_bound": self.at_prior_bound(),
         }
+
+    def at_prior_bound(self, fraction=0.1) -> list:
+        """Parameters stuck at a prior bound: the whole 90 % interval within ``fraction`` of the
+        prior's width (internal coordinates) of one bound, the data pushing them out of the
+        prior. A wide posterior that merely reaches a bound is not stuck."""
+        lp = getattr(self.calibration, "log_posterior_", None)
+        if lp is None:
+            return []
+        out = []
+        q05, q95 = np.quantile(self.internal, [0.05, 0.95], axis=0)
+        for j, (n, p) in enumerate(zip(self.names, lp.priors)):
+            lo, hi = p.internal_bounds
+            if q95[j] - lo < fraction * (hi - lo) or hi - q05[j] < fraction * (hi - lo):
+                out.append(n)
+        return out
 
     def to_json(self, path=None, **kwargs):
         text = json.dumps(self.summary(), indent=2, sort_keys=True, default=_jsonable)

@@ -1,6 +1,7 @@
 """``tvcid fit``: Bayesian calibration of a hypothesis on recordings (emcee, resumable)."""
 from __future__ import annotations
 
+import json
 import sys
 import warnings
 from pathlib import Path
@@ -17,7 +18,8 @@ def register(sub):
         description="Sample the posterior of chosen parameters of a hypothesis given one or more "
         "recordings (closed loop at any controller setting, open-loop tests) with emcee. Writes "
         "DIR/chain.h5 (checkpointed every step), DIR/summary.json, DIR/corner.png, "
-        "DIR/traces.png, DIR/predictive.png and DIR/posterior.nc (ArviZ InferenceData). "
+        "DIR/traces.png, DIR/predictive.png, DIR/check.json (posterior predictive check per "
+        "recording) and DIR/posterior.nc (ArviZ InferenceData). "
         "Running it again on the same DIR resumes the chain (raise --max-steps to continue a "
         "run that stopped at the cap).",
     )
@@ -83,6 +85,10 @@ def run(args) -> int:
             pool.join()
     post = cal.posterior_
     post.to_json(out / "summary.json")
+    from discovery.calibration import predictive_check
+
+    check = predictive_check(cal, seed=args.seed)
+    (out / "check.json").write_text(json.dumps(check.to_dict(), indent=2) + "\n")
     write_posterior_figures(post, out, seed=args.seed)
     try:  # ArviZ InferenceData (walkers as chains, natural units)
         post.to_inference_data().to_netcdf(str(out / "posterior.nc"), engine="h5netcdf")
@@ -95,6 +101,12 @@ def run(args) -> int:
     for n, s in summary["parameters"].items():
         truth = "" if s["truth"] is None else f"  truth {s['truth']:.5g}"
         print(f"  {n:<12s} {s['q50']:.5g}  90 % [{s['q05']:.5g}, {s['q95']:.5g}]{truth}")
+    for row, factor in zip(check.recordings, cal.inflation_):
+        verdict = "passes" if row.passes else "FAILS: the data do not look like draws from the model"
+        inflated = "" if factor == 1.0 else f", likelihood inflated x{factor:.3g} for model discrepancy"
+        print(f"  check {row.name}: p = {row.p_value:.3g}, {verdict}{inflated}")
+    if post.at_prior_bound():
+        print(f"WARNING: at a prior bound: {', '.join(post.at_prior_bound())}", file=sys.stderr)
     if not rep.converged:
         for w in caught:
             if issubclass(w.category, ConvergenceWarning):

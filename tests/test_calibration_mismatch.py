@@ -1,0 +1,108 @@
+"""Model discrepancy: the likelihood's inflation at the MAP and the posterior predictive check.
+
+A right model keeps inflation 1 (its intervals unchanged) and passes the check; a wrong one
+(here: M002's linear block 30 % off on an M002 open-loop test) is inflated, gets wider intervals,
+and fails the check.
+"""
+import warnings
+
+import numpy as np
+import pytest
+
+from discovery.calibration import Calibration
+from discovery.calibration.checks import predictive_check
+from discovery.calibration.likelihood import features_inflation, waveform_inflation
+from discovery.calibration.runner import ConvergenceWarning
+
+
+def test_white_residuals_are_not_inflated():
+    """White noise of the assumed sd: factor 1 in 20 of 20 seeds (each factor triggers beyond
+    three standard errors)."""
+    for seed in range(20):
+        r = np.random.default_rng(seed).standard_normal(4000) * 2e-5
+        assert waveform_inflation(r, 2e-5) == 1.0
+    for seed in range(20):
+        z = np.random.default_rng(seed).standard_normal(5)
+        inflation = features_inflation(z)
+        assert inflation == 1.0 or np.sum(z**2) > 11.07  # chi2(5) 95 % quantile
+
+
+def test_correlated_excess_is_inflated_by_its_variance_and_correlation():
+    """AR(1) residuals with rho = 0.9 and twice the noise sd: 4 x (1 + rho) / (1 - rho) = 76."""
+    rng = np.random.default_rng(3)
+    e = rng.standard_normal(20000)
+    r = np.empty_like(e)
+    r[0] = e[0]
+    for i in range(1, r.size):
+        r[i] = 0.9 * r[i - 1] + np.sqrt(1 - 0.81) * e[i]
+    assert waveform_inflation(2.0 * r, 1.0) == pytest.approx(76.0, rel=0.2)
+    assert features_inflation(np.full(5, 10.0)) == pytest.approx(100.0)
+
+
+@pytest.fixture(scope="module")
+def square(tmp_path_factory):
+    from discovery.calibration import synthetic_recording
+    from models import M002, OpenLoop
+
+    path = tmp_path_factory.mktemp("mismatch") / "square.csv"
+    return synthetic_recording(M002(), OpenLoop.square(0.02, 1.0), 4.0, 2e-5, 5, path)
+
+
+def _fit(rec, gain_factor, discrepancy):
+    from models import M002
+
+    base = M002()
+    base = base.replace(gain=base.gain * gain_factor)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return Calibration(base, params=("dead_zone", "backlash", "delay"), n_walkers=12,
+                           max_steps=150, seed=1, discrepancy=discrepancy).fit([rec])
+
+
+def test_right_model_unchanged_and_passes_the_check(square):
+    cal = _fit(square, 1.0, True)
+    assert cal.inflation_ == [1.0]
+    check = predictive_check(cal, n_draws=16)
+    assert check.passes, check.to_dict()
+
+
+def test_wrong_model_is_inflated_widened_and_flagged(square):
+    """K1 30 % high: the misfit is smooth and far above the noise; the inflation widens every
+    interval at least 3x over the uninflated posterior (whose dead zone sits at its prior's lower
+    bound, 1.8e-8 rad wide), and the check fails the recording."""
+    plain = _fit(square, 1.3, False)
+    honest = _fit(square, 1.3, True)
+    assert honest.inflation_[0] > 10.0
+    # without the term: a needle against the dead zone's lower prior bound; with it: not stuck
+    assert plain.posterior_.at_prior_bound() == ["dead_zone"]
+    assert honest.posterior_.at_prior_bound() == []
+    for n in ("dead_zone", "backlash", "delay"):
+        w_plain = np.subtract(*plain.posterior_.interval(n)[::-1])
+        w_honest = np.subtract(*honest.posterior_.interval(n)[::-1])
+        assert w_honest > 3.0 * w_plain, (n, w_plain, w_honest)
+    check = predictive_check(honest, n_draws=16)
+    assert not check.passes
+    (row,) = check.recordings
+    assert row.statistics["lag1_autocorrelation"] > 0.5 and row.p_value < 1e-6
+
+
+BUNDLED = ["data/m000_closed_A.csv", "data/m000_closed_B.csv", "data/m000_open_square.csv",
+           "data/m000_open_sine.csv"]
+
+
+@pytest.mark.parametrize("hypothesis, params, passes", [
+    ("M002", ("dead_zone", "backlash", "delay"), False),
+    ("M000", ("dead_zone", "backlash", "delay", "friction_offset"), True),
+])
+def test_bundled_records_wrong_structure_flagged_right_one_passes(hypothesis, params, passes):
+    """Issue 12's demonstration on the bundled M000 records (both limit cycles, both open-loop
+    tests): M002's structure has no parameter at a prior bound and fails the check on every
+    record; M000's own structure passes on every record (150 steps; with 400 the same verdicts,
+    M002's inflation 1.8e3-6.2e6, M000's 1-1.08)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        cal = Calibration(hypothesis, params=params, likelihood="features", max_steps=150,
+                          seed=2).fit(BUNDLED)
+    assert cal.posterior_.at_prior_bound() == []
+    check = predictive_check(cal)
+    assert [r.passes for r in check.recordings] == [passes] * 4, check.to_dict()
