@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .likelihood import residual_statistics
+
 __all__ = ["RecordingCheck", "PredictiveCheck", "predictive_check"]
 
 #: A recording whose p-value falls below this fails the check (if the departure is material).
@@ -99,15 +101,10 @@ def _waveform_p(res, sigma):
     """``(variance ratio, lag-1 autocorrelation, p)`` of one residual row (white-noise model)."""
     from scipy.stats import chi2, norm
 
-    r = res[np.isfinite(res)]
-    n = r.size
+    n, ratio, rho = residual_statistics(res, sigma)
     if n < 10:
         return math.nan, math.nan, 0.0
-    r = r - np.mean(r)
-    ss = float(np.sum(r * r))
-    ratio = ss / n / sigma**2
-    rho = float(np.sum(r[1:] * r[:-1])) / ss if ss > 0 else 0.0
-    p_var = float(chi2.sf(ss / sigma**2, n - 1))
+    p_var = float(chi2.sf(n * ratio, n - 1))
     p_rho = float(norm.sf(rho * math.sqrt(n)))
     return ratio, rho, min(1.0, 2.0 * min(p_var, p_rho))
 
@@ -142,9 +139,7 @@ def predictive_check(calibration, n_draws=32, seed=0, level=DEFAULT_LEVEL) -> Pr
     checks = []
     for term in calibration.terms_:
         if term.kind == "features":
-            feats = term.model_features(params)
-            r = term.observed[None, :] - feats
-            z = (term._whiten @ r.T).T / (sigmas / term.sigma_hat)[:, None]
+            z = term.whitened_residuals(params, sigmas)
             q = np.sum(z * z, axis=1)
             k = z.shape[1]
             p = float(np.mean(np.where(np.isfinite(q), chi2.sf(q, k), 0.0)))

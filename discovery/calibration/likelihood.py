@@ -52,6 +52,20 @@ _LOG_2PI = math.log(2 * math.pi)
 DISCREPANCY_P = 0.05
 
 
+def residual_statistics(residuals, sigma):
+    """``(n, variance ratio, lag-1 autocorrelation)`` of the finite residuals, mean removed;
+    the ratio is ``mean r^2 / sigma^2`` (NaN for fewer than two residuals)."""
+    r = np.asarray(residuals, dtype=float)
+    r = r[np.isfinite(r)]
+    n = r.size
+    if n < 2:
+        return n, math.nan, math.nan
+    r = r - np.mean(r)
+    ss = float(np.sum(r * r))
+    rho = float(np.sum(r[1:] * r[:-1])) / ss if ss > 0 else 0.0
+    return n, ss / n / float(sigma) ** 2, rho
+
+
 def waveform_inflation(residuals, sigma) -> float:
     """Variance inflation of an output-error likelihood for model discrepancy.
 
@@ -65,17 +79,9 @@ def waveform_inflation(residuals, sigma) -> float:
     residual (``sqrt(2/n)`` for the variance ratio, ``1/sqrt(n)`` for ``rho``), so a right model
     keeps 1.
     """
-    r = np.asarray(residuals, dtype=float)
-    r = r[np.isfinite(r)]
-    n = r.size
-    if n < 10 or not sigma > 0:
+    n, ratio, rho = residual_statistics(residuals, sigma)
+    if n < 10 or not sigma > 0 or not ratio > 0:
         return 1.0
-    r = r - np.mean(r)
-    ss = float(np.sum(r * r))
-    if ss <= 0.0:
-        return 1.0
-    ratio = ss / n / float(sigma) ** 2
-    rho = float(np.sum(r[1:] * r[:-1])) / ss
     excess = ratio if ratio > 1.0 + 3.0 * math.sqrt(2.0 / n) else 1.0
     fraction = (1.0 - rho) / (1.0 + rho) if rho > 3.0 / math.sqrt(n) else 1.0
     return float(excess / max(fraction, 1.0 / n))
@@ -440,21 +446,20 @@ class FeatureTerm(_ClosedLoopTerm):
                 out[i] = f
         return out
 
-    def whitened_residuals(self, params, sigma):
-        """Residuals of the features at ``params`` in units of their sd (no inflation)."""
-        r = self.observed - self.model_features([params])[0]
-        return self._whiten @ r / (float(sigma) / self.sigma_hat)
+    def whitened_residuals(self, param_sets, sigma):
+        """``(n_sets, k)`` feature residuals in units of their sd at noise ``sigma`` (one per
+        set), without the discrepancy inflation; NaN rows for invalid runs."""
+        r = self.observed[None, :] - self.model_features(param_sets)
+        scale = np.asarray(sigma, dtype=float) / self.sigma_hat
+        return np.sum(self._whiten[None, :, :] * r[:, None, :], axis=2) / scale[:, None]
 
     def discrepancy(self, params, sigma) -> float:
         """:func:`features_inflation` at ``params``."""
-        return features_inflation(self.whitened_residuals(params, sigma))
+        return features_inflation(self.whitened_residuals([params], np.array([sigma]))[0])
 
     def loglike(self, param_sets, sigma, pointwise=False):
-        feats = self.model_features(param_sets)
-        scale = np.asarray(sigma, dtype=float) / self.sigma_hat
-        r = self.observed[None, :] - feats
-        scale = scale * math.sqrt(self.inflation)
-        z = np.sum(self._whiten[None, :, :] * r[:, None, :], axis=2) / scale[:, None]
+        scale = np.asarray(sigma, dtype=float) / self.sigma_hat * math.sqrt(self.inflation)
+        z = self.whitened_residuals(param_sets, sigma) / math.sqrt(self.inflation)
         k = len(self.features)
         ll = -0.5 * z**2 - np.log(scale)[:, None] - 0.5 * _LOG_2PI - 0.5 * self._logdet / k
         ll = np.where(np.isfinite(ll), ll, -np.inf)
