@@ -18,7 +18,8 @@ Its recordings are made by the plain-Python reference path and read back as meas
 samples the thresholds, the delay and the friction offset present in the structure, from a
 start perturbed by 30 % (log-normal), under priors that are the generator's own ranges widened
 by 1.5x (so the truths are draws from a distribution close to the prior). Closed-loop records
-enter through the limit-cycle features, open-loop ones through the output error.
+enter through the limit-cycle features, open-loop ones through the output error (whose noise sd
+is then sampled too); the model-discrepancy inflation is on, as in ``tvcid fit``.
 
 Written: ``DIR/bench.json`` (config, one row per draw with truths, quantiles, ranks, convergence,
 wall time and simulated seconds; coverage and rank histograms per parameter) and
@@ -113,6 +114,8 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
     structure = Structure.of_params(truth)
     priors = priors_for(structure)
     names = tuple(n for n in SAMPLED if n in priors)
+    if any(r.kind == "open" for r in scenario.recordings):
+        names += ("sigma",)  # the output error's noise level, as a user would sample it
     rng = np.random.default_rng([seed, 1])
     start = _start(truth, priors, rng, config.start_scatter)
     t0 = time.perf_counter()
@@ -124,16 +127,17 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
                           spread=config.spread).fit(paths)
     wall = time.perf_counter() - t0
     post, rep = cal.posterior_, cal.report_
-    per_eval = sum((config.window + config.transient) if t.kind != "waveform" else float(t.tau[-1])
-                   for t in cal.terms_)
     row = {"index": index, "seed": seed, "structure": structure.name,
            "design": [r.__dict__ for r in scenario.recordings],
            "acquisition": scenario.acquisition.__dict__,
            "wall_s": wall, "iterations": rep.iterations, "converged": bool(rep.converged),
            "tau": [float(t) for t in rep.tau], "acceptance": float(rep.acceptance),
-           "simulated_seconds": float(rep.iterations * config.walkers * per_eval),
+           "simulated_seconds": float(cal.log_posterior_.simulated_seconds),
            "parameters": {}}
+    row["inflation"] = list(cal.inflation_)
     for j, n in enumerate(names):
+        if n == "sigma":  # a nuisance here; its truth mixes noise and quantisation
+            continue
         lo, hi = post.interval(n, LEVEL)
         value = float(getattr(truth, n))
         row["parameters"][n] = {

@@ -64,6 +64,14 @@ class LogPosterior:
         #: points evaluated so far (each runs one simulation per recording)
         self.n_points = 0
 
+    @property
+    def simulated_seconds(self) -> float:
+        """Seconds simulated so far: every evaluated point runs each recording's simulator once
+        (transient and window in closed loop, the whole record in open loop)."""
+        per_point = sum(float(t.simulator.t_end) for t in self.terms
+                        if getattr(t, "simulator", None) is not None)
+        return self.n_points * per_point
+
     def natural(self, z):
         """Internal -> natural coordinates, ``(n, ndim)``."""
         z = np.atleast_2d(np.asarray(z, dtype=float))
