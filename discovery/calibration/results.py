@@ -5,6 +5,7 @@ methods taking an optional axes or figure.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -343,11 +344,27 @@ class ModelComparison:
         return axes
 
 
+@contextlib.contextmanager
+def _uninflated(calibration):
+    """The calibration's likelihood terms without their discrepancy inflation, for a while."""
+    kept = [t.inflation for t in calibration.terms_]
+    for t in calibration.terms_:
+        t.inflation = 1.0
+    try:
+        yield
+    finally:
+        for t, value in zip(calibration.terms_, kept):
+            t.inflation = value
+
+
 def compare(calibrations, n_draws=200, seed=0) -> ModelComparison:
     """WAIC (ArviZ, pointwise log-likelihoods) and BIC at the MAP of fitted calibrations.
 
     ``calibrations`` is a dict label -> fitted :class:`Calibration` (or a list, labelled by the
     hypothesis name); all must have been fitted on the same recordings with the same likelihood.
+    The criteria use each model's own likelihood, without the model-discrepancy inflation
+    (tempered likelihoods of different models are not comparable); fit with
+    ``discrepancy=False`` for posteriors of that same likelihood.
     """
     import warnings
 
@@ -358,14 +375,15 @@ def compare(calibrations, n_draws=200, seed=0) -> ModelComparison:
     rows, pred = [], {}
     for label, cal in calibrations.items():
         post = cal.posterior_
-        idata = post.to_inference_data(log_likelihood=True, n_draws=n_draws, seed=seed)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            w = az.waic(idata, scale="deviance")
         chain = cal.sampler_.get_chain()
         flat = chain.reshape(-1, chain.shape[-1])
         i = int(np.argmax(cal.sampler_.get_log_prob().reshape(-1)))  # flat priors: the MLE
-        max_ll = float(cal.log_posterior_.log_likelihood(flat[i:i + 1])[0])
+        with _uninflated(cal):
+            idata = post.to_inference_data(log_likelihood=True, n_draws=n_draws, seed=seed)
+            max_ll = float(cal.log_posterior_.log_likelihood(flat[i:i + 1])[0])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            w = az.waic(idata, scale="deviance")
         n_obs = int(idata.log_likelihood["delta"].shape[-1])
         k = len(cal.names_)
         rows.append({
