@@ -178,3 +178,24 @@ def test_discover_reports_the_generating_structure_and_its_threshold(quick_resul
     assert summary["posterior"]["parameters"]  # the winner was calibrated
     for name in ("report.md", "discovery.json", "corner.png", "predictive.png"):
         assert (quick_results / "discover" / name).exists()
+
+
+def test_bench_coverage_quick_rows_agree_with_their_summary(tmp_path):
+    """``python -m studies.bench_coverage --quick`` (one draw here): every sampled parameter's row
+    holds ordered quantiles, a rank in [0, 1] and an 'inside' flag that matches them; the summary's
+    coverage and rank histogram are those of the rows. (The coverage itself needs the full run:
+    README, "Known limits".)"""
+    from studies.bench_coverage import RANK_BINS
+    from studies.bench_coverage import main as bench_main
+
+    assert bench_main(["--quick", "--draws", "1", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "bench.json").read_text())
+    (row,) = report["rows"]
+    assert row["parameters"] and row["simulated_seconds"] > 0 and len(row["inflation"]) == len(row["design"])
+    for name, cell in row["parameters"].items():
+        assert cell["q05"] <= cell["q50"] <= cell["q95"] and 0.0 <= cell["rank"] <= 1.0
+        assert cell["inside"] == (cell["q05"] <= cell["truth"] <= cell["q95"])
+        s = report["summary"][name]
+        assert s["coverage"] == float(cell["inside"]) and sum(s["rank_histogram"]) == 1
+        assert s["rank_histogram"][min(int(cell["rank"] * RANK_BINS), RANK_BINS - 1)] == 1
+    assert (tmp_path / "ranks.png").stat().st_size > 0
