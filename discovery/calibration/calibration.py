@@ -275,28 +275,27 @@ class Calibration:
                 return out
         raise RuntimeError("could not place the walkers where the posterior is finite")
 
+    def _inflations_at(self, lp, z0) -> list:
+        """Each term's discrepancy inflation at ``z0`` (inf everywhere if ``z0`` is invalid)."""
+        x = lp.natural(z0)[0]
+        params = lp.params_for(x)
+        if params is None:
+            return [math.inf] * len(self.terms_)
+        sigma = float(lp.sigmas(x[None, :])[0])
+        return [float(t.discrepancy(params, sigma)) for t in self.terms_]
+
     def _suspect_optimum(self, lp, z0) -> bool:
         """The local search's optimum misfits some recording by over ``SUSPECT_INFLATION`` times
         its noise: a local optimum (drawn truths: the start 30 % off, Nelder-Mead stopped at lp
         -1456 where the truth has +114) or a wrong model; either way a global search is owed
         before the discrepancy inflation is measured there."""
-        x = lp.natural(z0)[0]
-        params = lp.params_for(x)
-        if params is None:
-            return True
-        sigma = float(lp.sigmas(x[None, :])[0])
-        return any(t.discrepancy(params, sigma) > SUSPECT_INFLATION for t in self.terms_)
+        return max(self._inflations_at(lp, z0)) > SUSPECT_INFLATION
 
     def _set_inflation(self, lp, z0):
         """Each term's discrepancy inflation at ``z0`` (the MAP), kept in the checkpoint."""
-        x = lp.natural(z0)[0]
-        params = lp.params_for(x)
-        sigma = float(lp.sigmas(x[None, :])[0])
-        for term in self.terms_:
-            term.inflation = 1.0
-            if params is not None:
-                term.inflation = float(term.discrepancy(params, sigma))
-        self.inflation_ = [t.inflation for t in self.terms_]
+        self.inflation_ = [v if math.isfinite(v) else 1.0 for v in self._inflations_at(lp, z0)]
+        for term, value in zip(self.terms_, self.inflation_):
+            term.inflation = value
         if self.backend is not None:
             with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
                 f.require_group(_H5_GROUP).attrs["inflation"] = json.dumps(self.inflation_)
@@ -325,9 +324,9 @@ class Calibration:
                     for term, value in zip(self.terms_, self.inflation_):
                         term.inflation = value
                 if old is not None and old != config:
-                    stored, now = json.loads(old), json.loads(config)
-                    changed = sorted(k for k in set(stored) | set(now) if stored.get(k) != now.get(k))
-                    diff = "; ".join(f"{k}: {stored.get(k)!r} -> {now.get(k)!r}" for k in changed)
+                    was, now = json.loads(old), json.loads(config)
+                    changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))
+                    diff = "; ".join(f"{k}: {was.get(k)!r} -> {now.get(k)!r}" for k in changed)
                     raise ValueError(
                         f"{path} holds a run with a different set-up ({diff}); it is kept: choose "
                         "another output directory, or delete it to start again")
