@@ -39,15 +39,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .scenarios import draw_scenario, shortened, write_recordings
+from .scenarios import (BACKLASH_CENTRE, DEAD_ZONE_CENTRE, DELAY_RANGE, RANGE_FACTOR, draw_scenario,
+                        shortened, write_recordings)
 
 #: Parameters sampled when the truth's structure has them.
 SAMPLED = ("dead_zone", "backlash", "delay", "friction_offset")
-#: Centres and factors of the generator's ranges (studies/scenarios.py, draw_truth).
-DEAD_ZONE_CENTRE = {"error": 1.2e-3, "velocity": 0.0083}
-BACKLASH_CENTRE = 1.1625e-4
-RANGE_FACTOR = 2.5
-DELAY_RANGE = (1e-3, 8e-3)
 #: How much wider than the generator's ranges the priors are.
 PRIOR_WIDENING = 1.5
 LEVEL = 0.90

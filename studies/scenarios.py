@@ -32,7 +32,7 @@ import numpy as np
 
 from models import ClosedLoop, OpenLoop, SimulationDiverged, limit_cycle_features, simulate
 from models.features import InsufficientPeriodsError
-from models.hypotheses import KICK_X0, ActuatorParams, DeadZonePosition
+from models.hypotheses import KICK_X0, ActuatorParams
 from models.recording import save_recording
 from models.reference import simulate_reference
 from models.structures import Structure, structure_space
@@ -93,6 +93,14 @@ class Scenario:
                 "acquisition": self.acquisition.__dict__, "seed": self.seed}
 
 
+#: Centres of the thresholds' ranges (rad; rad/s for a dead zone on the velocity signal), their
+#: log-uniform factor, and the delay's range (s); the coverage benchmark builds its priors on them.
+DEAD_ZONE_CENTRE = {"error": 1.2e-3, "velocity": 0.0083}
+BACKLASH_CENTRE = 1.1625e-4
+RANGE_FACTOR = 2.5
+DELAY_RANGE = (1e-3, 8e-3)
+
+
 def _log_uniform(rng, centre, factor):
     return float(centre * math.exp(rng.uniform(-math.log(factor), math.log(factor))))
 
@@ -102,13 +110,12 @@ def draw_truth(rng, structure=None) -> ActuatorParams:
     if structure is None:
         kept, _ = structure_space()
         structure = kept[int(rng.integers(len(kept)))]
-    velocity = structure.dead_zone_position is DeadZonePosition.VELOCITY
-    z = _log_uniform(rng, 0.0083 if velocity else 1.2e-3, 2.5)
+    z = _log_uniform(rng, DEAD_ZONE_CENTRE[structure.dead_zone_position.value], RANGE_FACTOR)
     values = dict(
         gain=305500.0 * rng.uniform(0.7, 1.3), damping=202.1 * rng.uniform(0.7, 1.3),
         stiffness=14520.0 * rng.uniform(0.7, 1.3), feedback_gain=1.0697 * rng.uniform(0.85, 1.15),
-        dead_zone=z, backlash=_log_uniform(rng, 1.1625e-4, 2.5),
-        delay=float(math.exp(rng.uniform(math.log(1e-3), math.log(8e-3)))),
+        dead_zone=z, backlash=_log_uniform(rng, BACKLASH_CENTRE, RANGE_FACTOR),
+        delay=float(math.exp(rng.uniform(*np.log(DELAY_RANGE)))),
         friction_offset=-rng.uniform(0.3, 0.9) * z,
         bandpass_gain=float(math.exp(rng.uniform(math.log(30.0), math.log(100.0)))),
         bandpass_saturation=float(math.exp(rng.uniform(math.log(0.008), math.log(0.02)))),

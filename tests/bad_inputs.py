@@ -228,7 +228,6 @@ def _bad_json(good, directory):
     return path
 
 
-ROW = r"data row"
 RECORDING_CASES = (
     RecordingCase("nan", "NaN in a column", _closed(_set("delta", 100, math.nan)),
                   r"bad\.csv: column 'delta' holds NaN or infinite values .*first at data row 101"),
@@ -366,7 +365,7 @@ def shorten(line: str, directory) -> str:
     return line.replace(str(directory) + "/", "").replace(str(directory), "")
 
 
-def run_cli(argv, capsys=None):
+def run_cli(argv):
     """Run ``tvcid argv`` in this process; return ``(status, stderr)``."""
     import contextlib
     import io
