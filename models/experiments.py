@@ -3,6 +3,8 @@
 The HWIL loop (paper 002 section 3, Fig. 2): vehicle ``theta'' = mu * delta``, PD controller with
 null reference ``u = -Kp*(theta + Kd*theta')``. The HWIL ran vehicle and controller at 200 Hz;
 ``sample_rate`` holds the controller output between samples (zero-order hold), off by default.
+A compensator ``F(s)`` in series with the PD and a bending mode of the vehicle are optional
+(:mod:`models.controllers`).
 """
 from __future__ import annotations
 
@@ -10,6 +12,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .controllers import BendingMode, TransferFunction
 
 __all__ = [
     "ClosedLoop",
@@ -36,6 +40,9 @@ def _finite(name, value, positive=False):
 class ClosedLoop:
     """The HWIL limit-cycle test: vehicle ``mu/s^2`` and PD controller with null reference.
 
+    ``u = -Kp (1 + Kd s) F(s) theta_m`` with the optional compensator ``F`` and the sensed
+    attitude ``theta_m`` (the rigid attitude plus the optional bending mode).
+
     Parameters
     ----------
     kp : float
@@ -48,6 +55,11 @@ class ClosedLoop:
         Controller rate (Hz) for a zero-order hold of ``u``; ``None`` (default) is continuous.
     theta0, thetad0 : float
         Initial attitude (rad) and rate (rad/s).
+    compensator : models.controllers.TransferFunction or None
+        Proper ``F(s)`` after the PD (lead/lag, notch, or any controller given as a transfer
+        function with ``kp=1, kd=0``). Held at ``sample_rate`` it runs as its Tustin realisation.
+    bending : models.controllers.BendingMode or None
+        Bending mode added to the sensed attitude.
     """
 
     kp: float
@@ -56,6 +68,8 @@ class ClosedLoop:
     sample_rate: float | None = None
     theta0: float = 0.0
     thetad0: float = 0.0
+    compensator: TransferFunction | None = None
+    bending: BendingMode | None = None
 
     kind = "closed"
 
@@ -64,9 +78,45 @@ class ClosedLoop:
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
         if self.sample_rate is not None:
             object.__setattr__(self, "sample_rate", _finite("sample_rate", self.sample_rate, True))
+        if self.compensator is not None and not isinstance(self.compensator, TransferFunction):
+            object.__setattr__(self, "compensator", TransferFunction.from_dict(self.compensator))
+        if self.bending is not None and not isinstance(self.bending, BendingMode):
+            object.__setattr__(self, "bending", BendingMode.from_dict(self.bending))
+
+    @property
+    def is_plain_pd(self) -> bool:
+        """No compensator and no bending mode: the loop of the papers."""
+        return self.compensator is None and self.bending is None
+
+    def compensator_response(self, frequency):
+        """``F(jw)`` as the loop runs it: continuous, or Tustin at ``sample_rate``."""
+        w = np.asarray(frequency, dtype=float)
+        if self.compensator is None:
+            return np.ones_like(w, dtype=complex)
+        if self.sample_rate is None:
+            return self.compensator.response(w)
+        return self.compensator.discrete_response(w, self.sample_rate)
+
+    def controller_response(self, frequency):
+        """``C(jw) = Kp (1 + Kd jw) F(jw)``, times the zero-order hold's first-harmonic factor
+        ``exp(-jwT/2) sin(wT/2)/(wT/2)`` when held at ``sample_rate``."""
+        w = np.asarray(frequency, dtype=float)
+        c = self.kp * (1.0 + 1j * w * self.kd) * self.compensator_response(w)
+        if self.sample_rate is not None:
+            half = 0.5 * w / self.sample_rate
+            c = c * np.exp(-1j * half) * np.sinc(half / np.pi)
+        return c
+
+    def vehicle_response(self, frequency):
+        """Sensed attitude per nozzle deflection: ``mu/(jw)^2`` plus the bending mode."""
+        s = 1j * np.asarray(frequency, dtype=float)
+        g = self.mu / (s * s)
+        if self.bending is not None:
+            g = g + self.bending.response(frequency)
+        return g
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "kind": self.kind,
             "kp": self.kp,
             "kd": self.kd,
@@ -75,6 +125,11 @@ class ClosedLoop:
             "theta0": self.theta0,
             "thetad0": self.thetad0,
         }
+        if self.compensator is not None:
+            out["compensator"] = self.compensator.to_dict()
+        if self.bending is not None:
+            out["bending"] = self.bending.to_dict()
+        return out
 
 
 #: Paper 002 section 6 (HWIL limit cycle 4.89e-3 rad at 8.57 rad/s).
