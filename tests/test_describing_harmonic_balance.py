@@ -12,7 +12,7 @@ from discovery.describing import (
     lure_limit_cycles,
     predict_limit_cycles,
 )
-from models import CONTROLLER_A, CONTROLLER_B, ClosedLoop, hypothesis
+from models import CONTROLLER_A, CONTROLLER_B, hypothesis
 
 
 def test_python_control_example():
@@ -101,8 +101,8 @@ def test_unsupported_structures_raise():
         predict_limit_cycles(hypothesis("M002", bandpass_gain=48.0, bandpass_saturation=0.015), CONTROLLER_A)
     with pytest.raises(UnsupportedStructureError, match="friction offset"):
         predict_limit_cycles(hypothesis("M002", friction_offset=-0.001), CONTROLLER_A)
-    with pytest.raises(UnsupportedStructureError, match="sample_rate"):
-        predict_limit_cycles(hypothesis("M002"), ClosedLoop(5.84, 0.062, 12.3, sample_rate=200))
+    # a held controller is no longer refused: its hold enters as its first harmonic
+    # (tests/test_describing_controllers.py)
 
 
 def test_amplitude_below_the_dead_zone_is_refused():

@@ -10,7 +10,9 @@ Modules, one concept each:
   criterion; the single-nonlinearity (Lur'e) loop;
 * :mod:`.actuator_loop` -- a hypothesis (:class:`models.ActuatorParams`) and a controller as a
   first-harmonic loop with the exact delay ``exp(-jw Td)`` at any of its three positions, the
-  friction offset and the band-pass loop (balanced at the fundamental only);
+  friction offset and the band-pass loop (balanced at the fundamental only); the controller is
+  any :class:`models.ClosedLoop` (PD, compensator ``F(s)``, bending mode, a zero-order hold as
+  its first harmonic);
 * :mod:`.inverse` -- paper 002's family of (backlash, dead zone) pairs, printed and corrected, and
   the exact inverse harmonic balance;
 * :mod:`.validation` -- a prediction beside the simulated cycle.
@@ -21,8 +23,10 @@ solution at 8.57 rad/s with a 7 ms output delay.
 """
 from .actuator_loop import (
     BANDPASS_CAVEAT,
+    COMPENSATOR_CAVEAT,
     DF_CAVEAT,
     ActuatorDescribingLoop,
+    describe_controller,
     predict_limit_cycles,
     vehicle_controller_response,
 )
@@ -73,6 +77,7 @@ __all__ = [
     "BANDPASS_CAVEAT",
     "BacklashDeadZoneFamily",
     "BacklashDeadZonePair",
+    "COMPENSATOR_CAVEAT",
     "Chain",
     "DF_CAVEAT",
     "DeadZone",
@@ -90,6 +95,7 @@ __all__ = [
     "backlash_df",
     "dead_zone_df",
     "dead_zone_friction_df",
+    "describe_controller",
     "describing_function",
     "frequency_response",
     "friction_offset_df",

@@ -5,14 +5,41 @@ Every transfer function comes from the :class:`models.ActuatorParams` object (``
 nothing here is specific to one hypothesis. With ``x = a sin(wt)`` the integrator output and
 ``s = jw`` (paper 002 Figs. 5 and 7, eqs. 7-12; paper 001 section 2)::
 
-    vehicle + PD controller   Gp(s) = Kp mu (1 + Kd s)/s^2          (paper 002 eq. 7)
+    controller and vehicle    Gp(s) = C(s) V(s)                     (paper 002 eq. 7 generalised)
+                              C = Kp (1 + Kd s) F(s) [x ZOH factor], V = mu/s^2 [+ bending]
+                              plain PD: Gp = Kp mu (1 + Kd s)/s^2   (paper 002 eq. 7)
     delays                    D(s) = exp(-s Td) at the chosen position, 1 elsewhere
     second-order block        G2(s) = K1/(s^2 + K2 s + K3), or K1 D/(s^2 + D (K2 s + K3)) with
                               the delay before the first integrator (paper 000 Fig. 8)
-    backlash feedback         F(a) = play-operator DF, half width r (paper 002 eqs. 4-5)
+    backlash feedback         F(a) = play-operator DF, half width r (paper 002 eqs. 4-5; not
+                              the compensator F(s))
     return path               P = Gp D_out + K F(a),  so  e = -P x
     forward path              H = D_bi G2
     loop equation             1 + H(jw) P(jw, a) N(q) / (jw) = 0
+
+``Gp`` is :meth:`models.ClosedLoop.controller_response` times
+:meth:`models.ClosedLoop.vehicle_response`: the controller is ``u = -C theta_m`` and the sensed
+attitude ``theta_m = V delta``, so ``u = -Gp delta`` and the sign of eq. 7 carries over to any
+compensator ``F`` (lead/lag, notch, any proper controller) and bending mode
+(:mod:`models.controllers`). A controller held at ``sample_rate`` (zero-order hold, as the HWIL's
+200 Hz computer) enters through its first harmonic only: ``C`` is multiplied by the hold's
+``(1 - exp(-sT))/(sT) = exp(-jwT/2) sin(wT/2)/(wT/2)`` with ``F`` as its Tustin realisation. That
+is an approximation on top of the describing function's: it keeps the half-sample delay and the
+hold's attenuation and drops the aliased images at ``2 pi k/T +- w`` (far above the cycle, and
+filtered by ``mu/s^2`` before the sampler sees them). At 200 Hz and the cycle's 8.9 rad/s the
+sinc is 1 - 9e-5, so the hold is in effect 2.5 ms more delay, which the simulator confirms (held
+vs continuous with that delay added: within 3.2e-4). For M002 at controller A the hold raises
+the DF's first harmonic by 13.0 % and its frequency by 0.28 %, against 13.8 % and 0.81 %
+simulated: the DF's frequency responds to delay a third as strongly as the simulator's
+(``tests/test_describing_controllers.py``).
+
+A compensator moves the DF's cycle the way the simulator moves it (lead: up in frequency, down in
+amplitude; lag or a notch at the cycle: down and up, or no cycle where the simulated loop
+diverges), but the first-harmonic error grows with the lead: for M002 at controller A, leads
+centred on 8.6 rad/s with pole/zero ratios 1.2, 2 and 4 give DF errors of +6 %, +16 % and +10 % in
+frequency and +12 %, +25 % and +12 % in amplitude; a lag (ratio 1.2) +1 % and +3 %, a shallow
+notch at 8.6 rad/s +3 % and +1 % (:data:`COMPENSATOR_CAVEAT`; :func:`models.simulate` and a
+stand-alone RK4, 4e-5 apart).
 
 ``N`` is the dead zone's describing function (paper 002 eq. 3), or that of ``FRIC(DZ(.))`` when a
 friction offset acts (paper 001 section 3). Its input amplitude is ``q = a |P|`` with the dead
@@ -54,13 +81,28 @@ from . import analytic
 from .errors import AmplitudeBelowDeadZoneError, UnsupportedStructureError
 from .harmonic_balance import HarmonicBalanceResult, solve_harmonic_balance
 
-__all__ = ["ActuatorDescribingLoop", "predict_limit_cycles", "vehicle_controller_response", "DF_CAVEAT", "BANDPASS_CAVEAT"]
+__all__ = [
+    "ActuatorDescribingLoop",
+    "predict_limit_cycles",
+    "vehicle_controller_response",
+    "describe_controller",
+    "DF_CAVEAT",
+    "BANDPASS_CAVEAT",
+    "COMPENSATOR_CAVEAT",
+]
 
 #: What a user should know before trusting a first-harmonic prediction of these loops.
 DF_CAVEAT = (
     "first-harmonic approximation: for M002 at controller A it predicts 8.88 rad/s and a "
     "first harmonic of 5.90e-3 rad against 8.60 rad/s and 5.52e-3 simulated (MODELS.md); use it "
     "to draw families and as a starting guess, not as a likelihood"
+)
+
+#: What a compensator does to the approximation (measured, see the module docstring).
+COMPENSATOR_CAVEAT = (
+    "with a compensator the DF gets the direction of the shift right but its error grows: for "
+    "M002 at controller A with leads centred on 8.6 rad/s it was up to +16 % in frequency and "
+    "+25 % in amplitude against a simulation"
 )
 
 #: The band-pass loop is balanced at the fundamental only.
@@ -72,9 +114,49 @@ BANDPASS_CAVEAT = (
 
 
 def vehicle_controller_response(controller: ClosedLoop, frequency):
-    """``Gp(jw) = Kp mu (1 + Kd jw)/(jw)^2``: vehicle ``mu/s^2`` and PD controller (paper 002 eq. 7)."""
-    s = 1j * np.asarray(frequency, dtype=float)
-    return controller.kp * controller.mu * (1.0 + controller.kd * s) / (s * s)
+    """``Gp(jw) = C(jw) V(jw)``: controller times vehicle, so that ``u = -Gp delta``.
+
+    For the papers' continuous PD and rigid vehicle this is ``Kp mu (1 + Kd jw)/(jw)^2`` (paper
+    002 eq. 7; equal to that formula to rounding, 6e-16 relative, as the factors are multiplied
+    in another order; predicted cycles move by 2e-15 at most). With a
+    compensator, a bending mode or a zero-order hold it is
+    :meth:`models.ClosedLoop.controller_response` times :meth:`models.ClosedLoop.vehicle_response`
+    (see the module docstring for the hold's first-harmonic approximation).
+
+    Parameters
+    ----------
+    controller : models.ClosedLoop
+    frequency : array_like
+        rad/s.
+
+    Returns
+    -------
+    complex ndarray
+    """
+    w = np.asarray(frequency, dtype=float)
+    return controller.controller_response(w) * controller.vehicle_response(w)
+
+
+def describe_controller(controller: ClosedLoop) -> str:
+    """One line naming the controller's gains and its optional parts, for labels and reports.
+
+    Parameters
+    ----------
+    controller : models.ClosedLoop
+
+    Returns
+    -------
+    str
+        E.g. ``"Kp 5.84, Kd 0.062, mu 12.3, F lead, held at 200 Hz (first harmonic)"``.
+    """
+    text = f"Kp {controller.kp:g}, Kd {controller.kd:g}, mu {controller.mu:g}"
+    if controller.compensator is not None:
+        text += f", F {controller.compensator.name}"
+    if controller.bending is not None:
+        text += f", bending {controller.bending.frequency:g} rad/s"
+    if controller.sample_rate is not None:
+        text += f", held at {controller.sample_rate:g} Hz (first harmonic)"
+    return text
 
 
 @dataclass(frozen=True)
@@ -86,11 +168,13 @@ class ActuatorDescribingLoop:
     params : models.ActuatorParams
     controller : models.ClosedLoop
 
+    Any :class:`models.ClosedLoop`: PD, compensator, bending mode, continuous or held (the hold
+    as its first harmonic, see the module docstring).
+
     Raises
     ------
     UnsupportedStructureError
-        For a band-pass feedback loop, a friction offset with the dead zone on the error, or a
-        sampled controller.
+        For a band-pass feedback loop or a friction offset with the dead zone on the error.
     """
 
     params: ActuatorParams
@@ -115,11 +199,6 @@ class ActuatorDescribingLoop:
                 "error puts two static nonlinearities at different points of the loop; the "
                 "describing-function loop treats FRIC(DZ(.)) only with the dead zone on the "
                 "velocity signal"
-            )
-        if self.controller.sample_rate is not None:
-            raise UnsupportedStructureError(
-                f"controller sample_rate={self.controller.sample_rate:g} Hz: the describing-function "
-                "loop is continuous; use sample_rate=None"
             )
 
     # -- linear parts ---------------------------------------------------------------------------
@@ -196,7 +275,8 @@ class ActuatorDescribingLoop:
         return analytic.backlash_df(amplitude, self.params.backlash)
 
     def return_response(self, amplitude, frequency):
-        """``P = Gp D_out + K F(a)``, so that the actuator error is ``e = -P x``."""
+        """``P = Gp D_out + K F(a)``, so that the actuator error is ``e = -P x`` (``Gp`` from
+        :func:`vehicle_controller_response`: any linear controller and vehicle)."""
         gp = vehicle_controller_response(self.controller, frequency)
         d_out = self.delay_factor(frequency, DelayPosition.OUTPUT)
         return gp * d_out + self.params.feedback_gain * self.backlash_df(amplitude)
@@ -256,8 +336,8 @@ class ActuatorDescribingLoop:
         1e-6 to 1 rad); with one, over the dead zone's input amplitude ``Q`` (default from the
         dead zone's half width to 10 rad/s) and each cycle reports ``a = N Q/w``.
         """
-        c = self.controller
-        label = f"{self.params.name}, Kp {c.kp:g}, Kd {c.kd:g}, mu {c.mu:g}"
+        label = f"{self.params.name}, {describe_controller(self.controller)}"
+        caveat = DF_CAVEAT if self.controller.compensator is None else DF_CAVEAT + "; " + COMPENSATOR_CAVEAT
         if not self.params.has_bandpass_loop:
             return solve_harmonic_balance(
                 self.characteristic,
@@ -265,7 +345,7 @@ class ActuatorDescribingLoop:
                 frequency_range,
                 describing_function_at=self.nonlinearity_df,
                 label=label,
-                caveat=DF_CAVEAT,
+                caveat=caveat,
                 amplitude_name="amplitude of delta (rad)",
                 **kwargs,
             )
@@ -276,7 +356,7 @@ class ActuatorDescribingLoop:
             frequency_range,
             describing_function_at=lambda q, w: self.velocity_nonlinearity_df(q),
             label=label + " (band-pass loop at the fundamental)",
-            caveat=DF_CAVEAT + "; " + BANDPASS_CAVEAT,
+            caveat=caveat + "; " + BANDPASS_CAVEAT,
             amplitude_map=self.output_amplitude,
             amplitude_name="amplitude at the dead zone's input",
             **kwargs,
@@ -286,7 +366,9 @@ class ActuatorDescribingLoop:
 def predict_limit_cycles(params: ActuatorParams, controller: ClosedLoop, **kwargs) -> HarmonicBalanceResult:
     """Limit cycles of ``params`` in the HWIL loop of ``controller`` by harmonic balance.
 
-    See :class:`ActuatorDescribingLoop` for the loop and
+    ``controller`` is any :class:`models.ClosedLoop`: the PD of paper 002 eq. 7, with a compensator
+    ``F(s)`` and/or a bending mode, continuous or held at ``sample_rate`` (the hold as its first
+    harmonic). See :class:`ActuatorDescribingLoop` for the loop and
     :func:`~discovery.describing.harmonic_balance.solve_harmonic_balance` for ``kwargs``.
     """
     return ActuatorDescribingLoop(params, controller).limit_cycles(**kwargs)

@@ -33,7 +33,7 @@ from models.experiments import ClosedLoop
 from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 
 from . import analytic
-from .actuator_loop import ActuatorDescribingLoop, vehicle_controller_response
+from .actuator_loop import ActuatorDescribingLoop, describe_controller, vehicle_controller_response
 from .errors import NoHarmonicBalanceSolution, UnsupportedStructureError
 
 __all__ = [
@@ -152,7 +152,7 @@ def paper002_family(
     frequency : float
         ``w``: measured cycle frequency (rad/s).
     controller : models.ClosedLoop
-        ``Kp, Kd, mu`` of ``Gp`` (eq. 7).
+        ``Kp, Kd, mu`` of ``Gp`` (eq. 7): a continuous PD without compensator or bending mode.
     params : models.ActuatorParams
         Structure (dead zone on the error, delay at the output), linear part
         ``gain/(s^2 + damping s + stiffness)`` and ``feedback_gain``; :class:`models.M002` is
@@ -166,6 +166,12 @@ def paper002_family(
     Returns
     -------
     BacklashDeadZoneFamily
+
+    Raises
+    ------
+    UnsupportedStructureError
+        For a structure or delay position eqs. 13-18 do not model, or a controller other than
+        the continuous PD (a compensator, bending mode or hold).
 
     Notes
     -----
@@ -181,6 +187,13 @@ def paper002_family(
       ``X_z = K1 w/(37 Zx)`` (eq. 18 as printed).
     """
     amplitude, frequency = _check_cycle(amplitude, frequency)
+    if not controller.is_plain_pd or controller.sample_rate is not None:
+        # eqs. 13-18 carry the PD's phase atan(Kd w) in closed form: any other controller would
+        # enter through |Gp| but not through theta
+        raise UnsupportedStructureError(
+            f"paper 002's eqs. 13-18 assume the continuous PD of eq. 7; this controller "
+            f"({describe_controller(controller)}) is not one: use solve_backlash_and_dead_zone"
+        )
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {', '.join(VARIANTS)} (got {variant!r})")
     _check_params(params)
@@ -265,6 +278,8 @@ def solve_backlash_and_dead_zone(
     amplitude, frequency : float
         Measured cycle at the actuator output (rad, rad/s).
     controller : models.ClosedLoop
+        Any controller: ``Gp`` is :func:`~.actuator_loop.vehicle_controller_response`
+        (compensator, bending mode, a hold as its first harmonic).
     params : models.ActuatorParams
         Structure, linear part, delay and its position (e.g. :class:`models.M002` for paper 002,
         :class:`models.M001i` for paper 001 section 2); its backlash and dead-zone values are
