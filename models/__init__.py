@@ -2,6 +2,7 @@
 
 This package never fits anything; :mod:`discovery` does.
 """
+from .controllers import BendingMode, TransferFunction
 from .experiments import CONTROLLER_A, CONTROLLER_B, ClosedLoop, OpenLoop
 from .features import InsufficientPeriodsError, LimitCycleFeatures, limit_cycle_features
 from .hypotheses import (
@@ -29,6 +30,7 @@ from .simulate import (
 __all__ = [
     "ActuatorParams",
     "BatchResult",
+    "BendingMode",
     "CONTROLLER_A",
     "CONTROLLER_B",
     "ClosedLoop",
@@ -45,6 +47,7 @@ __all__ = [
     "OpenLoop",
     "SimulationDiverged",
     "Trajectory",
+    "TransferFunction",
     "UnknownHypothesisError",
     "hypothesis",
     "limit_cycle_features",

@@ -126,9 +126,9 @@ class TransferFunction:
         if keys == {"num", "den"}:
             return cls(spec["num"], spec["den"], name=str(spec.get("name", "tf")))
         if keys == {"lead"}:
-            return cls.lead(*_args("lead", spec["lead"], 2))
+            return cls.lead(*_args("lead", spec["lead"], 2, least=2))
         if keys == {"lag"}:
-            return cls.lead(*_args("lag", spec["lag"], 2))
+            return cls.lead(*_args("lag", spec["lag"], 2, least=2))
         if keys == {"notch"}:
             return cls.notch(*_args("notch", spec["notch"], 3))
         raise ValueError(
@@ -264,7 +264,8 @@ def _positive(name, value) -> float:
     return v
 
 
-def _args(name, values, n):
-    if not isinstance(values, (list, tuple)) or not (1 <= len(values) <= n):
-        raise ValueError(f"{name} takes a list of up to {n} numbers, got {values!r}")
+def _args(name, values, n, least=1):
+    if not isinstance(values, (list, tuple)) or not (least <= len(values) <= n):
+        count = f"{n}" if least == n else f"{least} to {n}"
+        raise ValueError(f"{name} takes a list of {count} numbers, got {values!r}")
     return values

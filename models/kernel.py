@@ -7,7 +7,14 @@ unpacks the result. Conventions are those of MODELS.md:
   between grid points (the input is stored on the step grid, so ``Td >= dt`` is required);
 * the play operator's memory is updated once per step; the RK4 stages clamp the memory of the
   step start to their own ``x`` (the rate-independent operator evaluated along the stage);
-* ``sign(0) = 0`` in the friction offset.
+* ``sign(0) = 0`` in the friction offset;
+* closed loop, ``u = -(C x_c + D v)`` with ``v = Kp (theta_m + Kd theta_m')``: the compensator's
+  output for the input ``v`` (``D = 1`` and no states without a compensator, which is bit for bit
+  ``u = -Kp (theta + Kd theta')``); ``theta_m = theta + q`` adds the bending mode's ``q`` when there
+  is one. Continuous, the compensator's states are RK4 states; held (``C_HOLD_STEPS > 0``), its
+  Tustin realisation steps once per sample and ``u`` is held between samples. The bending mode's
+  ``q, q'`` are always RK4 states, driven by the same ``delta`` as the vehicle. Compensator and
+  bending states start at 0. The output row ``theta`` is the rigid attitude, not ``theta_m``.
 
 The slots of the packed vectors are named by the module constants below; nothing outside this
 module and :mod:`models.simulate` should index them.
@@ -37,7 +44,13 @@ DELAY_NONE, DELAY_OUTPUT, DELAY_BEFORE_INTEGRATOR, DELAY_BEFORE_FIRST_INTEGRATOR
 
 # -- packed experiment ------------------------------------------------------------------------
 C_CLOSED, C_KP, C_KD, C_MU, C_HOLD_STEPS, C_THETA0, C_THETAD0, C_BOUND = 0, 1, 2, 3, 4, 5, 6, 7
-N_CONTROL = 8
+#: compensator order n and feedthrough D (1 without a compensator); bending frequency (rad/s,
+#: 0 = no bending mode), damping and gain
+C_N_COMP, C_COMP_D, C_BEND_W, C_BEND_ZETA, C_BEND_GAIN = 8, 9, 10, 11, 12
+#: length of the fixed slots; the compensator's A (n*n, row-major), B (n) and C (n) follow from
+#: C_COMP_MATRICES (continuous realisation, or the Tustin one when held)
+N_CONTROL = 13
+C_COMP_MATRICES = N_CONTROL
 
 #: rows of the output array
 SIGNALS = ("t", "u", "delta", "theta", "x", "y", "w", "backlash")
@@ -47,6 +60,11 @@ N_SIGNALS = len(SIGNALS)
 OK, NON_FINITE, OUT_OF_BOUND = 0, 1, 2
 
 N_CORE_STATES = 5  # theta, theta', y, y', x
+
+
+def control_length(n_comp):
+    """Length of a packed experiment whose compensator has ``n_comp`` states."""
+    return N_CONTROL + n_comp * n_comp + 2 * n_comp
 
 
 @njit(cache=True)
@@ -66,8 +84,8 @@ def simulate_kernel(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decima
     ----------
     p : float64[N_PARAMS]
         Packed actuator parameters; the delay is given in steps (``Td/dt``, may be fractional).
-    ctrl : float64[N_CONTROL]
-        Packed experiment.
+    ctrl : float64[:]
+        Packed experiment, ``control_length(n)`` slots or more (padding is ignored).
     bp_a, bp_b, bp_c : float64 arrays
         Band-pass state space (only the first ``p[P_N_BP]`` states are used).
     u_cmd : float64[2*n_steps + 1]
@@ -85,6 +103,20 @@ def simulate_kernel(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decima
     step : int
         Step at which the run was stopped (``n_steps`` when it finished).
     """
+    # The papers' loop runs a specialisation compiled without the compensator and bending code
+    # (numba prunes the branches on ``extended is None``), so it costs what it did before them.
+    closed = ctrl[C_CLOSED] > 0.5
+    if not closed or (
+        ctrl[C_N_COMP] == 0.0 and ctrl[C_BEND_W] == 0.0 and ctrl[C_COMP_D] == 1.0
+    ):
+        return _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation, out,
+                          None)
+    return _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation, out, ctrl)
+
+
+@njit(cache=True)
+def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation, out, extended):
+    """The body of :func:`simulate_kernel`; ``extended`` is None for the plain PD loop."""
     k1g, k2, k3, kfb = p[P_GAIN], p[P_DAMPING], p[P_STIFFNESS], p[P_FEEDBACK]
     z, dz_vel, r, off = p[P_DEAD_ZONE], p[P_DZ_ON_VELOCITY] > 0.5, p[P_BACKLASH], p[P_FRICTION]
     delay_steps, where = p[P_DELAY_STEPS], int(p[P_DELAY_WHERE])
@@ -94,8 +126,30 @@ def simulate_kernel(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decima
     kp, kd, mu = ctrl[C_KP], ctrl[C_KD], ctrl[C_MU]
     hold = int(ctrl[C_HOLD_STEPS])
     bound = ctrl[C_BOUND]
+    ncomp = int(ctrl[C_N_COMP]) if closed else 0
+    comp_d = ctrl[C_COMP_D]
+    comp_a = np.zeros((ncomp, ncomp))
+    comp_b = np.zeros(ncomp)
+    comp_c = np.zeros(ncomp)
+    o = C_COMP_MATRICES
+    for i in range(ncomp):
+        for jj in range(ncomp):
+            comp_a[i, jj] = ctrl[o + i * ncomp + jj]
+        comp_b[i] = ctrl[o + ncomp * ncomp + i]
+        comp_c[i] = ctrl[o + ncomp * ncomp + ncomp + i]
+    bend_w = ctrl[C_BEND_W] if closed else 0.0
+    bend_2zw = 2.0 * ctrl[C_BEND_ZETA] * bend_w
+    bend_w2 = bend_w * bend_w
+    bend_gw2 = ctrl[C_BEND_GAIN] * bend_w2
+    # RK4 states: core, band-pass, compensator (continuous only), bending q and q'
+    ic = N_CORE_STATES + nbp
+    nc_rk = ncomp if hold == 0 else 0
+    ib = ic + nc_rk
+    nbend = 2 if bend_w > 0.0 else 0
+    x_held = np.zeros(ncomp)  # the Tustin realisation's state when the controller is held
+    x_next = np.zeros(ncomp)
 
-    ns = N_CORE_STATES + nbp
+    ns = ib + nbend
     s = np.zeros(ns)
     ss = np.zeros(ns)
     kk = np.zeros((4, ns))
@@ -116,11 +170,30 @@ def simulate_kernel(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decima
         frac[ci] = q - fq
 
     u_held = 0.0
+    vc = 0.0  # the PD output, the compensator's input
     n_noise = noise.shape[0]
     stage_c = (0, 1, 1, 2)  # half-step index of each RK4 stage
     for k in range(n_steps + 1):
         if closed and hold > 0 and k % hold == 0:
-            u_held = -kp * (s[0] + kd * s[1])
+            if extended is None:
+                u_held = -kp * (s[0] + kd * s[1])
+            else:
+                th, thd = s[0], s[1]
+                if nbend:
+                    th += s[ib]
+                    thd += s[ib + 1]
+                vc = kp * (th + kd * thd)
+                acc = comp_d * vc
+                for i in range(ncomp):
+                    acc += comp_c[i] * x_held[i]
+                u_held = -acc
+                for i in range(ncomp):  # output first, then the update, as a digital controller
+                    acc = comp_b[i] * vc
+                    for jj in range(ncomp):
+                        acc += comp_a[i, jj] * x_held[jj]
+                    x_next[i] = acc
+                for i in range(ncomp):
+                    x_held[i] = x_next[i]
         last_stage = 0 if k == n_steps else 3
         for stage in range(last_stage + 1):
             if stage == 0:
@@ -132,7 +205,20 @@ def simulate_kernel(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decima
                     ss[i] = s[i] + h * kk[stage - 1, i]
             ci = stage_c[stage]
             if closed:
-                u = u_held if hold > 0 else -kp * (ss[0] + kd * ss[1])
+                if hold > 0:
+                    u = u_held
+                elif extended is None:
+                    u = -kp * (ss[0] + kd * ss[1])
+                else:
+                    th, thd = ss[0], ss[1]
+                    if nbend:
+                        th += ss[ib]
+                        thd += ss[ib + 1]
+                    vc = kp * (th + kd * thd)
+                    acc = comp_d * vc
+                    for i in range(nc_rk):
+                        acc += comp_c[i] * ss[ic + i]
+                    u = -acc
             else:
                 u = u_cmd[2 * k + ci]
             xs = ss[4]
@@ -193,6 +279,15 @@ def simulate_kernel(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decima
                 for jj in range(nbp):
                     acc += bp_a[i, jj] * ss[N_CORE_STATES + jj]
                 kk[stage, N_CORE_STATES + i] = acc
+            if extended is not None:
+                for i in range(nc_rk):
+                    acc = comp_b[i] * vc
+                    for jj in range(nc_rk):
+                        acc += comp_a[i, jj] * ss[ic + jj]
+                    kk[stage, ic + i] = acc
+                if nbend:
+                    kk[stage, ib] = ss[ib + 1]
+                    kk[stage, ib + 1] = bend_gw2 * delta - bend_2zw * ss[ib + 1] - bend_w2 * ss[ib]
             if stage == 0 and k % decimation == 0:
                 col = k // decimation
                 out[0, col] = k * dt

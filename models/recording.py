@@ -2,8 +2,10 @@
 
 Format (documented in ``data/README.md``): ``NAME.csv`` with a header row naming at least the
 columns ``t, u, delta`` (s, rad, rad; more columns allowed) and ``NAME.json`` beside it with at least
-``{"kind": "closed" | "open"}``; closed-loop recordings also need ``kp``, ``kd``, ``mu``. Every other
-part of tvcid reads recordings through :func:`load_recording`.
+``{"kind": "closed" | "open"}``; closed-loop recordings also need ``kp``, ``kd``, ``mu``, and may
+give a ``compensator`` (:meth:`models.controllers.TransferFunction.from_dict`) and a ``bending`` mode
+(:meth:`models.controllers.BendingMode.from_dict`). Every other part of tvcid reads recordings
+through :func:`load_recording`.
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .controllers import BendingMode, TransferFunction
 from .experiments import ClosedLoop
 
 __all__ = [
@@ -66,7 +69,7 @@ KNOWN_SIDECAR_KEYS = (
     "kind", "kp", "kd", "mu", "controller_rate", "sample_rate", "units",
     "waveform", "amplitude", "frequency", "start", "offset", "from_rest",
     "hypothesis", "parameters", "seed", "dt", "source", "description", "generator",
-    "tool", "tool_version", "theta0", "thetad0", "numbers", "papers",
+    "tool", "tool_version", "theta0", "thetad0", "numbers", "papers", "compensator", "bending",
 )
 
 
@@ -131,6 +134,8 @@ class Recording:
                 kd=self.meta["kd"],
                 mu=self.meta["mu"],
                 sample_rate=self.meta.get("controller_rate"),
+                compensator=_compensator(self.meta),
+                bending=_bending(self.meta),
             )
         waveform = self.meta.get("waveform")
         if waveform in ("step", "square", "sine") and self.t[0] == 0.0:
@@ -162,6 +167,18 @@ def _fail(path, message):
     raise RecordingError(f"{path}: {message}")
 
 
+def _compensator(meta):
+    """The sidecar's ``compensator`` as a TransferFunction, or None (ValueError when malformed)."""
+    spec = meta.get("compensator")
+    return None if spec is None else TransferFunction.from_dict(spec)
+
+
+def _bending(meta):
+    """The sidecar's ``bending`` as a BendingMode, or None (ValueError when malformed)."""
+    spec = meta.get("bending")
+    return None if spec is None else BendingMode.from_dict(spec)
+
+
 def _is_number(value):
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
@@ -188,6 +205,12 @@ def _validate_meta(meta, path):
         rate = meta.get("controller_rate")
         if rate is not None and not (_is_number(rate) and rate > 0):
             _fail(path, f"sidecar 'controller_rate' must be a positive number of Hz or null (got {rate!r})")
+        # checked here so that a bad filter is refused when read, naming its key, not mid-analysis
+        for key, build in (("compensator", _compensator), ("bending", _bending)):
+            try:
+                build(meta)
+            except (TypeError, ValueError) as exc:
+                _fail(path, f"sidecar '{key}': {' '.join(str(exc).split())}")
     rate = meta.get("sample_rate")
     if rate is not None and not (_is_number(rate) and rate > 0):
         _fail(path, f"sidecar 'sample_rate' must be a positive number of Hz (got {rate!r})")

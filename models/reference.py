@@ -5,6 +5,11 @@ a generic RK4 stepper over a state dictionary, where the kernel fuses everything
 packed arrays. Both discretise the same way (RK4 on a fixed grid, the delay line interpolated
 linearly between grid points, the play memory updated once per step), so they agree to round-off on
 periodic cycles; it is ~500x slower and meant for tests and the benchmark only.
+
+The compensator is realised here independently of :mod:`models.controllers`' own realisations:
+continuous, in observable canonical form built from ``num``/``den``; held, as the difference
+equation of its Tustin transform (polynomials in ``z`` from the substitution
+``s = 2/h (z - 1)/(z + 1)``). So the cross-check also covers ``state_space`` and ``discretise``.
 """
 from __future__ import annotations
 
@@ -29,6 +34,59 @@ __all__ = ["simulate_reference"]
 
 def _scalar(fn, *args):
     return float(fn(*args))
+
+
+def _padded(tf):
+    """``(b, a)``: numerator padded to the denominator's length, both divided by ``a[0]``."""
+    a = np.asarray(tf.den, dtype=float)
+    b = np.zeros(a.size)
+    b[a.size - len(tf.num):] = tf.num
+    return b / a[0], a / a[0]
+
+
+class _ContinuousFilter:
+    """``F(s)`` in observable canonical form: ``y = x[0] + b0 v``,
+    ``x[i]' = x[i+1] - a[i+1] x[0] + (b[i+1] - a[i+1] b0) v`` (``x[n] = 0``)."""
+
+    def __init__(self, tf):
+        self.b, self.a = _padded(tf)
+        self.n = self.a.size - 1
+
+    def output(self, x, v):
+        return (x[0] if self.n else 0.0) + self.b[0] * v
+
+    def derivative(self, x, v):
+        dx = np.zeros(self.n)
+        for i in range(self.n):
+            nxt = x[i + 1] if i + 1 < self.n else 0.0
+            dx[i] = nxt - self.a[i + 1] * x[0] + (self.b[i + 1] - self.a[i + 1] * self.b[0]) * v
+        return dx
+
+
+class _TustinFilter:
+    """``F`` at the sample period ``h`` as the difference equation of ``F(2/h (z-1)/(z+1))``:
+    ``y[k] = sum bz[i] v[k-i] - sum_{i>0} az[i] y[k-i]`` (past values start at 0)."""
+
+    def __init__(self, tf, h):
+        b, a = _padded(tf)
+        n = a.size - 1
+        zm1, zp1 = np.array([1.0, -1.0]), np.array([1.0, 1.0])
+        bz, az = np.zeros(n + 1), np.zeros(n + 1)
+        for k in range(n + 1):  # s^(n-k) times (z+1)^n becomes (2/h)^(n-k) (z-1)^(n-k) (z+1)^k
+            term = (2.0 / h) ** (n - k) * np.polymul(np.poly1d(zm1) ** (n - k), np.poly1d(zp1) ** k).coeffs
+            bz += b[k] * term
+            az += a[k] * term
+        self.bz, self.az = bz / az[0], az / az[0]
+        self.v_past = [0.0] * n
+        self.y_past = [0.0] * n
+
+    def step(self, v):
+        y = self.bz[0] * v
+        for i in range(1, self.bz.size):
+            y += self.bz[i] * self.v_past[i - 1] - self.az[i] * self.y_past[i - 1]
+        self.v_past = [v] + self.v_past[:-1]
+        self.y_past = [y] + self.y_past[:-1]
+        return y
 
 
 def simulate_reference(
@@ -78,13 +136,34 @@ def simulate_reference(
     if closed and experiment.sample_rate is not None:
         hold = int(round(1.0 / (experiment.sample_rate * dt)))
     u_held = 0.0
+    # compensator F(s) after the PD, and the bending mode q seen by the attitude sensor
+    bending = experiment.bending if closed else None
+    compensator = experiment.compensator if closed else None
+    continuous_filter = held_filter = None
+    if compensator is not None and hold is None:
+        continuous_filter = _ContinuousFilter(compensator)
+        state["comp"] = np.zeros(continuous_filter.n)
+    elif compensator is not None:
+        held_filter = _TustinFilter(compensator, 1.0 / experiment.sample_rate)
+    if bending is not None:
+        state["q"] = 0.0
+        state["qd"] = 0.0
+
+    def pd_output(st):
+        """``v = Kp (theta_m + Kd theta_m')``, the PD acting on the sensed attitude."""
+        theta_m, rate_m = st["theta"], st["thetad"]
+        if bending is not None:
+            theta_m, rate_m = theta_m + st["q"], rate_m + st["qd"]
+        return experiment.kp * (theta_m + experiment.kd * rate_m)
 
     def command(t, st):
         if not closed:
             return float(experiment.solver_command(t, dt))
         if hold is not None:
             return u_held
-        return -experiment.kp * (st["theta"] + experiment.kd * st["thetad"])
+        if continuous_filter is not None:
+            return -continuous_filter.output(st["comp"], pd_output(st))
+        return -pd_output(st)
 
     def evaluate(t, st, store):
         """Derivatives and the recorded signals at time ``t`` and state ``st``."""
@@ -123,6 +202,13 @@ def simulate_reference(
             "x": w,
             "bp": bp_a @ st["bp"] + bp_b * w,
         }
+        if continuous_filter is not None:
+            deriv["comp"] = continuous_filter.derivative(st["comp"], pd_output(st))
+        if bending is not None:
+            wb = bending.frequency
+            deriv["q"] = st["qd"]
+            deriv["qd"] = (bending.gain * wb * wb * delta - 2.0 * bending.damping * wb * st["qd"]
+                           - wb * wb * st["q"])
         return deriv, (t, u, delta, st["theta"], st["x"], st["y"], w, b)
 
     def advance(st, deriv, h):
@@ -133,7 +219,8 @@ def simulate_reference(
         # stage times as the kernel forms them (command edges land on the same side)
         t, t_half, t_full = 0.5 * dt * (2 * k), 0.5 * dt * (2 * k + 1), 0.5 * dt * (2 * k + 2)
         if hold is not None and k % hold == 0:
-            u_held = -experiment.kp * (state["theta"] + experiment.kd * state["thetad"])
+            v = pd_output(state)
+            u_held = -(held_filter.step(v) if held_filter is not None else v)
         k1, record = evaluate(t, state, store=True)
         if k % decimation == 0:
             rows.append(record)

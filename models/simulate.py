@@ -56,7 +56,8 @@ class Trajectory:
     delta : ndarray
         Measured actuator output, delay and noise included (rad).
     theta : ndarray
-        Vehicle attitude (rad); 0 in open loop.
+        Rigid vehicle attitude (rad); 0 in open loop. With a bending mode the controller senses
+        ``theta + q``, which is not recorded (the rows stay those of every recording).
     x : ndarray
         Integrator output, the actuator position before an output delay and the noise (rad).
     y : ndarray
@@ -225,8 +226,15 @@ def _initial_conditions(p, experiment):
 
 
 def _pack_experiment(experiment, dt, n_steps, bound):
+    """Packed experiment vector (layout in :mod:`models.kernel`) and the open-loop command.
+
+    A closed loop's compensator is packed as its controllable canonical form, or as its Tustin
+    realisation at ``sample_rate`` when the controller is held; its length is
+    ``kernel.control_length(order)``.
+    """
     ctrl = np.zeros(K.N_CONTROL)
     ctrl[K.C_BOUND] = bound
+    ctrl[K.C_COMP_D] = 1.0  # no compensator: u = -v
     if isinstance(experiment, ClosedLoop):
         ctrl[K.C_CLOSED] = 1.0
         ctrl[K.C_KP], ctrl[K.C_KD], ctrl[K.C_MU] = experiment.kp, experiment.kd, experiment.mu
@@ -240,6 +248,12 @@ def _pack_experiment(experiment, dt, n_steps, bound):
                     f"rate 1/dt = {1 / dt:g} Hz"
                 )
             ctrl[K.C_HOLD_STEPS] = hold
+        if experiment.bending is not None:
+            bend = experiment.bending
+            ctrl[K.C_BEND_W], ctrl[K.C_BEND_ZETA] = bend.frequency, bend.damping
+            ctrl[K.C_BEND_GAIN] = bend.gain
+        if experiment.compensator is not None:
+            ctrl = _pack_compensator(ctrl, experiment)
         u_cmd = np.zeros(1)
     elif isinstance(experiment, OpenLoop):
         u_cmd = experiment.solver_command(0.5 * dt * np.arange(2 * n_steps + 1), dt)
@@ -248,6 +262,24 @@ def _pack_experiment(experiment, dt, n_steps, bound):
             f"experiment must be a ClosedLoop or an OpenLoop, got {type(experiment).__name__}"
         )
     return ctrl, u_cmd
+
+
+def _pack_compensator(ctrl, experiment):
+    """``ctrl`` extended with the compensator's order, feedthrough and matrices."""
+    comp = experiment.compensator
+    if experiment.sample_rate is None:
+        a, b, c, d = comp.state_space()
+    else:  # the digital controller's difference equation, stepped once per sample
+        a, b, c, d = comp.discretise(experiment.sample_rate)
+    n = comp.order
+    packed = np.zeros(K.control_length(n))
+    packed[: K.N_CONTROL] = ctrl
+    packed[K.C_N_COMP], packed[K.C_COMP_D] = n, d
+    o = K.C_COMP_MATRICES
+    packed[o: o + n * n] = np.asarray(a, dtype=float).reshape(-1)
+    packed[o + n * n: o + n * n + n] = b
+    packed[o + n * n + n: o + n * n + 2 * n] = c
+    return packed
 
 
 def simulate(
@@ -348,6 +380,9 @@ def simulate_batch(
     u_cmd = np.zeros((len(u_rows), width))
     for j, row in enumerate(u_rows):
         u_cmd[j, : row.size] = row
+    ctrl = np.zeros((n, max(row.size for row in ctrl_rows)))  # compensators of unequal order
+    for i, row in enumerate(ctrl_rows):
+        ctrl[i, : row.size] = row
     packed = [_pack_params(ps, dt) for ps in param_sets]
     p = np.array([_initial_conditions(pk[0], exp) for pk, exp in zip(packed, experiments)])
     bp_a = np.array([pk[1] for pk in packed])
@@ -360,7 +395,7 @@ def simulate_batch(
     out = np.full((n, K.N_SIGNALS, n_steps // decimation + 1), np.nan)
     status = np.zeros((n, 2), dtype=np.int64)
     K.simulate_batch_kernel(
-        p, np.array(ctrl_rows), bp_a, bp_b, bp_c, u_cmd, exp_index, noise,
+        p, ctrl, bp_a, bp_b, bp_c, u_cmd, exp_index, noise,
         dt, n_steps, decimation, out, status,
     )
     t = dt * decimation * np.arange(out.shape[2])

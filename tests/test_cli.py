@@ -30,6 +30,35 @@ def test_simulate_open_loop_with_overrides(tmp_path):
     assert meta["parameters"]["bandpass_gain"] == 0.0
 
 
+def test_simulate_with_compensator_and_bending_writes_them_to_the_sidecar(tmp_path):
+    from models.controllers import BendingMode, TransferFunction
+    from models.recording import load_recording
+
+    out = tmp_path / "comp.csv"
+    args = ["simulate", "M002", "--lead", "4,8", "--notch", "60,0.5,0.1", "--controller-tf", "1/0.001,1",
+            "--bending", "60,0.02,0.002", "--controller-rate", "200", "--t-end", "3", "--out", str(out)]
+    assert main(args) == 0
+    exp = load_recording(out).experiment()
+    expected = TransferFunction.series(TransferFunction.lead(4, 8), TransferFunction.notch(60, 0.5, 0.1),
+                                       TransferFunction((1.0,), (0.001, 1.0)))
+    assert exp.compensator == expected and exp.sample_rate == 200.0
+    assert exp.bending == BendingMode(60.0, 0.02, 0.002)
+
+
+def test_controller_option_helpers_parse_into_a_closed_loop():
+    import argparse
+
+    from models.controllers import TransferFunction
+    from studies.commands._common import add_controller_options, closed_loop_from_args
+
+    parser = argparse.ArgumentParser()
+    add_controller_options(parser)
+    plain = closed_loop_from_args(parser.parse_args([]))
+    assert plain.is_plain_pd and plain.kp == 5.84 and plain.sample_rate is None
+    one = closed_loop_from_args(parser.parse_args(["--kp", "1", "--kd", "0", "--controller-tf", "2,3/1,4"]))
+    assert one.compensator == TransferFunction((2.0, 3.0), (1.0, 4.0)) and one.bending is None
+
+
 @pytest.mark.parametrize(
     "args, message",
     [
@@ -39,6 +68,16 @@ def test_simulate_open_loop_with_overrides(tmp_path):
         # a loop that diverges: one line, not a SimulationDiverged traceback (issue 14)
         (["simulate", "M002", "--kp", "500", "--kd", "0.062", "--mu", "12.3", "--out", "x.csv"],
          "the loop is unstable with these parameters"),
+        # compensator and bending options: the option and the fault named
+        (["simulate", "M002", "--controller-tf", "1,0,0/1,1", "--out", "x.csv"],
+         "--controller-tf 1,0,0/1,1: controller transfer function is improper"),
+        (["simulate", "M002", "--controller-tf", "1;2", "--out", "x.csv"], "--controller-tf takes NUM/DEN"),
+        (["simulate", "M002", "--lead", "4", "--out", "x.csv"], "--lead takes 2 comma-separated numbers"),
+        (["simulate", "M002", "--notch", "60,0.5,1", "--out", "x.csv"], "notch depth must be in [0, 1)"),
+        (["simulate", "M002", "--bending=-60,0.02,0.001", "--out", "x.csv"],
+         "--bending -60,0.02,0.001: bending frequency must be > 0"),
+        (["simulate", "M002", "--open-loop", "step", "--lead", "4,8", "--out", "x.csv"],
+         "act in the closed loop"),
         # SINDy on a record that never moves: named, not a ZeroDivisionError (issue 14)
         (["sindy", "const.csv"], "const.csv: column 'delta' is constant"),
     ],

@@ -78,3 +78,48 @@ def test_open_loop_sidecar_rebuilds_the_analytic_command(tmp_path):
     np.testing.assert_array_equal(replay.delta, tr.delta)  # edges exactly where they were
     hand = _write(tmp_path, "t,u,delta\n0,0,0\n1,0.01,0\n2,0.01,0\n")
     assert load_recording(hand).experiment().waveform == "samples"
+
+
+def test_compensator_and_bending_round_trip_through_the_sidecar(tmp_path):
+    from models import ClosedLoop
+    from models.controllers import BendingMode, TransferFunction
+
+    comp = TransferFunction.series(TransferFunction.lead(4.0, 8.0), TransferFunction.notch(60.0, 0.5, 0.1))
+    exp = ClosedLoop(5.84, 0.062, 12.3, sample_rate=200.0, compensator=comp,
+                     bending=BendingMode(60.0, 0.02, 0.002))
+    tr = simulate(hypothesis("M002"), exp, 3.0)
+    path = save_recording(tmp_path / "comp.csv", *recording_from_trajectory(tr))
+    rec = load_recording(path)
+    assert rec.meta["compensator"]["name"] == "lead*notch"
+    assert rec.experiment() == exp
+    np.testing.assert_array_equal(simulate(hypothesis("M002"), rec.experiment(), 3.0).delta, tr.delta)
+    # the hand-written forms of TransferFunction.from_dict
+    short = {"kind": "closed", "kp": 5.84, "kd": 0.062, "mu": 12.3,
+             "compensator": [{"lead": [4.0, 8.0]}, {"notch": [60.0, 0.5, 0.1]}]}
+    hand = _write(tmp_path, "t,u,delta\n0,0,0\n0.001,0,0\n0.002,0,0\n", short)
+    assert load_recording(hand).experiment().compensator.num == comp.num
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ({"compensator": {"num": [1, 0, 0], "den": [1, 1]}},
+         r"rec\.json: sidecar 'compensator': controller transfer function is improper"),
+        ({"compensator": {"lead": [4.0]}}, r"sidecar 'compensator': .*lead"),
+        ({"compensator": {"zeros": [1]}}, r"sidecar 'compensator': .*expected keys num and den"),
+        ({"bending": {"frequency": -60, "damping": 0.02, "gain": 0.001}},
+         r"rec\.json: sidecar 'bending': bending frequency must be > 0 \(got -60\)"),
+        ({"bending": [60, 0.02, 0.001]}, r"sidecar 'bending': bending must be an object"),
+        ({"compensater": {"lead": [4, 8]}}, r"unknown sidecar key 'compensater' \(did you mean 'compensator'\?\)"),
+    ],
+)
+def test_bad_compensator_or_bending_in_the_sidecar_is_one_line_naming_the_key(tmp_path, extra, message):
+    meta = {"kind": "closed", "kp": 5.84, "kd": 0.062, "mu": 12.3, **extra}
+    path = _write(tmp_path, "t,u,delta\n0,0,0\n0.001,0,0\n0.002,0,0\n", meta)
+    with pytest.raises(RecordingError, match=message) as info:
+        load_recording(path)
+    assert len(str(info.value).splitlines()) == 1
+    with pytest.raises(RecordingError, match=message.replace(r"rec\.json", r"again\.json")):
+        save_recording(tmp_path / "again.csv",
+                       {"t": np.arange(3) * 1e-3, "u": np.zeros(3), "delta": np.zeros(3)},
+                       {**meta})

@@ -8,7 +8,7 @@ from models.hypotheses import HYPOTHESES, hypothesis
 from models.recording import MAX_ANGLE, recording_from_trajectory, save_recording
 from models.simulate import DEFAULT_DT, DEFAULT_RATE, simulate
 
-from ._common import add_controller_arguments, controller_from_args, parse_assignments
+from ._common import add_controller_options, closed_loop_from_args, parse_assignments
 
 
 def register(sub):
@@ -19,7 +19,7 @@ def register(sub):
         "mu/s^2, PD controller, null reference) or open loop, and write a recording.",
     )
     p.add_argument("name", metavar="NAME", help=f"hypothesis: {', '.join(HYPOTHESES)} (case-insensitive)")
-    add_controller_arguments(p)
+    add_controller_options(p)
     p.add_argument("--open-loop", choices=("step", "square", "sine"), help="open-loop command instead of the closed loop")
     p.add_argument("--amplitude", type=float, default=0.01, help="open-loop command amplitude, rad")
     p.add_argument("--frequency", type=float, default=1.0, help="open-loop square/sine frequency, Hz")
@@ -33,6 +33,11 @@ def register(sub):
 
 
 def run(args) -> int:
+    if args.open_loop and (args.lead or args.notch or args.controller_tf or args.bending):
+        raise ValueError("--lead, --notch, --controller-tf and --bending act in the closed loop; "
+                         "drop them or --open-loop")
+    if not args.open_loop:  # options checked before any simulation
+        experiment = closed_loop_from_args(args)
     overrides = parse_assignments(args.set)
     if args.seed is not None:
         overrides["noise_seed"] = args.seed
@@ -43,8 +48,6 @@ def run(args) -> int:
         experiment = OpenLoop.square(args.amplitude, args.frequency)
     elif args.open_loop == "sine":
         experiment = OpenLoop.sine(args.amplitude, args.frequency)
-    else:
-        experiment = controller_from_args(args)
     trajectory = simulate(params, experiment, args.t_end, dt=args.dt, rate=args.rate)
     peak = float(np.max(np.abs(trajectory.delta)))
     if peak > MAX_ANGLE:  # a recording tvcid would refuse to read back (degrees suspected)
