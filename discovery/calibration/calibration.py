@@ -333,6 +333,8 @@ class Calibration:
             with backend.open("a") as f:
                 g = f.require_group(_H5_GROUP)
                 g.attrs["config"] = config
+                # the noise sd used when sigma is not sampled (predictions and designs need it)
+                g.attrs["sigma"] = float(self.log_posterior_.sigma)
         self.sampler_, self.report_ = run_ensemble(
             self.log_posterior_, self._initial, self.n_walkers, len(self.names_),
             self.max_steps, seed=self.seed, backend=backend, moves=self.moves, pool=self.pool,

@@ -1,0 +1,178 @@
+"""Posterior draws read back from the output directory of ``tvcid fit`` or ``tvcid discover``.
+
+Both commands checkpoint their chain in an HDF5 file whose ``tvcid`` group records the set-up
+(``config``: the hypothesis with every fixed value, the sampled names and their priors). That is all
+a prediction needs: the draws become complete :class:`models.ActuatorParams`, without the
+recordings.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from models.hypotheses import ActuatorParams, params_from_dict
+
+from ..calibration.priors import SIGMA, LogUniform, Uniform
+
+__all__ = ["NoPosteriorError", "PosteriorDraws", "load_posterior_draws"]
+
+_PRIOR_KINDS = {"Uniform": Uniform, "LogUniform": LogUniform}
+
+
+class NoPosteriorError(ValueError):
+    """A directory that holds no tvcid chain."""
+
+
+@dataclass(frozen=True)
+class PosteriorDraws:
+    """Draws of a calibrated posterior as complete parameter sets.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Sampled parameters (``sigma`` included when it was sampled).
+    samples : ndarray (n, len(names))
+        The draws in natural units.
+    internal : ndarray (n, len(names))
+        The same in the sampler's coordinates (log for log-uniform priors).
+    base : ActuatorParams
+        The hypothesis with every non-sampled value as it was fixed.
+    priors : dict name -> Prior
+    config : dict
+        The calibration's set-up as stored in the chain (likelihood, window, dt, ...).
+    source : str
+        The chain file.
+    fixed_sigma : float or None
+        The sensor-noise sd (rad) the likelihood used when ``sigma`` was not sampled.
+    """
+
+    names: tuple
+    samples: np.ndarray
+    internal: np.ndarray
+    base: ActuatorParams
+    priors: dict
+    config: dict = field(repr=False)
+    source: str = ""
+    fixed_sigma: float | None = None
+
+    def __len__(self) -> int:
+        return self.samples.shape[0]
+
+    @property
+    def physical_names(self) -> tuple:
+        return tuple(n for n in self.names if n != SIGMA)
+
+    def params(self, i) -> ActuatorParams:
+        """Draw ``i`` as a complete :class:`ActuatorParams`."""
+        row = self.samples[i]
+        return self.base.replace(
+            **{n: float(row[j]) for j, n in enumerate(self.names) if n != SIGMA}
+        )
+
+    def param_sets(self) -> list:
+        return [self.params(i) for i in range(len(self))]
+
+    def median_params(self) -> ActuatorParams:
+        """The coordinate-wise posterior median as a parameter set (the DF's "median model")."""
+        med = np.median(self.samples, axis=0)
+        return self.base.replace(
+            **{n: float(med[j]) for j, n in enumerate(self.names) if n != SIGMA}
+        )
+
+    def sigma(self) -> float | None:
+        """Posterior median of the sensor-noise sd (rad), or the value it was fixed at."""
+        if SIGMA not in self.names:
+            return self.fixed_sigma
+        return float(np.median(self.samples[:, self.names.index(SIGMA)]))
+
+    def widths(self, level=0.90) -> dict:
+        """Central ``level`` interval width of every sampled parameter (natural units)."""
+        lo, hi = 0.5 * (1 - level), 0.5 * (1 + level)
+        q = np.quantile(self.samples, [lo, hi], axis=0)
+        return {n: float(q[1, j] - q[0, j]) for j, n in enumerate(self.names)}
+
+
+def _chain_file(directory: Path) -> Path:
+    if not directory.is_dir():
+        raise NoPosteriorError(f"{directory}: no such directory (give the --out of tvcid fit or discover)")
+    fit_chain = directory / "chain.h5"
+    if fit_chain.is_file():
+        return fit_chain
+    discovery = directory / "discovery.json"
+    if discovery.is_file():
+        try:
+            name = json.loads(discovery.read_text())["posterior"]["chain"]
+        except (ValueError, KeyError, TypeError):
+            raise NoPosteriorError(
+                f"{discovery} names no posterior chain (was discover run with its MCMC stage?)"
+            ) from None
+        path = directory / name
+        if path.is_file():
+            return path
+        raise NoPosteriorError(f"{discovery} names the chain {name}, which is not in {directory}")
+    raise NoPosteriorError(
+        f"{directory} holds no chain (chain.h5 from tvcid fit, or discovery.json from tvcid "
+        "discover): run one of them with --out there first"
+    )
+
+
+def _burn_in(backend, iterations) -> int:
+    try:
+        tau = backend.get_autocorr_time(tol=0)
+        tmax = float(np.max(tau))
+    except Exception:  # noqa: BLE001 - emcee raises several kinds on very short chains
+        tmax = np.nan
+    if not np.isfinite(tmax):
+        tmax = iterations / 10.0
+    return int(min(max(2 * tmax, 0), iterations // 2))
+
+
+def load_posterior_draws(directory, n_draws=200, seed=0) -> PosteriorDraws:
+    """Read ``n_draws`` posterior draws from a ``tvcid fit`` or ``tvcid discover`` directory.
+
+    The first ``2 tau`` steps (at most half the chain) are discarded, as
+    :meth:`discovery.calibration.Posterior.from_sampler` does, and ``n_draws`` are drawn without
+    replacement (with replacement if the chain holds fewer) by a seeded generator.
+
+    Raises
+    ------
+    NoPosteriorError
+        When the directory holds no chain, or the chain no samples.
+    """
+    from ..calibration.backend import CheckpointBackend
+
+    directory = Path(directory)
+    path = _chain_file(directory)
+    if not isinstance(n_draws, (int, np.integer)) or n_draws < 1:
+        raise ValueError(f"n_draws must be a positive integer (got {n_draws!r})")
+    backend = CheckpointBackend(str(path), name="mcmc", read_only=True)
+    try:
+        with backend.open("r") as f:
+            if "tvcid" not in f or "config" not in f["tvcid"].attrs:
+                raise NoPosteriorError(f"{path} is not a tvcid chain (no set-up stored in it)")
+            config = json.loads(f["tvcid"].attrs["config"])
+            fixed_sigma = f["tvcid"].attrs.get("sigma")
+        iterations = backend.iteration
+    except OSError as exc:
+        raise NoPosteriorError(f"{path} cannot be read as a chain ({exc})") from None
+    if iterations < 2:
+        raise NoPosteriorError(f"{path} holds {iterations} steps: no posterior to draw from yet")
+    burn = _burn_in(backend, iterations)
+    z = backend.get_chain(discard=burn, flat=True)
+    names = tuple(config["params"])
+    priors = {}
+    for n in names:
+        d = config["priors"][n]
+        priors[n] = _PRIOR_KINDS[d["kind"]](d["low"], d["high"])
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(z.shape[0], size=n_draws, replace=z.shape[0] < n_draws)
+    z = z[idx]
+    x = np.column_stack([priors[n].to_natural(z[:, j]) for j, n in enumerate(names)])
+    base_dict = dict(config["base"])
+    base = params_from_dict(config["hypothesis"], base_dict)
+    return PosteriorDraws(names=names, samples=x, internal=z, base=base, priors=priors,
+                          config=config, source=str(path),
+                          fixed_sigma=None if fixed_sigma is None else float(fixed_sigma))

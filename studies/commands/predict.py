@@ -1,0 +1,135 @@
+"""``tvcid predict``: the limit cycle of a calibrated actuator under a controller, with its band."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from ._common import add_controller_arguments, add_compensator_options, bending_from_args
+
+
+def register(sub):
+    p = sub.add_parser(
+        "predict",
+        help="limit cycle under a controller (or over a grid) from a posterior, with its 90 % band",
+        description="Simulate posterior draws of a calibrated actuator (the --out directory of "
+        "tvcid fit or tvcid discover) in closed loop with the given controller, u = -Kp (1 + Kd s) "
+        "F(s) theta_m, and report the limit cycle's amplitude ((max-min)/2 of delta, rad) and "
+        "frequency (rad/s): median and 90 % band over the draws, the fractions of draws that "
+        "oscillate and that diverge, and the describing-function cycle of the median model. "
+        "With --grid (once or twice) it maps them over controller values and writes "
+        "MAP_DIR/map.json, map.csv and map.png (medians, band width, stability boundary).",
+    )
+    p.add_argument("directory", metavar="DIR", help="output directory of tvcid fit or tvcid discover")
+    add_controller_arguments(p)
+    add_compensator_options(p)
+    p.add_argument("--grid", action="append", default=[], metavar="KEY=LO:HI:N",
+                   help="vary a controller value over N points (repeatable, at most twice): kp, kd, "
+                   "mu, lead_zero, lead_pole (need --lead), notch_frequency, notch_damping, "
+                   "notch_depth (need --notch)")
+    p.add_argument("--draws", type=int, default=200, help="posterior draws simulated (default 200)")
+    p.add_argument("--transient", type=float, default=3.0,
+                   help="seconds each draw runs from the median model's cycle before the window")
+    p.add_argument("--window", type=float, default=4.0, help="seconds measured")
+    p.add_argument("--pilot", type=float, default=20.0,
+                   help="seconds of the median model's run that finds its cycle at each setting "
+                   "(0: start every draw near rest; then raise --transient)")
+    p.add_argument("--no-df", action="store_true", help="skip the describing-function prediction")
+    p.add_argument("--seed", type=int, default=0, help="seed of the draws' selection")
+    p.add_argument("--json", action="store_true", help="print the one-setting result as JSON")
+    p.add_argument("--out", metavar="MAP_DIR", help="output directory of a --grid map (required with --grid)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def setting_from_args(args):
+    """The :class:`ControllerSetting` of the options; one --lead and one --notch stay named so
+    that a grid can vary them."""
+    from discovery.prediction import ControllerSetting
+
+    from ._common import _numbers, compensator_from_args
+
+    named = {}
+    leads, notches = list(args.lead), list(args.notch)
+    if leads:
+        named["lead_zero"], named["lead_pole"] = _numbers("--lead", leads.pop(0), 2)
+    if notches:
+        f, z, d = _numbers("--notch", notches.pop(0), 3)
+        named.update(notch_frequency=f, notch_damping=z, notch_depth=d)
+    rest = type("Rest", (), {"lead": leads, "notch": notches,
+                             "controller_tf": list(args.controller_tf)})()
+    try:
+        return ControllerSetting(kp=args.kp, kd=args.kd, mu=args.mu,
+                                 sample_rate=args.controller_rate, bending=bending_from_args(args),
+                                 compensator=compensator_from_args(rest), **named)
+    except ValueError as exc:
+        raise ValueError(f"controller: {exc}") from None
+
+
+def run(args) -> int:
+    from discovery.prediction import (
+        PredictionConfig,
+        cycle_map,
+        load_posterior_draws,
+        parse_grid,
+        predict_cycle,
+    )
+
+    grid = dict(parse_grid(g) for g in args.grid)
+    if len(grid) != len(args.grid):
+        raise ValueError("--grid names the same key twice")
+    if len(grid) > 2:
+        raise ValueError(f"--grid given {len(grid)} times: a map varies at most two values")
+    if grid and not args.out:
+        raise ValueError("--grid writes a map: give --out MAP_DIR")
+    if args.draws < 1:
+        raise ValueError(f"--draws must be >= 1 (got {args.draws})")
+    setting = setting_from_args(args)
+    for key, values in grid.items():  # every grid point must be a valid controller
+        for v in (values[0], values[-1]):
+            try:
+                setting.replace(**{key: float(v)})
+            except ValueError as exc:
+                raise ValueError(f"--grid {key}: {exc}") from None
+    config = PredictionConfig(transient=args.transient, window=args.window, pilot=args.pilot)
+    draws = load_posterior_draws(args.directory, n_draws=args.draws, seed=args.seed)
+    if not grid:
+        pred = predict_cycle(draws, setting, config, describing=not args.no_df)
+        result = pred.to_dict()
+        if args.json:
+            print(json.dumps(result, indent=2))
+            return 0
+        print(f"{len(draws)} posterior draws of {draws.base.name} ({draws.source})")
+        for name, unit, scale in (("amplitude", "mrad", 1e3), ("frequency", "rad/s", 1.0)):
+            q = result[name]
+            if q["q50"] is None:
+                print(f"  {name:<10s} no draw oscillates")
+            else:
+                print(f"  {name:<10s} {q['q50'] * scale:.4g} {unit}  90 % "
+                      f"[{q['q05'] * scale:.4g}, {q['q95'] * scale:.4g}]")
+        print(f"  oscillating {result['fraction_oscillating']:.0%}, diverging "
+              f"{result['fraction_diverging']:.0%}, at rest {result['fraction_at_rest']:.0%}")
+        df = result["describing_function"]
+        if df and df.get("amplitude") is not None:
+            print(f"  describing function (median model): first harmonic "
+                  f"{df['amplitude'] * 1e3:.4g} mrad at {df['frequency']:.4g} rad/s")
+        elif df:
+            print(f"  describing function: {df.get('note')}")
+        return 0
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cmap = cycle_map(draws, setting, grid, config, describing=not args.no_df,
+                     progress=not args.no_progress)
+    (out / "map.json").write_text(json.dumps(cmap.to_dict(), indent=1) + "\n")
+    cmap.to_csv(out / "map.csv")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    axes = cmap.plot()
+    fig = axes[0].figure
+    fig.savefig(out / "map.png", dpi=110)
+    plt.close(fig)
+    print(f"wrote {out / 'map.json'}, {out / 'map.csv'}, {out / 'map.png'}", file=sys.stderr)
+    return 0
