@@ -63,6 +63,10 @@ class PredictionConfig:
     max_decay : float
         A window whose amplitude falls by more than this fraction between its halves counts as
         decaying to rest.
+    max_growth : float
+        A window whose amplitude grows by more than this fraction between its halves counts as
+        diverging (an unstable loop grows without bound where no saturation is modelled; it
+        may not reach ``bound`` within a short run).
     bound : float
         Divergence bound (rad) on the actuator output and the attitude.
     chunk : int
@@ -77,6 +81,7 @@ class PredictionConfig:
     rate: float = 250.0
     min_amplitude: float = 1e-5
     max_decay: float = 0.5
+    max_growth: float = 0.2
     bound: float = 1.0
     chunk: int = 1000
 
@@ -96,7 +101,8 @@ class CycleOutcomes:
     Attributes
     ----------
     outcome : ndarray of str
-        ``"cycle"``, ``"rest"`` or ``"diverged"``.
+        ``"cycle"``, ``"rest"`` or ``"diverged"`` (out of bound, non-finite, or growing by more
+        than ``max_growth`` over the window).
     amplitude : ndarray
         ``(max - min)/2`` of ``delta`` over the window (rad); NaN unless a cycle.
     first_harmonic : ndarray
@@ -117,6 +123,8 @@ def _measure(t, delta, config):
     except (InsufficientPeriodsError, ValueError):
         return REST, math.nan, math.nan, math.nan
     h1 = f.harmonics[0]
+    if f.amplitude_drift > config.max_growth:
+        return DIVERGED, math.nan, math.nan, math.nan
     if not (h1 > config.min_amplitude) or f.amplitude_drift < -config.max_decay:
         return REST, math.nan, math.nan, math.nan
     return CYCLE, f.amplitude, h1, f.frequency

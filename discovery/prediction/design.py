@@ -25,9 +25,8 @@ The expected information gain on the chosen parameters is the mean of ``0.5 ln(d
 from __future__ import annotations
 
 import json
-import math
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
