@@ -301,7 +301,8 @@ RECORDING_COMMANDS = {
 
 @dataclass(frozen=True)
 class OptionCase:
-    """One command given a bad option or parameter (``{file}``: a good closed-loop record)."""
+    """One command given a bad option or parameter (``{file}``: a good closed-loop record;
+    ``{dir}``: its directory, which holds no chain; ``{out}``: a fresh path)."""
 
     key: str
     title: str
@@ -366,6 +367,17 @@ OPTION_CASES = (
                r"h9_nothing"),
     OptionCase("sindy_bootstrap", "sindy: a negative bootstrap count",
                ("sindy", "{file}", "--bootstrap", "-3"), r"bootstrap must be >= 0 \(got -3\)"),
+    OptionCase("predict_no_chain", "predict: a directory without a posterior chain",
+               ("predict", "{dir}", "--kp", "7"), r"holds no chain \(chain\.h5 from tvcid fit"),
+    OptionCase("predict_grid_one_point", "predict: a grid with one point",
+               ("predict", "{dir}", "--grid", "kp=3:9:1", "--out", "{out}"),
+               r"--grid 'kp=3:9:1': a grid needs at least 2 points"),
+    OptionCase("predict_improper", "predict: an improper controller transfer function",
+               ("predict", "{dir}", "--controller-tf", "1,0,0/1,1"),
+               r"--controller-tf 1,0,0/1,1: controller transfer function is improper"),
+    OptionCase("design_candidates", "design: a candidates file that is not JSON",
+               ("design", "{dir}", "--candidates", "{file}", "--out", "{out}"),
+               r"good\.csv: not valid JSON"),
 )
 
 
@@ -402,7 +414,7 @@ def answer(case, command, good, directory):
 def option_answer(case, good, directory):
     directory = Path(directory)
     path = write_csv(directory / "good.csv", _copy(good.closed_columns), good.closed_meta)
-    argv = [a.format(file=path, out=directory / "out") for a in case.argv]
+    argv = [a.format(file=path, out=directory / "out", dir=directory) for a in case.argv]
     status, err = run_cli(argv)
     return status, shorten(err, directory)
 
