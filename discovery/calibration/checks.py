@@ -183,7 +183,9 @@ def predictive_check(calibration, n_draws=32, seed=0, level=DEFAULT_LEVEL) -> Pr
             effect = float(np.nanmedian(q / k)) if np.any(np.isfinite(q)) else math.inf
             stats = {"chi2_per_dof": effect, "implied_inflation": effect}
         else:
-            res = term.residuals(params)
+            # the solver's estimated error is part of the model's stated uncertainty
+            res = np.array([term.scaled_residuals(r, sd)
+                            for r, sd in zip(term.residuals(params), sigmas)])
             triples = [_waveform_p(res[i], sigmas[i]) for i in range(len(params))]
             ratio, rho, ps = (np.array(v) for v in zip(*triples))
             observed = np.array([misfit_statistic(res[i], sigmas[i]) for i in range(len(params))])

@@ -14,7 +14,12 @@ from discovery.describing import (
 from models.experiments import CONTROLLER_A, ClosedLoop
 from models.hypotheses import HYPOTHESES, hypothesis
 
-from ._common import parse_assignments, print_json
+from ._common import (
+    add_compensator_options,
+    closed_loop_from_args,
+    parse_assignments,
+    print_json,
+)
 
 
 def _controller_arguments(p):
@@ -43,6 +48,10 @@ def register(sub):
     )
     pr.add_argument("name", metavar="NAME", help=f"hypothesis: {', '.join(HYPOTHESES)} (case-insensitive)")
     _controller_arguments(pr)
+    pr.add_argument("--controller-rate", type=float, default=None, metavar="HZ",
+                    help="controller held at this rate (the hold as its first harmonic: half a "
+                    "sample of delay and a sinc attenuation)")
+    add_compensator_options(pr)
     pr.add_argument("--set", action="append", metavar="KEY=VALUE", default=[], help="override a parameter (repeatable)")
     pr.add_argument("--amplitude-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
                     help="search range of the amplitude (of delta, rad; of the dead zone's input with a band-pass loop)")
@@ -85,12 +94,12 @@ def _save(result, path):
 
 def run_predict(args) -> int:
     params = hypothesis(args.name, **parse_assignments(args.set))
-    controller = ClosedLoop(kp=args.kp, kd=args.kd, mu=args.mu)
+    controller = closed_loop_from_args(args)
     ranges = {"frequency_range": tuple(args.frequency_range)}
     if args.amplitude_range is not None:
         ranges["amplitude_range"] = tuple(args.amplitude_range)
     result = predict_limit_cycles(params, controller, **ranges)
-    out = {"hypothesis": params.name, "controller": {"kp": args.kp, "kd": args.kd, "mu": args.mu}}
+    out = {"hypothesis": params.name, "controller": controller.to_dict()}
     out.update(result.to_dict())
     if args.compare:
         try:
@@ -102,7 +111,7 @@ def run_predict(args) -> int:
     if args.json:
         print_json(out)
         return 0
-    print(f"{params.name} at Kp {args.kp:g}, Kd {args.kd:g}, mu {args.mu:g}")
+    print(result.label)
     if not result.limit_cycles:
         print("no limit cycle predicted")
     for c in result.limit_cycles:
