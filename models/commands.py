@@ -22,8 +22,8 @@ import numpy as np
 
 from .experiments import OpenLoop
 
-__all__ = ["command_candidates", "command_from_samples", "is_piecewise_constant",
-           "regular_edge_times"]
+__all__ = ["command_candidates", "command_from_samples", "edge_alternatives",
+           "is_piecewise_constant", "regular_edge_times"]
 
 #: A command whose value changes at no more than this fraction of its samples is piecewise constant.
 PIECEWISE_FRACTION = 0.05
@@ -116,3 +116,43 @@ def command_from_samples(t, u) -> OpenLoop:
         edges = t[k]
     levels = np.concatenate([[u[0]], u[k]])
     return OpenLoop.piecewise(edges, levels)
+
+
+def edge_alternatives(t, u, n_half=7, n_phase=5) -> list:
+    """Replays of a regular piecewise command spanning every edge timing its samples allow.
+
+    The samples put each edge of a square wave in ``(t[k-1], t[k]]``; over a few edges the
+    (phase, half period) pairs consistent with all of them form a polygon a sample wide in phase
+    and ``~1/n_edges`` of a sample in half period. A half period off by a fraction of a sample
+    moves the last edges by up to a sample (a drawn square at 0.313 Hz sampled at 1 kHz, edges
+    1596 samples apart: the hold replay drifted to 0.93 ms late, which left the truth's residuals
+    at 3x the noise). This returns ``n_half x n_phase`` replays over that polygon (the half
+    periods at evenly spaced quantiles of the feasible ones, the phases evenly inside each one's
+    interval) for a fit to choose from; ``[]`` when the command is not regular piecewise.
+    """
+    t = np.asarray(t, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if not is_piecewise_constant(u):
+        return []
+    t = t - t[0]
+    k = np.flatnonzero(np.diff(u)) + 1
+    if k.size < 3 or regular_edge_times(t, k) is None:
+        return []
+    j = np.arange(k.size)
+    hi, lo = t[k], t[k - 1]
+    dt = float(np.median(np.diff(t)))
+    half, _ = np.polyfit(j, 0.5 * (lo + hi), 1)
+    halves = half + np.linspace(-2.0, 2.0, 801) * dt / max(k.size - 1, 1)
+    phase_lo = np.max(lo[None, :] - j[None, :] * halves[:, None], axis=1)
+    phase_hi = np.min(hi[None, :] - j[None, :] * halves[:, None], axis=1)
+    feasible = np.flatnonzero(phase_hi - phase_lo >= 0)
+    if feasible.size == 0:
+        return []
+    levels = np.concatenate([[u[0]], u[k]])
+    picks = np.unique(feasible[np.round(np.linspace(0, feasible.size - 1, n_half)).astype(int)])
+    out = []
+    for i in picks:
+        for f in (np.arange(n_phase) + 0.5) / n_phase:
+            phase = phase_lo[i] + f * (phase_hi[i] - phase_lo[i])
+            out.append(OpenLoop.piecewise(phase + j * halves[i], levels))
+    return out

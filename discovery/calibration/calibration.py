@@ -254,6 +254,12 @@ class Calibration:
                 z0 = _profile_sigma(lp, res.x, self.names_)
             if self.discrepancy and self._suspect_optimum(lp, z0):
                 z0 = _global_start(lp, z0, int(rng.integers(2**31)), self.names_)
+            if self._choose_commands(lp, z0):  # the replay moved: optimise again with it
+                res = minimize(_cost(lp), z0, method="Nelder-Mead",
+                               options={"maxfev": 100 * len(z0), "xatol": 1e-6, "fatol": 0.05,
+                                        "initial_simplex": _simplex(z0, lp)})
+                if np.isfinite(lp(res.x)) and lp(res.x)[0] > lp(z0)[0]:
+                    z0 = _profile_sigma(lp, res.x, self.names_)
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
         if self.discrepancy:
             self._set_inflation(lp, z0)
@@ -274,6 +280,22 @@ class Calibration:
             if filled == self.n_walkers:
                 return out
         raise RuntimeError("could not place the walkers where the posterior is finite")
+
+    def _choose_commands(self, lp, z0) -> bool:
+        """Each open-loop command known only as samples replayed with the edge timing that fits
+        the optimum best (see :meth:`.likelihood.OpenLoopTerm.choose_command`); the choice is
+        kept in the checkpoint so that a resumed chain keeps its likelihood."""
+        params = lp.params_for(lp.natural(z0)[0])
+        if params is None:
+            return False
+        changed = [bool(hasattr(t, "choose_command") and t.choose_command(params))
+                   for t in self.terms_]
+        self.commands_ = [t.command_edges() if hasattr(t, "command_edges") else None
+                          for t in self.terms_]
+        if self.backend is not None and any(changed):
+            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
+                f.require_group(_H5_GROUP).attrs["commands"] = json.dumps(self.commands_)
+        return any(changed)
 
     def _inflations_at(self, lp, z0) -> list:
         """Each term's discrepancy inflation at ``z0`` (inf everywhere if ``z0`` is invalid)."""
@@ -319,10 +341,15 @@ class Calibration:
                 with backend.open("r") as f:
                     old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
                     stored = f[_H5_GROUP].attrs.get("inflation") if _H5_GROUP in f else None
+                    commands = f[_H5_GROUP].attrs.get("commands") if _H5_GROUP in f else None
                 if stored is not None and old == config:  # resuming: the factors of the start
                     self.inflation_ = [float(v) for v in json.loads(stored)]
                     for term, value in zip(self.terms_, self.inflation_):
                         term.inflation = value
+                if commands is not None and old == config:  # and the command replays chosen
+                    for term, edges in zip(self.terms_, json.loads(commands)):
+                        if edges is not None and hasattr(term, "set_command_edges"):
+                            term.set_command_edges(edges)
                 if old is not None and old != config:
                     was, now = json.loads(old), json.loads(config)
                     changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))

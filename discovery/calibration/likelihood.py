@@ -613,12 +613,57 @@ class OpenLoopTerm(_WaveformSolverError):
     offset_profiled = True
 
     def setup(self, start_params, warm_start=True):
+        self.start_params = start_params
         self.simulator = BatchSimulator(
             self.experiment, float(self.tau[-1]), self.dt,
             rate=output_rate_for(self.dt, self.data_rate),
         )
         self.solver_var = self.waveform_solver_variance(start_params)
         return self
+
+    def command_edges(self):
+        """The replayed command's edge times (s), or ``None`` for a command not replayed as
+        levels and edges."""
+        if self.experiment.waveform != "piecewise":
+            return None
+        return [float(v) for v in self.experiment.t_samples]
+
+    def set_command_edges(self, edges):
+        """Replay the command with these edge times (as chosen by :meth:`choose_command`)."""
+        from models.experiments import OpenLoop
+
+        self.experiment = OpenLoop.piecewise(np.asarray(edges, dtype=float),
+                                             self.experiment.u_samples)
+        self.setup(self.start_params)
+
+    def choose_command(self, params) -> bool:
+        """Among the edge timings the command's samples allow
+        (:func:`models.commands.edge_alternatives`), keep the one whose replay fits ``params``
+        best; True when it changed. A command from the sidecar's analytic form is kept."""
+        from models.commands import edge_alternatives
+        from models.simulate import simulate_batch
+
+        if self.experiment.waveform != "piecewise":
+            return False
+        alternatives = edge_alternatives(self.recording.t, self.recording.u)
+        if not alternatives:
+            return False
+        runs = simulate_batch([params] * len(alternatives), alternatives, float(self.tau[-1]),
+                              dt=self.dt, rate=output_rate_for(self.dt, self.data_rate))
+        ssr = np.full(len(alternatives), np.inf)
+        delta = runs.signal("delta")
+        for i in np.flatnonzero(runs.status == "ok"):
+            r = self.data - np.interp(self.tau, runs.t, delta[i])
+            r = r - np.mean(r)
+            ssr[i] = float(np.sum(r * r))
+        current = self.residuals([params])[0]
+        current_ssr = float(np.sum(current * current)) if np.all(np.isfinite(current)) else np.inf
+        best = int(np.argmin(ssr))
+        if not ssr[best] < current_ssr:
+            return False
+        self.experiment = alternatives[best]
+        self.setup(self.start_params)
+        return True
 
     def _halved_simulator(self, params, warm_start):
         half = self.dt / 2

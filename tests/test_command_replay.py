@@ -1,0 +1,68 @@
+"""A square wave known only as samples, replayed with the edge timing its samples allow (issue 12
+item 3: "the replay error itself becomes a mismatch").
+
+Case (from the coverage benchmark's draw 3, seed 2003): a square of 0.313 Hz sampled at 1 kHz from
+t = 0, so every edge falls 1596 samples after the previous one while the true half period is
+1595.81 samples; the hold replay drifts to 0.9 ms late by the fifth edge. The truth's open-loop
+residuals were 3x the sensor noise, and the calibration's intervals excluded it.
+"""
+import numpy as np
+import pytest
+
+from discovery.calibration import synthetic_recording
+from discovery.calibration.likelihood import make_term
+from models import M002, OpenLoop
+from models.commands import command_from_samples, edge_alternatives
+
+FREQUENCY = 0.31331990500313334
+NOISE = 2.5e-5
+
+
+def test_alternatives_span_the_true_edges():
+    t = np.arange(0, 9.0, 1e-3)
+    exact = OpenLoop.square(0.02, FREQUENCY)
+    u = exact.command(t)
+    true_edges = np.arange(1, 6) / (2 * FREQUENCY)
+    hold = command_from_samples(t, u).t_samples
+    assert np.max(np.abs(hold - true_edges)) > 8e-4  # the hold replay drifts by ~a sample
+    alternatives = edge_alternatives(t, u)
+    assert len(alternatives) > 10
+    errors = [np.max(np.abs(a.t_samples - true_edges)) for a in alternatives]
+    assert min(errors) < 1.5e-4
+    for a in alternatives:  # every alternative reproduces the samples
+        assert np.array_equal(a.command(t), u)
+
+
+def test_not_regular_commands_have_no_alternatives():
+    t = np.arange(0, 4.0, 1e-3)
+    assert edge_alternatives(t, 0.01 * np.sin(2 * np.pi * t)) == []
+    assert edge_alternatives(t, np.where(t > 1.0, 0.01, 0.0)) == []  # one edge: a step
+
+
+def test_choose_command_restores_the_truths_fit(tmp_path):
+    truth = M002()
+    rec = synthetic_recording(truth, OpenLoop.square(0.01, FREQUENCY), 9.0, NOISE, 3,
+                              tmp_path / "square.csv", dt=2e-4)
+    # a measured-style record: the command only as samples
+    import json
+
+    meta = json.loads((tmp_path / "square.json").read_text())
+    for key in ("waveform", "amplitude", "frequency", "start", "offset", "from_rest",
+                "hypothesis", "parameters"):
+        meta.pop(key, None)
+    (tmp_path / "square.json").write_text(json.dumps(meta))
+    from models.recording import load_recording
+
+    rec = load_recording(tmp_path / "square.csv")
+    term = make_term(rec, "waveform", 10.0, 6.0, 5e-4)
+    term.setup(truth)
+    before = float(np.sqrt(np.mean(term.residuals([truth])[0] ** 2)))
+    assert term.choose_command(truth)
+    after = float(np.sqrt(np.mean(term.residuals([truth])[0] ** 2)))
+    assert before > 1.5 * NOISE  # 1.84x: the replay error dominates the noise
+    assert after == pytest.approx(NOISE, rel=0.15)
+    edges = term.command_edges()
+    term2 = make_term(rec, "waveform", 10.0, 6.0, 5e-4)
+    term2.setup(truth)
+    term2.set_command_edges(edges)  # what a resumed chain does
+    assert np.array_equal(term2.residuals([truth]), term.residuals([truth]))
