@@ -14,6 +14,7 @@ it lands from full-length runs.
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -67,6 +68,9 @@ class PredictionConfig:
         A window whose amplitude grows by more than this fraction between its halves counts as
         diverging (an unstable loop grows without bound where no saturation is modelled; it
         may not reach ``bound`` within a short run).
+    settled_drift : float
+        A cycle whose amplitude changes by more than this fraction across the window counts as
+        not settled (near the stability boundary growth is slow; reported, not hidden).
     bound : float
         Divergence bound (rad) on the actuator output and the attitude.
     chunk : int
@@ -81,7 +85,8 @@ class PredictionConfig:
     rate: float = 250.0
     min_amplitude: float = 1e-5
     max_decay: float = 0.5
-    max_growth: float = 0.2
+    max_growth: float = 0.1
+    settled_drift: float = 0.02
     bound: float = 1.0
     chunk: int = 1000
 
@@ -109,25 +114,28 @@ class CycleOutcomes:
         First-harmonic amplitude of ``delta`` (rad), the describing function's amplitude.
     frequency : ndarray
         Fundamental (rad/s); NaN unless a cycle.
+    drift : ndarray
+        Relative change of the amplitude between the window's halves; NaN unless a cycle.
     """
 
     outcome: np.ndarray
     amplitude: np.ndarray
     first_harmonic: np.ndarray
     frequency: np.ndarray
+    drift: np.ndarray
 
 
 def _measure(t, delta, config):
     try:
         f = limit_cycle_features(t, delta, n_harmonics=1)
     except (InsufficientPeriodsError, ValueError):
-        return REST, math.nan, math.nan, math.nan
+        return REST, math.nan, math.nan, math.nan, math.nan
     h1 = f.harmonics[0]
     if f.amplitude_drift > config.max_growth:
-        return DIVERGED, math.nan, math.nan, math.nan
+        return DIVERGED, math.nan, math.nan, math.nan, math.nan
     if not (h1 > config.min_amplitude) or f.amplitude_drift < -config.max_decay:
-        return REST, math.nan, math.nan, math.nan
-    return CYCLE, f.amplitude, h1, f.frequency
+        return REST, math.nan, math.nan, math.nan, math.nan
+    return CYCLE, f.amplitude, h1, f.frequency, f.amplitude_drift
 
 
 def simulate_cycles(param_sets, loops, config=PredictionConfig(), progress=None) -> CycleOutcomes:
@@ -146,7 +154,7 @@ def simulate_cycles(param_sets, loops, config=PredictionConfig(), progress=None)
         raise ValueError(f"{len(param_sets)} parameter sets for {len(loops)} loops")
     n = len(param_sets)
     outcome = np.empty(n, dtype=object)
-    amp, h1, freq = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    amp, h1, freq, drift = (np.full(n, np.nan) for _ in range(4))
     t_end = config.transient + config.window
     for lo in range(0, n, config.chunk):
         hi = min(n, lo + config.chunk)
@@ -159,11 +167,12 @@ def simulate_cycles(param_sets, loops, config=PredictionConfig(), progress=None)
             if res.status[j] != "ok":
                 outcome[lo + j] = DIVERGED
                 continue
-            outcome[lo + j], amp[lo + j], h1[lo + j], freq[lo + j] = _measure(t, delta[j], config)
+            (outcome[lo + j], amp[lo + j], h1[lo + j], freq[lo + j],
+             drift[lo + j]) = _measure(t, delta[j], config)
         if progress is not None:
             progress(hi - lo)
     return CycleOutcomes(outcome=outcome.astype(str), amplitude=amp, first_harmonic=h1,
-                         frequency=freq)
+                         frequency=freq, drift=drift)
 
 
 def _pilot_state(params, setting, config):
@@ -226,11 +235,17 @@ class CyclePrediction:
         One per draw.
     describing : dict
         The median model's harmonic-balance cycle (``amplitude`` as a first harmonic).
+    solver_error : dict
+        ``amplitude`` and ``frequency``: the change of the median model's cycle when the step is
+        halved (step doubling; rad and rad/s), added to each side of the band.
+    config : PredictionConfig
     """
 
     setting: ControllerSetting
     outcomes: CycleOutcomes = field(repr=False)
     describing: dict
+    solver_error: dict = field(default_factory=dict)
+    config: PredictionConfig = PredictionConfig()
 
     @property
     def fraction_oscillating(self) -> float:
@@ -241,11 +256,21 @@ class CyclePrediction:
         return float(np.mean(self.outcomes.outcome == DIVERGED))
 
     def to_dict(self) -> dict:
+        """Quantiles over the oscillating draws, ``q05`` and ``q95`` moved out by the solver
+        error; the fractions; the DF cycle of the median model."""
         mask = self.outcomes.outcome == CYCLE
+        bands = {}
+        for name in ("amplitude", "frequency", "first_harmonic"):
+            q = _quantiles(getattr(self.outcomes, name), mask)
+            e = self.solver_error.get(name, 0.0)
+            if q["q05"] is not None and np.isfinite(e):
+                q["q05"], q["q95"] = q["q05"] - e, q["q95"] + e
+            bands[name] = q
+        unsettled = mask & (np.abs(self.outcomes.drift) > self.config.settled_drift)
         return {
-            "amplitude": _quantiles(self.outcomes.amplitude, mask),
-            "frequency": _quantiles(self.outcomes.frequency, mask),
-            "first_harmonic": _quantiles(self.outcomes.first_harmonic, mask),
+            **bands,
+            "solver_error": self.solver_error,
+            "fraction_not_settled": float(np.mean(unsettled)),
             "fraction_oscillating": self.fraction_oscillating,
             "fraction_diverging": self.fraction_diverging,
             "fraction_at_rest": float(np.mean(self.outcomes.outcome == REST)),
@@ -294,7 +319,20 @@ def predict_cycle(draws, setting: ControllerSetting, config=PredictionConfig(),
     params = [p.replace(y0=y, yd0=yd, x0=x) for p in draws.param_sets()]
     outcomes = simulate_cycles(params, [loop] * len(params), config)
     df = _describing_prediction(median, setting) if describing else {}
-    return CyclePrediction(setting=setting, outcomes=outcomes, describing=df)
+    return CyclePrediction(setting=setting, outcomes=outcomes, describing=df,
+                           solver_error=_solver_error(median.replace(y0=y, yd0=yd, x0=x), loop,
+                                                      config),
+                           config=config)
+
+
+def _solver_error(params, loop, config) -> dict:
+    """Step-doubling change of one model's cycle (amplitude, first harmonic, frequency)."""
+    runs = [simulate_cycles([params], [loop], dataclasses.replace(config, dt=h))
+            for h in (config.dt, 0.5 * config.dt)]
+    if not all(r.outcome[0] == CYCLE for r in runs):
+        return {"amplitude": math.nan, "frequency": math.nan, "first_harmonic": math.nan}
+    return {name: float(abs(getattr(runs[0], name)[0] - getattr(runs[1], name)[0]))
+            for name in ("amplitude", "frequency", "first_harmonic")}
 
 
 @dataclass(frozen=True)
@@ -309,7 +347,8 @@ class CycleMap:
         Grid of each key.
     summary : dict
         Arrays over the grid: ``amplitude_q05/q50/q95``, ``frequency_q05/q50/q95``,
-        ``fraction_oscillating``, ``fraction_diverging``, ``df_amplitude``, ``df_frequency``.
+        ``fraction_oscillating``, ``fraction_diverging``, ``fraction_not_settled``,
+        ``df_amplitude``, ``df_frequency``.
     base : ControllerSetting
     """
 
@@ -443,7 +482,7 @@ def cycle_map(draws, base: ControllerSetting, grid: dict, config=PredictionConfi
     shape = tuple(v.size for v in values)
     names = ("amplitude_q05", "amplitude_q50", "amplitude_q95", "frequency_q05",
              "frequency_q50", "frequency_q95", "fraction_oscillating", "fraction_diverging",
-             "df_amplitude", "df_frequency")
+             "fraction_not_settled", "df_amplitude", "df_frequency")
     summary = {k: np.full(len(points), np.nan) for k in names}
     for i, s in enumerate(settings):
         sl = slice(i * n, (i + 1) * n)
@@ -451,6 +490,8 @@ def cycle_map(draws, base: ControllerSetting, grid: dict, config=PredictionConfi
         mask = o == CYCLE
         summary["fraction_oscillating"][i] = mask.mean()
         summary["fraction_diverging"][i] = np.mean(o == DIVERGED)
+        summary["fraction_not_settled"][i] = np.mean(
+            mask & (np.abs(outcomes.drift[sl]) > config.settled_drift))
         for name, arr in (("amplitude", outcomes.amplitude[sl]),
                           ("frequency", outcomes.frequency[sl])):
             if mask.any():

@@ -109,6 +109,9 @@ def run(args) -> int:
                       f"[{q['q05'] * scale:.4g}, {q['q95'] * scale:.4g}]")
         print(f"  oscillating {result['fraction_oscillating']:.0%}, diverging "
               f"{result['fraction_diverging']:.0%}, at rest {result['fraction_at_rest']:.0%}")
+        if result["fraction_not_settled"] > 0:
+            print(f"  {result['fraction_not_settled']:.0%} of the draws still grow or decay slowly "
+                  "over the window (near the stability boundary): their amplitude is not a cycle's")
         df = result["describing_function"]
         if df and df.get("amplitude") is not None:
             print(f"  describing function (median model): first harmonic "
