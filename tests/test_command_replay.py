@@ -66,3 +66,27 @@ def test_choose_command_restores_the_truths_fit(tmp_path):
     term2.setup(truth)
     term2.set_command_edges(edges)  # what a resumed chain does
     assert np.array_equal(term2.residuals([truth]), term.residuals([truth]))
+
+
+def test_replay_variance_marks_the_edges(tmp_path):
+    """The response's spread over the allowed timings is large at the edges, nil between them."""
+    import json
+
+    from models.recording import load_recording
+
+    synthetic_recording(M002(), OpenLoop.square(0.01, FREQUENCY), 9.0, NOISE, 4,
+                        tmp_path / "sq.csv", dt=2e-4)
+    meta = json.loads((tmp_path / "sq.json").read_text())
+    for key in ("waveform", "amplitude", "frequency", "start", "offset", "from_rest",
+                "hypothesis", "parameters"):
+        meta.pop(key, None)
+    (tmp_path / "sq.json").write_text(json.dumps(meta))
+    term = make_term(load_recording(tmp_path / "sq.csv"), "waveform", 10.0, 6.0, 5e-4)
+    term.setup(M002())
+    term.choose_command(M002())
+    sd = np.sqrt(term.replay_var)
+    edge = 1 / (2 * FREQUENCY)
+    near = np.abs(term.tau - edge - 0.01) < 0.01
+    far = np.abs(term.tau - edge - 0.8) < 0.1
+    assert sd[near].max() > 4 * NOISE  # 6.3x measured
+    assert sd[far].max() < 0.1 * NOISE

@@ -258,7 +258,7 @@ class Calibration:
                 res = minimize(_cost(lp), z0, method="Nelder-Mead",
                                options={"maxfev": 100 * len(z0), "xatol": 1e-6, "fatol": 0.05,
                                         "initial_simplex": _simplex(z0, lp)})
-                if np.isfinite(lp(res.x)) and lp(res.x)[0] > lp(z0)[0]:
+                if float(np.ravel(lp(res.x))[0]) > float(np.ravel(lp(z0))[0]):
                     z0 = _profile_sigma(lp, res.x, self.names_)
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
         if self.discrepancy:
@@ -292,9 +292,16 @@ class Calibration:
                    for t in self.terms_]
         self.commands_ = [t.command_edges() if hasattr(t, "command_edges") else None
                           for t in self.terms_]
-        if self.backend is not None and any(changed):
+        replay = [getattr(t, "replay_var", None) for t in self.terms_]
+        if self.backend is not None and (any(changed) or any(v is not None for v in replay)):
             with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
-                f.require_group(_H5_GROUP).attrs["commands"] = json.dumps(self.commands_)
+                g = f.require_group(_H5_GROUP)
+                g.attrs["commands"] = json.dumps(self.commands_)
+                for i, v in enumerate(replay):
+                    if v is not None:
+                        if f"replay_var_{i}" in g:
+                            del g[f"replay_var_{i}"]
+                        g.create_dataset(f"replay_var_{i}", data=v)
         return any(changed)
 
     def _inflations_at(self, lp, z0) -> list:
@@ -342,6 +349,9 @@ class Calibration:
                     old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
                     stored = f[_H5_GROUP].attrs.get("inflation") if _H5_GROUP in f else None
                     commands = f[_H5_GROUP].attrs.get("commands") if _H5_GROUP in f else None
+                    replay = [f[_H5_GROUP][f"replay_var_{i}"][()]
+                              if _H5_GROUP in f and f"replay_var_{i}" in f[_H5_GROUP] else None
+                              for i in range(len(self.terms_))]
                 if stored is not None and old == config:  # resuming: the factors of the start
                     self.inflation_ = [float(v) for v in json.loads(stored)]
                     for term, value in zip(self.terms_, self.inflation_):
@@ -350,6 +360,9 @@ class Calibration:
                     for term, edges in zip(self.terms_, json.loads(commands)):
                         if edges is not None and hasattr(term, "set_command_edges"):
                             term.set_command_edges(edges)
+                    for term, v in zip(self.terms_, replay):
+                        if v is not None:
+                            term.replay_var = v
                 if old is not None and old != config:
                     was, now = json.loads(old), json.loads(config)
                     changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))

@@ -147,20 +147,31 @@ class _WaveformSolverError:
         padded = np.pad(var, k, mode="edge")
         return np.max(np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1), axis=1)
 
+    #: per-sample variance of the replayed command's own uncertainty (open loop; None: none)
+    replay_var = None
+
+    def model_variance(self):
+        """Per-sample variance of the model's waveform beyond the sensor noise: the solver's
+        error and the command replay's ambiguity (None when neither applies)."""
+        parts = [v for v in (self.solver_var, self.replay_var) if v is not None]
+        return sum(parts) if parts else None
+
     def sample_sd(self, sigma):
-        """``(n_sets, n_samples)`` sd of each sample: noise and solver error, inflated."""
+        """``(n_sets, n_samples)`` sd of each sample: noise, solver and replay, inflated."""
         sigma = np.asarray(sigma, dtype=float)[:, None]
         var = sigma * sigma
-        if self.solver_var is not None:
-            var = var + self.solver_var[None, :]
+        extra = self.model_variance()
+        if extra is not None:
+            var = var + extra[None, :]
         return np.sqrt(var * self.inflation)
 
     def scaled_residuals(self, residuals, sigma):
-        """Residuals rescaled so that noise of sd ``sigma`` plus the solver error reads as
-        noise of sd ``sigma`` (for the discrepancy inflation and the checks)."""
-        if self.solver_var is None:
+        """Residuals rescaled so that noise of sd ``sigma`` plus the model's own variance reads
+        as noise of sd ``sigma`` (for the discrepancy inflation and the checks)."""
+        extra = self.model_variance()
+        if extra is None:
             return residuals
-        return residuals * sigma / np.sqrt(sigma * sigma + self.solver_var)
+        return residuals * sigma / np.sqrt(sigma * sigma + extra)
 
 
 #: A simulated cycle smaller than this fraction of the recorded one counts as not oscillating.
@@ -639,7 +650,8 @@ class OpenLoopTerm(_WaveformSolverError):
     def choose_command(self, params) -> bool:
         """Among the edge timings the command's samples allow
         (:func:`models.commands.edge_alternatives`), keep the one whose replay fits ``params``
-        best; True when it changed. A command from the sidecar's analytic form is kept."""
+        best; True when it changed. A command from the sidecar's analytic form is kept. Sets
+        :attr:`replay_var`, the variance of the response over every allowed timing."""
         from models.commands import edge_alternatives
         from models.simulate import simulate_batch
 
@@ -658,6 +670,13 @@ class OpenLoopTerm(_WaveformSolverError):
             ssr[i] = float(np.sum(r * r))
         current = self.residuals([params])[0]
         current_ssr = float(np.sum(current * current)) if np.all(np.isfinite(current)) else np.inf
+        # the edges' phase trades with a delay in open loop: where the samples leave the timing
+        # open, the response is uncertain by the spread of what they allow (uniform over it)
+        ok = runs.status == "ok"
+        if np.count_nonzero(ok) >= 2:
+            models = np.array([np.interp(self.tau, runs.t, delta[i]) for i in np.flatnonzero(ok)])
+            models -= models.mean(axis=1, keepdims=True)
+            self.replay_var = models.var(axis=0)
         best = int(np.argmin(ssr))
         if not ssr[best] < current_ssr:
             return False
