@@ -73,6 +73,10 @@ class PredictionConfig:
         not settled (near the stability boundary growth is slow; reported, not hidden).
     bound : float
         Divergence bound (rad) on the actuator output and the attitude.
+    seed : int
+        Seed of the in-loop noise realisations: each draw of a hypothesis with in-loop noise
+        (``noise_power > 0``) gets its own, so that the band holds the cycle's own wander from
+        window to window (what a measured window shows), not only the parameters' spread.
     chunk : int
         Runs per batch (bounds memory).
     """
@@ -89,6 +93,7 @@ class PredictionConfig:
     settled_drift: float = 0.02
     bound: float = 1.0
     chunk: int = 1000
+    seed: int = 0
 
     def __post_init__(self):
         for name in ("transient", "pilot"):
@@ -316,13 +321,20 @@ def predict_cycle(draws, setting: ControllerSetting, config=PredictionConfig(),
     median = draws.median_params()
     theta, thetad, y, yd, x = _pilot_state(median, setting, config)
     loop = setting.closed_loop(theta0=theta, thetad0=thetad)
-    params = [p.replace(y0=y, yd0=yd, x0=x) for p in draws.param_sets()]
+    params = _own_noise([p.replace(y0=y, yd0=yd, x0=x) for p in draws.param_sets()],
+                        np.random.default_rng(config.seed))
     outcomes = simulate_cycles(params, [loop] * len(params), config)
     df = _describing_prediction(median, setting) if describing else {}
     return CyclePrediction(setting=setting, outcomes=outcomes, describing=df,
                            solver_error=_solver_error(median.replace(y0=y, yd0=yd, x0=x), loop,
                                                       config),
                            config=config)
+
+
+def _own_noise(param_sets, rng) -> list:
+    """Each parameter set with in-loop noise gets its own noise realisation."""
+    return [p.replace(noise_seed=int(rng.integers(2**31))) if p.noise_power > 0 else p
+            for p in param_sets]
 
 
 def _solver_error(params, loop, config) -> dict:
@@ -467,12 +479,13 @@ def cycle_map(draws, base: ControllerSetting, grid: dict, config=PredictionConfi
 
         bar = tqdm(total=len(points) * (len(param_sets) + 1), desc="map", unit="run")
     all_params, all_loops = [], []
+    rng = np.random.default_rng(config.seed)
     for s in settings:
         theta, thetad, y, yd, x = _pilot_state(median, s, config)
         if bar is not None:
             bar.update(1)
         loop = s.closed_loop(theta0=theta, thetad0=thetad)
-        all_params.extend(p.replace(y0=y, yd0=yd, x0=x) for p in param_sets)
+        all_params.extend(_own_noise([p.replace(y0=y, yd0=yd, x0=x) for p in param_sets], rng))
         all_loops.extend([loop] * len(param_sets))
     outcomes = simulate_cycles(all_params, all_loops, config,
                                progress=None if bar is None else bar.update)
