@@ -12,7 +12,9 @@ from . import (
     h3_initial_conditions,
     h4_delay_position,
     h5_noise,
+    h6_controller_design,
     reference_cycles,
 )
 
-STUDIES = {module.NAME: module for module in (reference_cycles, h1_deadzone_backlash, h2_friction_bandpass, h3_initial_conditions, h4_delay_position, h5_noise, discover)}
+STUDIES = {module.NAME: module for module in (reference_cycles, h1_deadzone_backlash, h2_friction_bandpass, h3_initial_conditions, h4_delay_position, h5_noise, discover,
+                                          h6_controller_design)}

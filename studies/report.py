@@ -4,6 +4,10 @@ The paper numbers come from ``data/papers.json``. A number a study reproduces is
 study's ``summary.json`` under ``paper_numbers`` (``{id: {"value", "how"}}``); a parameter tvcid
 takes from the papers carries a ``tvcid_field`` in ``papers.json`` and the table shows the value the
 model actually uses. Anything else is reported as not reproduced, never left out.
+
+Each study's section is its docstring (after the first paragraph), its config, the lines of its
+``report_lines(summary)`` when the module has one (a study's own numbers), and every figure it
+wrote.
 """
 from __future__ import annotations
 
@@ -94,6 +98,8 @@ def write_report(results_dir, papers_path=PAPERS_JSON) -> Path:
         lines += ["", f"## {name}", "", module.__doc__.split("\n\n", 1)[1].strip(), ""]
         if "config" in summary:
             lines += [f"Config: `{json.dumps(summary['config'])}`, seed {summary.get('seed')}.", ""]
+        if hasattr(module, "report_lines"):  # a study's own numbers, before its figures
+            lines += module.report_lines(summary)
         for png in sorted((results_dir / name).rglob("*.png")):
             rel = png.relative_to(results_dir).as_posix()
             lines.append(f"![{name}: {png.relative_to(results_dir / name).with_suffix('').as_posix()}]({rel})")
