@@ -38,6 +38,8 @@ __all__ = [
 ]
 
 CYCLE, REST, DIVERGED = "cycle", "rest", "diverged"
+#: provisional: grew by over ``max_growth`` across the window, to be confirmed by a longer run
+GROWING = "growing"
 
 
 @dataclass(frozen=True)
@@ -65,9 +67,15 @@ class PredictionConfig:
         A window whose amplitude falls by more than this fraction between its halves counts as
         decaying to rest.
     max_growth : float
-        A window whose amplitude grows by more than this fraction between its halves counts as
+        A window whose amplitude grows by more than this fraction between its halves may be
         diverging (an unstable loop grows without bound where no saturation is modelled; it
-        may not reach ``bound`` within a short run).
+        may not reach ``bound`` within a short run): see ``confirm``.
+    confirm : float
+        Extra seconds of transient for a run whose window grew by over ``max_growth``: it is
+        diverging when it then leaves ``bound`` or has grown by ``confirm_growth`` and still
+        grows, else a (wandering) cycle measured there. Without it a quasi-periodic cycle's
+        wander (M000: window halves of 1.1 and 1.46 mrad) read as divergence.
+    confirm_growth : float
     settled_drift : float
         A cycle whose amplitude changes by more than this fraction across the window counts as
         not settled (near the stability boundary growth is slow; reported, not hidden).
@@ -90,6 +98,8 @@ class PredictionConfig:
     min_amplitude: float = 1e-5
     max_decay: float = 0.5
     max_growth: float = 0.1
+    confirm: float = 20.0
+    confirm_growth: float = 1.5
     settled_drift: float = 0.02
     bound: float = 1.0
     chunk: int = 1000
@@ -137,7 +147,7 @@ def _measure(t, delta, config):
         return REST, math.nan, math.nan, math.nan, math.nan
     h1 = f.harmonics[0]
     if f.amplitude_drift > config.max_growth:
-        return DIVERGED, math.nan, math.nan, math.nan, math.nan
+        return GROWING, f.amplitude, h1, f.frequency, f.amplitude_drift
     if not (h1 > config.min_amplitude) or f.amplitude_drift < -config.max_decay:
         return REST, math.nan, math.nan, math.nan, math.nan
     return CYCLE, f.amplitude, h1, f.frequency, f.amplitude_drift
@@ -157,6 +167,27 @@ def simulate_cycles(param_sets, loops, config=PredictionConfig(), progress=None)
     param_sets, loops = list(param_sets), list(loops)
     if len(param_sets) != len(loops):
         raise ValueError(f"{len(param_sets)} parameter sets for {len(loops)} loops")
+    outcome, amp, h1, freq, drift = _run_and_measure(param_sets, loops, config, progress)
+    growing = np.flatnonzero(outcome == GROWING)
+    if growing.size:
+        # a window that grows is either a slow divergence or a wandering cycle (M000's band-pass
+        # loop): run those draws longer; divergence is leaving the bound or growing on
+        longer = dataclasses.replace(config, transient=config.transient + config.confirm)
+        o2, a2, h2, f2, d2 = _run_and_measure([param_sets[i] for i in growing],
+                                              [loops[i] for i in growing], longer, None)
+        for k, i in enumerate(growing):
+            grew = o2[k] == GROWING and a2[k] > config.confirm_growth * amp[i]
+            if o2[k] == DIVERGED or grew:
+                outcome[i], amp[i], h1[i], freq[i], drift[i] = (DIVERGED, math.nan, math.nan,
+                                                                 math.nan, math.nan)
+            else:
+                outcome[i] = CYCLE if o2[k] == GROWING else o2[k]
+                amp[i], h1[i], freq[i], drift[i] = a2[k], h2[k], f2[k], d2[k]
+    return CycleOutcomes(outcome=outcome.astype(str), amplitude=amp, first_harmonic=h1,
+                         frequency=freq, drift=drift)
+
+
+def _run_and_measure(param_sets, loops, config, progress):
     n = len(param_sets)
     outcome = np.empty(n, dtype=object)
     amp, h1, freq, drift = (np.full(n, np.nan) for _ in range(4))
@@ -176,8 +207,7 @@ def simulate_cycles(param_sets, loops, config=PredictionConfig(), progress=None)
              drift[lo + j]) = _measure(t, delta[j], config)
         if progress is not None:
             progress(hi - lo)
-    return CycleOutcomes(outcome=outcome.astype(str), amplitude=amp, first_harmonic=h1,
-                         frequency=freq, drift=drift)
+    return outcome, amp, h1, freq, drift
 
 
 def _pilot_state(params, setting, config):
@@ -319,6 +349,7 @@ def predict_cycle(draws, setting: ControllerSetting, config=PredictionConfig(),
         Add the median model's describing-function prediction.
     """
     median = draws.median_params()
+    config = _settling(config, [setting])
     theta, thetad, y, yd, x = _pilot_state(median, setting, config)
     loop = setting.closed_loop(theta0=theta, thetad0=thetad)
     params = _own_noise([p.replace(y0=y, yd0=yd, x0=x) for p in draws.param_sets()],
@@ -329,6 +360,16 @@ def predict_cycle(draws, setting: ControllerSetting, config=PredictionConfig(),
                            solver_error=_solver_error(median.replace(y0=y, yd0=yd, x0=x), loop,
                                                       config),
                            config=config)
+
+
+def _settling(config, settings):
+    """``config`` with a transient long enough for the slowest filter or bending state: each
+    draw starts from the pilot's actuator and attitude state, those states from zero (behind a
+    notch of damping 0.02 at 60 rad/s a 3 s transient left M000's cycle 26 % large)."""
+    need = max(s.settling_time() for s in settings)
+    if need <= config.transient:
+        return config
+    return dataclasses.replace(config, transient=need)
 
 
 def _own_noise(param_sets, rng) -> list:
@@ -473,6 +514,7 @@ def cycle_map(draws, base: ControllerSetting, grid: dict, config=PredictionConfi
     param_sets = draws.param_sets()
     points = list(itertools.product(*values))
     settings = [base.replace(**dict(zip(keys, pt))) for pt in points]
+    config = _settling(config, settings)
     bar = None
     if progress:
         from tqdm.auto import tqdm

@@ -77,6 +77,23 @@ class ControllerSetting:
         return ClosedLoop(kp=self.kp, kd=self.kd, mu=self.mu, sample_rate=self.sample_rate,
                           theta0=theta0, thetad0=thetad0, compensator=comp, bending=self.bending)
 
+    def settling_time(self, time_constants=8.0, cap=30.0) -> float:
+        """Seconds for the slowest compensator or bending-mode state to settle from zero:
+        ``time_constants`` over the smallest decay rate of their poles (at most ``cap``; 0 for
+        a plain PD)."""
+        import numpy as np
+
+        rates = []
+        for block in self.blocks():
+            poles = np.roots(block.den) if len(block.den) > 1 else np.array([])
+            rates.extend(-poles.real)
+        if self.bending is not None:
+            rates.append(self.bending.damping * self.bending.frequency)
+        if not rates:
+            return 0.0
+        slowest = min(rates)
+        return cap if slowest <= time_constants / cap else time_constants / slowest
+
     def replace(self, **values) -> "ControllerSetting":
         unknown = sorted(set(values) - set(GRID_KEYS) - {"sample_rate", "bending"})
         if unknown:
