@@ -5,7 +5,7 @@ run with 1e-4 rad sensor noise (seeded); posterior of (backlash, dead_zone, dela
 frequency and first harmonic with sigma fixed at 1e-4. One cycle leaves the dead zone and the
 backlash on a ridge; a second controller setting or an open-loop test breaks it, repeating A does
 not. The slow test then runs the top-ranked test on the truth, refits on both records, and checks
-that each width shrank within a factor 2 of the prediction.
+that each width shrank within a factor 2 of the prediction (``pytest -m slow -s`` prints them).
 """
 import numpy as np
 import pytest
@@ -72,5 +72,6 @@ def test_refit_with_the_top_test_shrinks_as_predicted(cycle_a):
     for name in PARAMS:
         actual = after[name] / before[name]
         predicted = best["shrinkage"][name]
+        print(f"{best['name']}: {name} width ratio {actual:.3g}, predicted {predicted:.3g}")
         assert predicted / 2 <= actual <= 2 * predicted, (name, actual, predicted)
     assert np.all(np.isfinite(list(best["predicted_width"].values())))
