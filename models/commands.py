@@ -36,6 +36,32 @@ def is_piecewise_constant(u) -> bool:
     return u.size > 2 and changes <= PIECEWISE_FRACTION * (u.size - 1)
 
 
+def _edge_polygon(t, k):
+    """The (phase, half period) pairs consistent with every observed edge of a regular sequence.
+
+    Edge ``j`` lies in ``(lo_j, hi_j] = (t[k_j - 1], t[k_j]]``; the half period is scanned around
+    its least-squares value and, for each, the phases with ``lo_j < phase + j*half <= hi_j`` form
+    ``[phase_lo, phase_hi]`` (empty where ``phase_hi < phase_lo``). ``None`` for fewer than three
+    edges or edges that are not regular.
+
+    Returns
+    -------
+    (j, lo, hi, dt, halves, phase_lo, phase_hi)
+    """
+    if k.size < 3:
+        return None
+    j = np.arange(k.size)
+    hi, lo = t[k], t[k - 1]
+    dt = float(np.median(np.diff(t)))
+    half, _ = np.polyfit(j, 0.5 * (lo + hi), 1)
+    if not np.all(np.abs(np.diff(hi) - half) <= 1.5 * dt):
+        return None
+    halves = half + np.linspace(-2.0, 2.0, 801) * dt / max(k.size - 1, 1)
+    phase_lo = np.max(lo[None, :] - j[None, :] * halves[:, None], axis=1)
+    phase_hi = np.min(hi[None, :] - j[None, :] * halves[:, None], axis=1)
+    return j, lo, hi, dt, halves, phase_lo, phase_hi
+
+
 def regular_edge_times(t, k, unresolved="hold"):
     """Sub-sample edge times of a regular edge sequence, or ``None`` when it is not regular.
 
@@ -51,19 +77,10 @@ def regular_edge_times(t, k, unresolved="hold"):
         zero-order hold, exact for a command on the acquisition's clock) or at the centre of
         what the samples allow (least error on average for one that is not).
     """
-    if k.size < 3:
+    polygon = _edge_polygon(t, k)
+    if polygon is None:
         return None
-    j = np.arange(k.size)
-    hi, lo = t[k], t[k - 1]
-    dt = float(np.median(np.diff(t)))
-    half, _ = np.polyfit(j, 0.5 * (lo + hi), 1)
-    if not np.all(np.abs(np.diff(hi) - half) <= 1.5 * dt):
-        return None
-    # (phase, half) with lo_j < phase + j*half <= hi_j for every edge: scan the half period
-    # around its least-squares value, keep the one leaving the widest interval of phases
-    halves = half + np.linspace(-2.0, 2.0, 801) * dt / max(k.size - 1, 1)
-    phase_lo = np.max(lo[None, :] - j[None, :] * halves[:, None], axis=1)
-    phase_hi = np.min(hi[None, :] - j[None, :] * halves[:, None], axis=1)
+    j, lo, hi, dt, halves, phase_lo, phase_hi = polygon
     width = phase_hi - phase_lo
     feasible = width >= 0
     if not feasible.any():  # not a regular sequence after all: keep the samples
@@ -136,15 +153,10 @@ def edge_alternatives(t, u, n_half=7, n_phase=5) -> list:
         return []
     t = t - t[0]
     k = np.flatnonzero(np.diff(u)) + 1
-    if k.size < 3 or regular_edge_times(t, k) is None:
+    polygon = _edge_polygon(t, k)
+    if polygon is None:
         return []
-    j = np.arange(k.size)
-    hi, lo = t[k], t[k - 1]
-    dt = float(np.median(np.diff(t)))
-    half, _ = np.polyfit(j, 0.5 * (lo + hi), 1)
-    halves = half + np.linspace(-2.0, 2.0, 801) * dt / max(k.size - 1, 1)
-    phase_lo = np.max(lo[None, :] - j[None, :] * halves[:, None], axis=1)
-    phase_hi = np.min(hi[None, :] - j[None, :] * halves[:, None], axis=1)
+    j, _, _, _, halves, phase_lo, phase_hi = polygon
     feasible = np.flatnonzero(phase_hi - phase_lo >= 0)
     if feasible.size == 0:
         return []

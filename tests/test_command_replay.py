@@ -6,6 +6,8 @@ t = 0, so every edge falls 1596 samples after the previous one while the true ha
 1595.81 samples; the hold replay drifts to 0.9 ms late by the fifth edge. The truth's open-loop
 residuals were 3x the sensor noise, and the calibration's intervals excluded it.
 """
+import json
+
 import numpy as np
 import pytest
 
@@ -13,6 +15,7 @@ from discovery.calibration import synthetic_recording
 from discovery.calibration.likelihood import make_term
 from models import M002, OpenLoop
 from models.commands import command_from_samples, edge_alternatives
+from models.recording import load_recording
 
 FREQUENCY = 0.31331990500313334
 NOISE = 2.5e-5
@@ -39,21 +42,21 @@ def test_not_regular_commands_have_no_alternatives():
     assert edge_alternatives(t, np.where(t > 1.0, 0.01, 0.0)) == []  # one edge: a step
 
 
-def test_choose_command_restores_the_truths_fit(tmp_path):
-    truth = M002()
-    rec = synthetic_recording(truth, OpenLoop.square(0.01, FREQUENCY), 9.0, NOISE, 3,
-                              tmp_path / "square.csv", dt=2e-4)
-    # a measured-style record: the command only as samples
-    import json
-
-    meta = json.loads((tmp_path / "square.json").read_text())
+def _square_as_samples(path, seed):
+    """M002 driven by the square, recorded measured-style: the command only as samples."""
+    synthetic_recording(M002(), OpenLoop.square(0.01, FREQUENCY), 9.0, NOISE, seed, path, dt=2e-4)
+    sidecar = path.with_suffix(".json")
+    meta = json.loads(sidecar.read_text())
     for key in ("waveform", "amplitude", "frequency", "start", "offset", "from_rest",
                 "hypothesis", "parameters"):
         meta.pop(key, None)
-    (tmp_path / "square.json").write_text(json.dumps(meta))
-    from models.recording import load_recording
+    sidecar.write_text(json.dumps(meta))
+    return load_recording(path)
 
-    rec = load_recording(tmp_path / "square.csv")
+
+def test_choose_command_restores_the_truths_fit(tmp_path):
+    truth = M002()
+    rec = _square_as_samples(tmp_path / "square.csv", 3)
     term = make_term(rec, "waveform", 10.0, 6.0, 5e-4)
     term.setup(truth)
     before = float(np.sqrt(np.mean(term.residuals([truth])[0] ** 2)))
@@ -70,18 +73,7 @@ def test_choose_command_restores_the_truths_fit(tmp_path):
 
 def test_replay_variance_marks_the_edges(tmp_path):
     """The response's spread over the allowed timings is large at the edges, nil between them."""
-    import json
-
-    from models.recording import load_recording
-
-    synthetic_recording(M002(), OpenLoop.square(0.01, FREQUENCY), 9.0, NOISE, 4,
-                        tmp_path / "sq.csv", dt=2e-4)
-    meta = json.loads((tmp_path / "sq.json").read_text())
-    for key in ("waveform", "amplitude", "frequency", "start", "offset", "from_rest",
-                "hypothesis", "parameters"):
-        meta.pop(key, None)
-    (tmp_path / "sq.json").write_text(json.dumps(meta))
-    term = make_term(load_recording(tmp_path / "sq.csv"), "waveform", 10.0, 6.0, 5e-4)
+    term = make_term(_square_as_samples(tmp_path / "sq.csv", 4), "waveform", 10.0, 6.0, 5e-4)
     term.setup(M002())
     term.choose_command(M002())
     sd = np.sqrt(term.replay_var)
