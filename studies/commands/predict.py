@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 from ._common import add_controller_arguments, add_compensator_options, bending_from_args
 
@@ -56,8 +57,7 @@ def setting_from_args(args):
     if notches:
         f, z, d = _numbers("--notch", notches.pop(0), 3)
         named.update(notch_frequency=f, notch_damping=z, notch_depth=d)
-    rest = type("Rest", (), {"lead": leads, "notch": notches,
-                             "controller_tf": list(args.controller_tf)})()
+    rest = SimpleNamespace(lead=leads, notch=notches, controller_tf=list(args.controller_tf))
     try:
         return ControllerSetting(kp=args.kp, kd=args.kd, mu=args.mu,
                                  sample_rate=args.controller_rate, bending=bending_from_args(args),
