@@ -110,6 +110,23 @@ def features_inflation(whitened) -> float:
 SOLVER_SPREAD_SAMPLES = 2
 
 
+def _step_doubling(term, evaluate, params, warm_start):
+    """``(coarse, fine)``: ``evaluate([params])[0]`` with the term's simulator and with one at
+    half its step (``term._halved_simulator``); None when the halved step does not fit the
+    output grid."""
+    coarse = evaluate([params])[0]
+    try:
+        fine_sim = term._halved_simulator(params, warm_start)
+    except ValueError:
+        return None
+    kept, term.simulator = term.simulator, fine_sim
+    try:
+        fine = evaluate([params])[0]
+    finally:
+        term.simulator = kept
+    return coarse, fine
+
+
 class _WaveformSolverError:
     """Step-doubling estimate of the solver's error in an output-error likelihood.
 
@@ -125,21 +142,11 @@ class _WaveformSolverError:
 
     solver_var = None
 
-    def _halved_simulator(self, params, warm_start):
-        raise NotImplementedError
-
     def waveform_solver_variance(self, params, warm_start=True):
-        coarse = self.predict([params])[0]
-        try:
-            fine_sim = self._halved_simulator(params, warm_start)
-        except ValueError:  # the halved step does not fit the output grid
+        pair = _step_doubling(self, self.predict, params, warm_start)
+        if pair is None:
             return np.zeros(self.n)
-        kept, self.simulator = self.simulator, fine_sim
-        try:
-            fine = self.predict([params])[0]
-        finally:
-            self.simulator = kept
-        d = coarse - fine
+        d = pair[0] - pair[1]
         if self.offset_profiled:
             d = d - np.nanmean(d)
         var = np.where(np.isfinite(d), d * d, 0.0)
@@ -297,6 +304,13 @@ class _ClosedLoopTerm:
     def simulate(self, param_sets):
         return self.simulator.run(param_sets)
 
+    def _halved_simulator(self, params, warm_start):
+        """The simulator at half the step (ValueError when it does not fit the output grid)."""
+        half = self.dt / 2
+        ws = warm_start_state(params, self.experiment, half) if warm_start else None
+        return BatchSimulator(self.experiment, self.sim_t_end, half,
+                              rate=output_rate_for(half, self.data_rate), warm_start=ws)
+
     def describe(self):
         return {
             "name": self.name,
@@ -344,12 +358,6 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
                 "the waveform likelihood then depends on the initial state and the transient as "
                 "much as on the parameters. Use likelihood='features'."), stacklevel=2)
         return self
-
-    def _halved_simulator(self, params, warm_start):
-        half = self.dt / 2
-        ws = warm_start_state(params, self.experiment, half) if warm_start else None
-        return BatchSimulator(self.experiment, self.sim_t_end, half,
-                              rate=output_rate_for(half, self.data_rate), warm_start=ws)
 
     def period_mismatch_of(self, params):
         """RMS difference (rad) of ``params``' simulated cycle and itself one period later,
@@ -486,20 +494,10 @@ class FeatureTerm(_ClosedLoopTerm):
         (a drawn truth at dt = 5e-4 missed its own data's H1 by 61 sd; at 2.5e-4 the features
         moved by about as much). Zeros when the halved step does not fit the grid.
         """
-        coarse = self.model_features([params])[0]
-        half = self.dt / 2
-        try:
-            ws = warm_start_state(params, self.experiment, half) if warm_start else None
-            fine_sim = BatchSimulator(self.experiment, self.sim_t_end, half,
-                                      rate=output_rate_for(half, self.data_rate), warm_start=ws)
-        except ValueError:
+        pair = _step_doubling(self, self.model_features, params, warm_start)
+        if pair is None:
             return np.zeros(len(self.features))
-        kept, self.simulator = self.simulator, fine_sim
-        try:
-            fine = self.model_features([params])[0]
-        finally:
-            self.simulator = kept
-        d = coarse - fine
+        d = pair[0] - pair[1]
         return np.where(np.isfinite(d), d * d, 0.0)
 
     def _wander_variance(self, n_segments, n_mc, rng):
