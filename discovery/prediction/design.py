@@ -213,8 +213,7 @@ def _jacobian(term, draws, z, sigma, step):
         points[2 * k + 1, k] -= step[k]
     natural = np.column_stack([draws.priors[n].to_natural(points[:, k])
                                for k, n in enumerate(draws.names)])
-    sets = [draws.base.replace(**{n: float(row[k]) for k, n in enumerate(draws.names)
-                                  if n != SIGMA}) for row in natural]
+    sets = [draws.params_at(row) for row in natural]
     y = _observables(term, sets, sigma)
     return np.column_stack([(y[2 * k] - y[2 * k + 1]) / (2 * step[k]) for k in range(d)])
 

@@ -65,22 +65,22 @@ class PosteriorDraws:
     def physical_names(self) -> tuple:
         return tuple(n for n in self.names if n != SIGMA)
 
-    def params(self, i) -> ActuatorParams:
-        """Draw ``i`` as a complete :class:`ActuatorParams`."""
-        row = self.samples[i]
+    def params_at(self, row) -> ActuatorParams:
+        """A natural-unit row over :attr:`names` as a complete :class:`ActuatorParams`."""
         return self.base.replace(
             **{n: float(row[j]) for j, n in enumerate(self.names) if n != SIGMA}
         )
+
+    def params(self, i) -> ActuatorParams:
+        """Draw ``i`` as a complete :class:`ActuatorParams`."""
+        return self.params_at(self.samples[i])
 
     def param_sets(self) -> list:
         return [self.params(i) for i in range(len(self))]
 
     def median_params(self) -> ActuatorParams:
         """The coordinate-wise posterior median as a parameter set (the DF's "median model")."""
-        med = np.median(self.samples, axis=0)
-        return self.base.replace(
-            **{n: float(med[j]) for j, n in enumerate(self.names) if n != SIGMA}
-        )
+        return self.params_at(np.median(self.samples, axis=0))
 
     def sigma(self) -> float | None:
         """Posterior median of the sensor-noise sd (rad), or the value it was fixed at."""
