@@ -1,6 +1,6 @@
 """Coverage benchmark of the calibration: do the 90 % intervals hold the truth 90 % of the time?
 
-``python -m studies.bench_coverage [--quick] [--draws N] [--seed S] [--out DIR]``
+``python -m studies.bench_coverage [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]``
 
 Hypothesis: with the right structure, :class:`discovery.calibration.Calibration` returns 90 %
 intervals that contain the truth in 80-97 % of seeded draws per parameter, and the truth's rank
@@ -188,6 +188,8 @@ def main(argv=None) -> int:
     parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
     parser.add_argument("--seed", type=int, default=None, help="seed of the first draw (default 2000)")
     parser.add_argument("--max-steps", type=int, default=None, help="MCMC step cap per draw")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="draws calibrated at once, one process each (default 1)")
     parser.add_argument("--out", default="results/bench_coverage", help="output directory")
     args = parser.parse_args(argv)
     config = QUICK if args.quick else Config()
@@ -203,18 +205,28 @@ def main(argv=None) -> int:
         if old.get("config") == asdict(config):
             rows = old["rows"]
     done = {r["index"] for r in rows}
-    for i in range(config.draws):
-        if i in done:
-            continue
-        row = run_draw(i, config, out / "data")
+    todo = [i for i in range(config.draws) if i not in done]
+
+    def record(row):
         rows.append(row)
+        rows.sort(key=lambda r: r["index"])
         cells = ", ".join(f"{n} {'in ' if c['inside'] else 'OUT'} rank {c['rank']:.2f}"
                           for n, c in row["parameters"].items())
-        print(f"draw {i} ({row['structure']}): {cells}; {row['iterations']} steps, "
+        print(f"draw {row['index']} ({row['structure']}): {cells}; {row['iterations']} steps, "
               f"{row['wall_s']:.0f} s", flush=True)
-        summary = summarise(rows)
-        path.write_text(json.dumps({"config": asdict(config), "rows": rows, "summary": summary},
-                                   indent=2))
+        path.write_text(json.dumps({"config": asdict(config), "rows": rows,
+                                    "summary": summarise(rows)}, indent=2))
+
+    if args.jobs > 1 and len(todo) > 1:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            futures = [pool.submit(run_draw, i, config, out / "data") for i in todo]
+            for fut in as_completed(futures):
+                record(fut.result())
+    else:
+        for i in todo:
+            record(run_draw(i, config, out / "data"))
     summary = summarise(rows)
     path.write_text(json.dumps({"config": asdict(config), "rows": rows, "summary": summary}, indent=2))
     plot_ranks(summary, out / "ranks.png")

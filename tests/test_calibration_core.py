@@ -46,6 +46,34 @@ def test_prior_bounds_reversed_and_log_needs_positive():
     assert name == "dead_zone" and prior.log and prior.to_natural(prior.to_internal(3e-3)) == pytest.approx(3e-3)
 
 
+def test_log_uniform_in_linear_coordinate_keeps_its_density():
+    """Sampled in the parameter itself, a log-uniform prior still integrates to 1 with the 1/x
+    Jacobian, and its draws are log-uniform (deciles of ln x within 0.02 of the exact ones)."""
+    p = LogUniform(1e-3, 1e-1, linear=True)
+    assert not p.log and p.internal_bounds == (1e-3, 1e-1)
+    z = np.linspace(1e-3, 1e-1, 200001)
+    assert np.trapezoid(np.exp(p.log_prob_internal(z)), z) == pytest.approx(1.0, abs=1e-6)
+    assert np.all(np.isinf(p.log_prob_internal([5e-4, 0.2])))
+    draws = np.log(p.to_natural(p.sample_internal(np.random.default_rng(0), 100000)))
+    exact = np.log(1e-3) + np.log(100.0) * np.arange(1, 10) / 10
+    assert np.max(np.abs(np.quantile(draws, np.arange(1, 10) / 10) - exact)) < 0.02
+    assert p.describe()["coordinate"] == "linear"
+
+
+def test_ridge_coordinates_straighten_only_the_difference_ridge():
+    from discovery.calibration.priors import ridge_coordinates
+    from models import M001f
+
+    priors = {"dead_zone": LogUniform(1e-3, 3e-2), "friction_offset": Uniform(-3e-2, 0.0),
+              "backlash": LogUniform(1e-5, 1e-3)}
+    out = ridge_coordinates(priors, tuple(priors), M001f())  # dead zone on the velocity signal
+    assert not out["dead_zone"].log and out["backlash"].log
+    assert out["friction_offset"] == priors["friction_offset"]
+    assert ridge_coordinates(priors, tuple(priors), M002())["dead_zone"].log  # on the error
+    no_friction = {k: v for k, v in priors.items() if k != "friction_offset"}
+    assert ridge_coordinates(no_friction, tuple(no_friction), M001f())["dead_zone"].log
+
+
 def test_unknown_parameter_name_is_named(short_record):
     with pytest.raises(ValueError, match="unknown parameter 'dead_band'.*dead_zone"):
         Calibration("M002", params=("dead_band",)).fit([short_record])

@@ -19,7 +19,7 @@ from models.recording import Recording, load_recording
 from .backend import CheckpointBackend
 from .likelihood import DEFAULT_FEATURES, LIKELIHOODS, make_term
 from .posterior import LogPosterior, check_parameter_names
-from .priors import SIGMA, Prior, default_prior
+from .priors import SIGMA, Prior, default_prior, ridge_coordinates
 from .results import Posterior
 from .runner import run_ensemble
 
@@ -228,12 +228,12 @@ class Calibration:
                 )
         self.base_ = base
         self.names_ = names
-        self.priors_ = priors
+        self.priors_ = ridge_coordinates(priors, names, base)
         self.start_ = start_values
         start_params = base.replace(**{n: v for n, v in start_values.items() if n != SIGMA})
         for term in self.terms_:
             term.setup(start_params, warm_start=self.warm_start)
-        self.log_posterior_ = LogPosterior(base, names, priors, self.terms_, sigma_fixed)
+        self.log_posterior_ = LogPosterior(base, names, self.priors_, self.terms_, sigma_fixed)
         self.inflation_ = [t.inflation for t in self.terms_]
         self.truths_ = truths_from_recordings(self.recordings_, names, base.name)
         return self

@@ -167,6 +167,8 @@ def load_posterior_draws(directory, n_draws=200, seed=0) -> PosteriorDraws:
     for n in names:
         d = config["priors"][n]
         priors[n] = _PRIOR_KINDS[d["kind"]](d["low"], d["high"])
+        if d.get("coordinate") == "linear":
+            priors[n] = priors[n].in_linear_coordinate()
     rng = np.random.default_rng(seed)
     idx = rng.choice(z.shape[0], size=n_draws, replace=z.shape[0] < n_draws)
     z = z[idx]
