@@ -4,7 +4,8 @@ The kernel is a pure function of packed arrays; :mod:`models.simulate` packs the
 unpacks the result. Conventions are those of MODELS.md:
 
 * the transport delay outputs 0 before ``t = Td`` and interpolates its stored input linearly
-  between grid points (the input is stored on the step grid, so ``Td >= dt`` is required);
+  between grid points (the input is stored on the step grid, so ``Td >= dt`` is required); a
+  run continued from a cycle state (``P_HIST_ON``) outputs the given history line instead;
 * the play operator's memory is updated once per step; the RK4 stages clamp the memory of the
   step start to their own ``x`` (the rate-independent operator evaluated along the stage);
 * ``sign(0) = 0`` in the friction offset;
@@ -37,7 +38,11 @@ P_GAIN, P_DAMPING, P_STIFFNESS, P_FEEDBACK = 0, 1, 2, 3
 P_DEAD_ZONE, P_DZ_ON_VELOCITY, P_BACKLASH, P_FRICTION = 4, 5, 6, 7
 P_DELAY_STEPS, P_DELAY_WHERE, P_BP_GAIN, P_BP_SAT = 8, 9, 10, 11
 P_Y0, P_YD0, P_X0, P_N_BP, P_NOISE_RATE = 12, 13, 14, 15, 16
-N_PARAMS = 17
+#: a continued run (a warm start on a cycle): the play memory at t = 0 (NaN: the default
+#: clamp of 0 to [x0 - r, x0 + r]) and, when P_HIST_ON, the delayed signal before t = 0 as
+#: ``value + slope * t`` (t < 0) instead of the delay's 0
+P_MEMORY0, P_HIST_ON, P_HIST_VALUE, P_HIST_SLOPE = 17, 18, 19, 20
+N_PARAMS = 21
 
 #: values of the P_DELAY_WHERE slot
 DELAY_NONE, DELAY_OUTPUT, DELAY_BEFORE_INTEGRATOR, DELAY_BEFORE_FIRST_INTEGRATOR = 0, 1, 2, 3
@@ -156,6 +161,10 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
     s[0], s[1] = ctrl[C_THETA0], ctrl[C_THETAD0]
     s[2], s[3], s[4] = p[P_Y0], p[P_YD0], p[P_X0]
     memory = min(max(0.0, s[4] - r), s[4] + r)
+    if not math.isnan(p[P_MEMORY0]):
+        memory = min(max(p[P_MEMORY0], s[4] - r), s[4] + r)
+    hist_on = p[P_HIST_ON] > 0.5
+    hist_value, hist_slope = p[P_HIST_VALUE], p[P_HIST_SLOPE]
 
     # Delay line on the step grid: for the stage times t_k + c*dt (c = 0, 1/2, 1) the delayed
     # time is t_{k+shift} + frac*dt with a constant shift and fraction.
@@ -243,6 +252,13 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
                     delayed = (1.0 - fr) * hist[j % hist_len]
                     if fr > 0.0:
                         delayed += fr * hist[(j + 1) % hist_len]
+                elif hist_on:  # before t = 0: the given history line, then the stored input
+                    delayed = (1.0 - fr) * (hist_value + hist_slope * j * dt)
+                    if fr > 0.0:
+                        if j + 1 < 0:
+                            delayed += fr * (hist_value + hist_slope * (j + 1) * dt)
+                        else:
+                            delayed += fr * hist[(j + 1) % hist_len]
                 if where == DELAY_OUTPUT:
                     xd = delayed
                 elif where == DELAY_BEFORE_INTEGRATOR:

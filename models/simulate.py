@@ -184,6 +184,7 @@ def _pack_params(params: ActuatorParams, dt: float) -> tuple:
             "use delay=0 or a smaller dt"
         )
     p = np.zeros(K.N_PARAMS)
+    p[K.P_MEMORY0] = np.nan  # the default initial play memory
     p[K.P_GAIN], p[K.P_DAMPING], p[K.P_STIFFNESS] = params.gain, params.damping, params.stiffness
     p[K.P_FEEDBACK] = params.feedback_gain
     p[K.P_DEAD_ZONE] = params.dead_zone
