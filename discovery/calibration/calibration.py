@@ -282,9 +282,10 @@ class Calibration:
         raise RuntimeError("could not place the walkers where the posterior is finite")
 
     def _choose_commands(self, lp, z0) -> bool:
-        """Each open-loop command known only as samples replayed with the edge timing that fits
-        the optimum best (see :meth:`.likelihood.OpenLoopTerm.choose_command`); the choice is
-        kept in the checkpoint so that a resumed chain keeps its likelihood."""
+        """Each open-loop command known only as samples replayed at the centre of the edge
+        timings its samples allow, their spread a low-rank covariance of the response (see
+        :meth:`.likelihood.OpenLoopTerm.choose_command`); both are kept in the checkpoint so that
+        a resumed chain keeps its likelihood."""
         params = lp.params_for(lp.natural(z0)[0])
         if params is None:
             return False
@@ -292,16 +293,16 @@ class Calibration:
                    for t in self.terms_]
         self.commands_ = [t.command_edges() if hasattr(t, "command_edges") else None
                           for t in self.terms_]
-        replay = [getattr(t, "replay_var", None) for t in self.terms_]
+        replay = [getattr(t, "replay_basis", None) for t in self.terms_]
         if self.backend is not None and (any(changed) or any(v is not None for v in replay)):
             with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
                 g = f.require_group(_H5_GROUP)
                 g.attrs["commands"] = json.dumps(self.commands_)
                 for i, v in enumerate(replay):
                     if v is not None:
-                        if f"replay_var_{i}" in g:
-                            del g[f"replay_var_{i}"]
-                        g.create_dataset(f"replay_var_{i}", data=v)
+                        if f"replay_basis_{i}" in g:
+                            del g[f"replay_basis_{i}"]
+                        g.create_dataset(f"replay_basis_{i}", data=v)
         return any(changed)
 
     def _inflations_at(self, lp, z0) -> list:
@@ -349,8 +350,8 @@ class Calibration:
                     old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
                     stored = f[_H5_GROUP].attrs.get("inflation") if _H5_GROUP in f else None
                     commands = f[_H5_GROUP].attrs.get("commands") if _H5_GROUP in f else None
-                    replay = [f[_H5_GROUP][f"replay_var_{i}"][()]
-                              if _H5_GROUP in f and f"replay_var_{i}" in f[_H5_GROUP] else None
+                    replay = [f[_H5_GROUP][f"replay_basis_{i}"][()]
+                              if _H5_GROUP in f and f"replay_basis_{i}" in f[_H5_GROUP] else None
                               for i in range(len(self.terms_))]
                 if stored is not None and old == config:  # resuming: the factors of the start
                     self.inflation_ = [float(v) for v in json.loads(stored)]
@@ -362,7 +363,7 @@ class Calibration:
                             term.set_command_edges(edges)
                     for term, v in zip(self.terms_, replay):
                         if v is not None:
-                            term.replay_var = v
+                            term.replay_basis = v
                 if old is not None and old != config:
                     was, now = json.loads(old), json.loads(config)
                     changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))
