@@ -157,6 +157,14 @@ def summarise(rows) -> dict:
         out[n] = {"draws": len(cells), "coverage": float(np.mean([c["inside"] for c in cells])),
                   "rank_histogram": hist.tolist(),
                   "median_relative_width": float(np.median([c["relative_width"] for c in cells]))}
+    factors = np.array([f for r in rows for f in r.get("inflation", [])], dtype=float)
+    out["_inflation"] = {
+        # the discrepancy term on right models: 1 leaves a record's likelihood as it is
+        "records": int(factors.size),
+        "fraction_at_1": float(np.mean(factors == 1.0)) if factors.size else None,
+        "median": float(np.median(factors)) if factors.size else None,
+        "max": float(np.max(factors)) if factors.size else None,
+    }
     out["_all"] = {"draws": len(rows), "converged": int(sum(r["converged"] for r in rows)),
                    "median_wall_s": float(np.median([r["wall_s"] for r in rows])),
                    "median_simulated_seconds": float(np.median([r["simulated_seconds"] for r in rows]))}

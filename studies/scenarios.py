@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models import ClosedLoop, OpenLoop, SimulationDiverged, limit_cycle_features, simulate
+from models import ClosedLoop, OpenLoop, SimulationDiverged, simulate
 from models.features import InsufficientPeriodsError
 from models.hypotheses import KICK_X0, ActuatorParams
 from models.recording import save_recording
@@ -38,7 +38,7 @@ from models.reference import simulate_reference
 from models.structures import Structure, structure_space
 
 __all__ = ["RecordingDesign", "Acquisition", "Scenario", "draw_truth", "draw_design",
-           "draw_scenario", "oscillates", "write_recordings"]
+           "draw_scenario", "oscillates", "write_recordings", "ridge_scenario", "RIDGE_PARAMETERS"]
 
 CONTROLLERS = ((5.84, 0.062, 12.3), (9.8, 0.06, 4.5))
 #: Step (s) of the reference path that makes the data (the fits use 5e-4).
@@ -181,6 +181,27 @@ def draw_scenario(seed, structure=None, max_tries=200) -> Scenario:
             return Scenario(truth, Structure.of_params(truth), recs, acq, int(seed))
     raise RuntimeError(f"scenario {seed}: no truth of {structure or 'any structure'} oscillated "
                        f"at every controller setting in {max_tries} draws")
+
+
+#: What the ridge case samples (issue 12): the thresholds, the delay and the friction offset.
+RIDGE_PARAMETERS = ("dead_zone", "backlash", "delay", "friction_offset")
+
+
+def ridge_scenario(seed, duration=40.0, noise_sd=1e-4) -> Scenario:
+    """Issue 12's ridge case with a drawn truth: paper 001's placement without the band-pass loop
+    (dead zone on the velocity signal, friction offset, backlash, delay before the integrator),
+    the thresholds, delay, friction offset and linear block drawn as :func:`draw_truth` does;
+    limit cycles at controllers A and B, ``duration`` s each at 1 kHz, white sensor noise."""
+    from models import M001f
+
+    structure = Structure.of_params(M001f().replace(bandpass_gain=0.0))
+    rng = np.random.default_rng(seed)
+    recs = tuple(RecordingDesign("closed", float(duration), 1000.0, *c) for c in CONTROLLERS)
+    for _ in range(200):
+        truth = draw_truth(rng, structure)
+        if all(oscillates(truth, r.experiment()) for r in recs):
+            return Scenario(truth, structure, recs, Acquisition(float(noise_sd), 0.0, 0.0), int(seed))
+    raise RuntimeError(f"ridge scenario {seed}: no truth oscillated at A and B in 200 draws")
 
 
 def write_recordings(scenario: Scenario, directory) -> list:
