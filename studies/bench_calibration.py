@@ -77,6 +77,8 @@ def run_case(seed, walkers, workdir):
         "simulations": sims,
         # total seconds simulated to convergence (issue 12 goal: <= 40,000 for this case)
         "simulated_seconds": cal.log_posterior_.simulated_seconds,
+        "start_simulated_seconds": cal.start_simulated_seconds_,
+        "laplace_move": cal.laplace_ is not None,
         "simulations_per_s": sims / wall,
         "iterations": rep.iterations,
         "tau": dict(zip(NAMES, rep.tau)),

@@ -191,25 +191,25 @@ def test_interrupted_run_resumes_to_the_same_chain(tmp_path, short_record, monke
     from discovery.calibration.posterior import LogPosterior
 
     warnings.simplefilter("ignore", ConvergenceWarning)
-    straight = _small(backend=tmp_path / "a.h5").fit([short_record])
+    straight = _small(backend=tmp_path / "a.h5", stop_when_converged=False).fit([short_record])
     calls = {"n": 0}
     original = LogPosterior.__call__
 
     def dying(self, z):
         calls["n"] += 1
-        if calls["n"] == 200:  # well inside the second 20-step chunk
+        if calls["n"] == 100:  # inside the second 20-step chunk (about 70 calls find the start)
             raise KeyboardInterrupt
         return original(self, z)
 
     monkeypatch.setattr(LogPosterior, "__call__", dying)
     with pytest.raises(KeyboardInterrupt):
-        _small(backend=tmp_path / "b.h5").fit([short_record])
+        _small(backend=tmp_path / "b.h5", stop_when_converged=False).fit([short_record])
     monkeypatch.setattr(LogPosterior, "__call__", original)
     import emcee
 
     partial = emcee.backends.HDFBackend(str(tmp_path / "b.h5"), read_only=True).iteration
     assert 0 < partial < 60
-    resumed = _small(backend=tmp_path / "b.h5").fit([short_record])
+    resumed = _small(backend=tmp_path / "b.h5", stop_when_converged=False).fit([short_record])
     assert resumed.report_.new_steps == 60 - partial
     assert np.array_equal(straight.sampler_.get_chain(), resumed.sampler_.get_chain())
     assert np.array_equal(straight.sampler_.get_log_prob(), resumed.sampler_.get_log_prob())

@@ -7,7 +7,7 @@ the box's extent there, not the axis-wise sd that leaves the walkers in a thin b
 import numpy as np
 import pytest
 
-from discovery.calibration.calibration import _axis_scales, _box_extent, _principal_axes
+from discovery.calibration.calibration import _axis_scales, _box_extent, _hessian, _principal_axes
 from discovery.calibration.testing import GaussianLogProb
 
 
@@ -39,7 +39,7 @@ def test_axes_reproduce_a_known_covariance(rho):
     z0 = np.zeros(3)
     scale = _axis_scales(lp, z0)
     np.testing.assert_allclose(scale[:2], sd[:2] * np.sqrt(1 - rho**2), rtol=0.05)
-    axes = _principal_axes(lp, z0, scale)
+    axes = _principal_axes(lp, z0, scale, _hessian(lp, z0, scale))
     np.testing.assert_allclose(axes @ axes.T, cov, atol=0.02 * np.max(cov))
 
 
@@ -59,7 +59,8 @@ def test_a_ridge_is_spread_over_the_prior_box():
     """A flat direction (rank-deficient precision) gets a quarter of the box's extent along it."""
     lp = _Ridge()
     z0 = np.zeros(2)
-    axes = _principal_axes(lp, z0, _axis_scales(lp, z0))
+    scale = _axis_scales(lp, z0)
+    axes = _principal_axes(lp, z0, scale, _hessian(lp, z0, scale))
     lengths = np.linalg.norm(axes, axis=0)
     ridge = axes[:, np.argmax(lengths)]
     assert abs(abs(ridge[0]) - abs(ridge[1])) < 1e-6 * np.max(lengths)  # along z0 = z1

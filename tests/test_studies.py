@@ -198,6 +198,8 @@ def test_bench_coverage_quick_rows_agree_with_their_summary(tmp_path):
         s = report["summary"][name]
         assert s["coverage"] == float(cell["inside"]) and sum(s["rank_histogram"]) == 1
         assert s["rank_histogram"][min(int(cell["rank"] * RANK_BINS), RANK_BINS - 1)] == 1
+    infl = report["summary"]["_inflation"]
+    assert infl["records"] == len(row["inflation"]) and infl["max"] == max(row["inflation"])
     assert (tmp_path / "ranks.png").stat().st_size > 0
 
 

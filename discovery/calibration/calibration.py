@@ -107,14 +107,21 @@ class Calibration:
         Initial walkers around the maximum a posteriori: a ball with each axis' own sd, or along
         the principal axes of the Hessian there, spread over the prior along ridges the data do not
         constrain (:func:`_principal_axes`).
+    laplace_move : bool
+        When the posterior at the maximum a posteriori is close enough to its Laplace
+        approximation (:func:`laplace_covariance`), nine steps in ten are independence proposals
+        from a widened t around it (:class:`.moves.LaplaceIndependenceMove`), refitted once to
+        the chain after ``LAPLACE_ADAPT_STEPS``; the rest are DE moves (unless ``moves`` is
+        given). Learned attribute ``laplace_`` (mean and covariance in
+        sampling coordinates, or ``None``), kept in the checkpoint for a resumed chain.
     """
 
     def __init__(self, hypothesis, params=("backlash", "dead_zone", "delay", SIGMA),
                  priors=None, fixed=None, start=None, likelihood="waveform",
                  features=DEFAULT_FEATURES, window=10.0, transient=6.0, dt=5e-4, n_walkers=16,
-                 max_steps=4000, check_every=100, tau_factor=50.0, moves=None, pool=None,
+                 max_steps=4000, check_every=25, tau_factor=50.0, moves=None, pool=None,
                  backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
-                 stop_when_converged=True, spread="axes", discrepancy=True):
+                 stop_when_converged=True, spread="axes", discrepancy=True, laplace_move=True):
         self.hypothesis = hypothesis
         self.params = params
         self.priors = priors
@@ -139,6 +146,7 @@ class Calibration:
         self.stop_when_converged = stop_when_converged
         self.spread = spread
         self.discrepancy = discrepancy
+        self.laplace_move = laplace_move
 
     # -- set-up ---------------------------------------------------------------------------------
     def _base(self):
@@ -266,8 +274,14 @@ class Calibration:
         scale = _axis_scales(lp, z0)
         ndim = len(z0)
         axes = np.diag(0.5 * scale)
+        hess = _hessian(lp, z0, scale) if (self.spread == "hessian" or self.laplace_move) else None
         if self.spread == "hessian":
-            axes = _principal_axes(lp, z0, scale)
+            axes = _principal_axes(lp, z0, scale, hess)
+        self.laplace_ = None
+        if self.laplace_move:
+            cov = laplace_covariance(lp, z0, hess)
+            if cov is not None:
+                self.laplace_ = {"mean": z0.tolist(), "cov": cov.tolist()}
         self.initial_axes_ = axes
         out = np.empty((self.n_walkers, ndim))
         filled = 0
@@ -330,6 +344,43 @@ class Calibration:
             with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
                 f.require_group(_H5_GROUP).attrs["inflation"] = json.dumps(self.inflation_)
 
+    def _moves(self):
+        """The user's moves; else DE moves, nine in ten of them replaced by independence proposals
+        from the Laplace approximation when it is usable (``laplace_``)."""
+        self._laplace_move = None
+        if self.moves is not None or self.laplace_ is None:
+            return self.moves
+        import emcee
+
+        from .moves import LaplaceIndependenceMove
+
+        self._laplace_move = LaplaceIndependenceMove(self.laplace_["mean"], self.laplace_["cov"])
+        return [(emcee.moves.DEMove(), LAPLACE_SHARE_OTHER * 0.8),
+                (emcee.moves.DESnookerMove(), LAPLACE_SHARE_OTHER * 0.2),
+                (self._laplace_move, 1.0 - LAPLACE_SHARE_OTHER)]
+
+    def _adapt_laplace(self, sampler):
+        """Once, at the first chunk end past ``LAPLACE_ADAPT_STEPS``: the independence proposal
+        recentred on the chain's second half (its mean and covariance), which the curvature at
+        the optimum only approximates (M002 on one record: tau 5.4 without the refit, 2.3 with
+        it); frozen after, and kept in the checkpoint."""
+        move, info = self._laplace_move, self.laplace_
+        if move is None or info.get("adapted_at") is not None:
+            return
+        it = int(sampler.iteration)
+        if it < LAPLACE_ADAPT_STEPS:
+            return
+        z = sampler.get_chain(discard=it // 2, flat=True)
+        cov = np.cov(z, rowvar=False)
+        try:
+            move.set_proposal(z.mean(axis=0), cov)
+        except np.linalg.LinAlgError:
+            return
+        info.update(mean=z.mean(axis=0).tolist(), cov=np.atleast_2d(cov).tolist(), adapted_at=it)
+        if self.backend is not None:
+            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
+                f.require_group(_H5_GROUP).attrs["laplace"] = json.dumps(info)
+
     # -- fit ------------------------------------------------------------------------------------
     def fit(self, recordings):
         """Sample (or resume) the posterior; returns ``self``.
@@ -376,18 +427,46 @@ class Calibration:
                 g.attrs["config"] = config
                 # the noise sd used when sigma is not sampled (predictions and designs need it)
                 g.attrs["sigma"] = float(self.log_posterior_.sigma)
+        initial = self._initial
+        self.laplace_ = None
+        if backend is not None and _iteration(backend) > 0:  # resuming: the start's proposal
+            with backend.open("r") as f:
+                stored = f[_H5_GROUP].attrs.get("laplace") if _H5_GROUP in f else None
+            self.laplace_ = json.loads(stored) if stored else None
+        else:
+            initial = self._initial(np.random.default_rng(self.seed))
+            if backend is not None and self.laplace_ is not None:
+                with backend.open("a") as f:
+                    f.require_group(_H5_GROUP).attrs["laplace"] = json.dumps(self.laplace_)
+        # what finding the start cost (optimisation, curvature), beside the sampling
+        self.start_simulated_seconds_ = float(self.log_posterior_.simulated_seconds)
         self.sampler_, self.report_ = run_ensemble(
-            self.log_posterior_, self._initial, self.n_walkers, len(self.names_),
-            self.max_steps, seed=self.seed, backend=backend, moves=self.moves, pool=self.pool,
+            self.log_posterior_, initial, self.n_walkers, len(self.names_),
+            self.max_steps, seed=self.seed, backend=backend, moves=self._moves(), pool=self.pool,
             vectorize=True, check_every=self.check_every, tau_factor=self.tau_factor,
             progress=self.progress, stop_when_converged=self.stop_when_converged,
+            after_chunk=self._adapt_laplace,
         )
         self.posterior_ = Posterior.from_sampler(self, self.sampler_, self.report_)
         return self
 
 
+def _iteration(backend) -> int:
+    """Steps held by an HDF backend (0 for a new file or one without a chain yet)."""
+    try:
+        return int(backend.iteration)
+    except (OSError, KeyError):
+        return 0
+
+
 #: Misfit (as a discrepancy inflation) beyond which the local optimum is checked globally.
 SUSPECT_INFLATION = 10.0
+#: Largest principal sd of a usable Laplace approximation, as a fraction of the prior's extent.
+LAPLACE_MAX_FRACTION = 0.25
+#: Share of the DE moves when the Laplace independence move is on.
+LAPLACE_SHARE_OTHER = 0.1
+#: Steps after which the independence proposal is refitted to the chain, once.
+LAPLACE_ADAPT_STEPS = 50
 
 
 def _global_start(lp, z0, seed, names):
@@ -461,16 +540,10 @@ def _simplex(z0, lp):
     return np.array(simplex)
 
 
-def _principal_axes(lp, z0, scale):
-    """Columns: the posterior's principal axes at ``z0``, each as long as its sd.
-
-    From the Hessian of ``lp`` by central differences (steps ``scale``, the per-axis sds, so
-    each probe moves ``lp`` by ~0.5), all probes in one vectorised call. Along a direction the
-    data barely constrain (a ridge: an eigenvalue near zero or positive), the sd is a quarter of
-    the prior box's extent through ``z0`` in that direction, so the walkers start spread along the
-    ridge instead of in a ball that must crawl along it. Falls back to the axis sds when the
-    probes fail.
-    """
+def _hessian(lp, z0, scale):
+    """Hessian of ``lp`` at ``z0`` (internal coordinates) by central differences with steps
+    ``scale`` (the per-axis sds, so each probe moves ``lp`` by ~0.5), all probes in one
+    vectorised call; ``None`` when a probe fails."""
     ndim = len(z0)
     h = np.asarray(scale, dtype=float)
     pts = [z0]
@@ -488,7 +561,7 @@ def _principal_axes(lp, z0, scale):
                 pts.append(z)
     f = np.asarray(lp(np.array(pts)), dtype=float)
     if not np.all(np.isfinite(f)):
-        return np.diag(0.5 * h)
+        return None
     f0, k = f[0], 1
     hess = np.empty((ndim, ndim))
     for i in range(ndim):
@@ -499,11 +572,25 @@ def _principal_axes(lp, z0, scale):
             fpp, fpm, fmp, fmm = f[k:k + 4]
             hess[i, j] = hess[j, i] = (fpp - fpm - fmp + fmm) / (4 * h[i] * h[j])
             k += 4
+    return hess
+
+
+def _principal_axes(lp, z0, scale, hess):
+    """Columns: the posterior's principal axes at ``z0``, each as long as its sd.
+
+    From the Hessian ``hess`` (:func:`_hessian`). Along a direction the data barely constrain (a
+    ridge: an eigenvalue near zero or positive), the sd is a quarter of the prior box's extent
+    through ``z0`` in that direction, so the walkers start spread along the ridge instead of in a
+    ball that must crawl along it. Falls back to the axis sds when the probes failed.
+    """
+    ndim = len(z0)
+    h = np.asarray(scale, dtype=float)
+    if hess is None:
+        return np.diag(0.5 * h)
     # in units of the axis sds, so that eigenvalues compare across parameters
     precision = -hess * np.outer(h, h)
     vals, vecs = np.linalg.eigh(precision)
-    lows = np.array([p.internal_bounds[0] for p in lp.priors])
-    highs = np.array([p.internal_bounds[1] for p in lp.priors])
+    lows, highs = _box(lp)
     axes = np.empty((ndim, ndim))
     for m in range(ndim):
         v = vecs[:, m] * h  # direction in internal coordinates, one unit = one eigen-sd at 1
@@ -511,6 +598,29 @@ def _principal_axes(lp, z0, scale):
         sd = 1.0 / math.sqrt(vals[m]) if vals[m] > 0 else math.inf
         axes[:, m] = v * min(sd, 0.25 * extent)
     return axes
+
+
+def _box(lp):
+    lows = np.array([p.internal_bounds[0] for p in lp.priors])
+    highs = np.array([p.internal_bounds[1] for p in lp.priors])
+    return lows, highs
+
+
+def laplace_covariance(lp, z0, hess, max_fraction=LAPLACE_MAX_FRACTION):
+    """The Laplace covariance ``(-hess)^-1`` at ``z0`` when it can serve as a proposal, else
+    ``None``: the negative Hessian must be positive definite and every principal sd under
+    ``max_fraction`` of the prior box's extent along it (otherwise the posterior is a ridge the
+    prior cuts, far from its Gaussian)."""
+    if hess is None or not np.all(np.isfinite(hess)):
+        return None
+    vals, vecs = np.linalg.eigh(-hess)
+    if not np.all(vals > 0):
+        return None
+    lows, highs = _box(lp)
+    for m in range(len(vals)):
+        if 1.0 / math.sqrt(vals[m]) >= max_fraction * _box_extent(z0, vecs[:, m], lows, highs):
+            return None
+    return (vecs / vals) @ vecs.T
 
 
 def _box_extent(z0, v, lows, highs):

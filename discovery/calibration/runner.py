@@ -173,6 +173,7 @@ def run_ensemble(
     progress=False,
     stop_when_converged=True,
     warn=True,
+    after_chunk=None,
 ):
     """Run (or resume) an ensemble until ``N > tau_factor * tau`` or ``max_steps``.
 
@@ -203,6 +204,10 @@ def run_ensemble(
         emcee's tqdm progress bar.
     stop_when_converged : bool
         False runs to ``max_steps`` whatever the diagnostics (e.g. to map a ridge).
+    after_chunk : callable or None
+        ``after_chunk(sampler)`` after every chunk of ``check_every`` steps (at absolute step
+        counts, so a resumed run calls it where an uninterrupted one would), before the
+        convergence check: e.g. a one-off adaptation of a move's proposal.
 
     Returns
     -------
@@ -255,6 +260,8 @@ def run_ensemble(
                     raise KeyboardInterrupt(f"interrupted after step {sampler.iteration}")
         sampler._previous_state = last
         state = None  # continue from the sampler's (or backend's) last state
+        if after_chunk is not None:
+            after_chunk(sampler)
         report = convergence_report(sampler, tau_factor)
     report = convergence_report(
         sampler, tau_factor, new_steps=sampler.iteration - start_it,
