@@ -277,3 +277,37 @@ def test_default_delay_prior_refuses_a_start_below_the_step():
     assert default_prior("delay", 7e-3, dt=5e-4).low == pytest.approx(3.5e-3)
     with pytest.raises(ValueError, match="delay starts at 0.00024 s.*declare one"):
         default_prior("delay", 2.4e-4, dt=5e-4)
+
+
+def test_laplace_independence_move_samples_a_known_gaussian():
+    """emcee's test pattern: a 4-d Gaussian (one correlation 0.99, sds over two decades) sampled
+    with nine steps in ten from the independence move around a slightly wrong centre: moments
+    within 0.1 sd / 10 %, and a much shorter tau than the DE moves alone (measured 2.6 vs 11).
+    Its acceptance estimate from proposals alone tells a right proposal from a wrong one."""
+    import emcee
+
+    from discovery.calibration.moves import LaplaceIndependenceMove
+
+    mean = np.array([1.0, -2.0, 0.5, 3.0])
+    sd = np.array([1.0, 0.01, 2.0, 0.3])
+    corr = np.full((4, 4), 0.5)
+    corr[0, 1] = corr[1, 0] = 0.99
+    np.fill_diagonal(corr, 1.0)
+    cov = corr * np.outer(sd, sd)
+    move = LaplaceIndependenceMove(mean + 0.3 * sd, cov)
+    moves = [(emcee.moves.DEMove(), 0.08), (emcee.moves.DESnookerMove(), 0.02), (move, 0.9)]
+    samples, report, _ = sample_gaussian(mean, cov, moves=moves, seed=3, check_every=50)
+    errors = moment_errors(samples, mean, cov)
+    assert report.converged and max(report.tau) < 5
+    assert np.all(errors["mean_in_sd"] < 0.1) and np.all(errors["sd_relative"] < 0.1)
+    _, de_only, _ = sample_gaussian(mean, cov, seed=3, check_every=50)
+    assert max(de_only.tau) > 2 * max(report.tau)
+    from discovery.calibration.testing import GaussianLogProb
+
+    lp = GaussianLogProb(mean, cov)
+    rng = np.random.default_rng(0)
+    right = move.draw(rng, 48)  # the calibration's trial: 2 n_walkers proposals
+    assert move.expected_acceptance(right, lp(right)) > 0.5  # measured 0.62-0.66
+    wrong = LaplaceIndependenceMove(mean, np.diag(sd**2))  # the correlation missed
+    trial = wrong.draw(rng, 48)
+    assert wrong.expected_acceptance(trial, lp(trial)) < 0.15  # measured 0.05-0.08

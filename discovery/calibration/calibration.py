@@ -355,15 +355,20 @@ class Calibration:
         from .moves import LaplaceIndependenceMove
 
         self._laplace_move = LaplaceIndependenceMove(self.laplace_["mean"], self.laplace_["cov"])
-        return [(emcee.moves.DEMove(), LAPLACE_SHARE_OTHER * 0.8),
-                (emcee.moves.DESnookerMove(), LAPLACE_SHARE_OTHER * 0.2),
-                (self._laplace_move, 1.0 - LAPLACE_SHARE_OTHER)]
+        share = float(self.laplace_.get("share", 1.0 - LAPLACE_SHARE_OTHER))
+        return [(emcee.moves.DEMove(), 0.8 * (1.0 - share)),
+                (emcee.moves.DESnookerMove(), 0.2 * (1.0 - share)),
+                (self._laplace_move, share)]
 
     def _adapt_laplace(self, sampler):
         """Once, at the first chunk end past ``LAPLACE_ADAPT_STEPS``: the independence proposal
         recentred on the chain's second half (its mean and covariance), which the curvature at
         the optimum only approximates (M002 on one record: tau 5.4 without the refit, 2.3 with
-        it); frozen after, and kept in the checkpoint."""
+        it), then tried: ``2 n_walkers`` proposals (a seeded draw, one batch of simulations)
+        give its expected acceptance at equilibrium; under
+        ``LAPLACE_MIN_ACCEPTANCE`` the move is switched off and the DE moves take every step
+        (drawn truths whose posterior is far from Gaussian: acceptance 0.05-0.08, tau 80-95 with
+        the move kept). Frozen after, and kept in the checkpoint."""
         move, info = self._laplace_move, self.laplace_
         if move is None or info.get("adapted_at") is not None:
             return
@@ -376,7 +381,13 @@ class Calibration:
             move.set_proposal(z.mean(axis=0), cov)
         except np.linalg.LinAlgError:
             return
-        info.update(mean=z.mean(axis=0).tolist(), cov=np.atleast_2d(cov).tolist(), adapted_at=it)
+        trial = move.draw(np.random.default_rng([int(self.seed), it]), 2 * self.n_walkers)
+        acceptance = move.expected_acceptance(trial, self.log_posterior_(trial))
+        share = (1.0 - LAPLACE_SHARE_OTHER) if acceptance >= LAPLACE_MIN_ACCEPTANCE else 0.0
+        weights = np.array([0.8 * (1.0 - share), 0.2 * (1.0 - share), share])
+        sampler._weights = weights / weights.sum()  # emcee's move weights
+        info.update(mean=z.mean(axis=0).tolist(), cov=np.atleast_2d(cov).tolist(), adapted_at=it,
+                    expected_acceptance=acceptance, share=share)
         if self.backend is not None:
             with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
                 f.require_group(_H5_GROUP).attrs["laplace"] = json.dumps(info)
@@ -467,6 +478,8 @@ LAPLACE_MAX_FRACTION = 0.25
 LAPLACE_SHARE_OTHER = 0.1
 #: Steps after which the independence proposal is refitted to the chain, once.
 LAPLACE_ADAPT_STEPS = 50
+#: Expected acceptance of the refitted proposal under which it is switched off.
+LAPLACE_MIN_ACCEPTANCE = 0.25
 
 
 def _global_start(lp, z0, seed, names):

@@ -55,6 +55,25 @@ class LaplaceIndependenceMove(emcee.moves.MHMove):
         q = np.sum(d * d, axis=0)
         return -0.5 * (self.df + self.mean.size) * np.log1p(q / self.df)
 
+    def draw(self, rng, n):
+        """``n`` proposals drawn with a ``numpy.random.Generator``."""
+        g = rng.standard_normal((n, self.mean.size))
+        w = rng.chisquare(self.df, size=n) / self.df
+        return self.mean + (g / np.sqrt(w)[:, None]) @ self.chol.T
+
+    def expected_acceptance(self, trial, trial_log_prob) -> float:
+        """Acceptance the move would have at equilibrium, from proposals ``trial`` and their log
+        posterior alone: with importance weights ``w = pi / q``, ``sum_ij min(w_i, w_j) /
+        (M sum_i w_i)`` (the current point weighted to the posterior, the proposal from ``q``).
+        The walkers' own positions are not used: early in a chain they sit where the posterior
+        is low, and every proposal looks acceptable from there."""
+        lw = np.asarray(trial_log_prob, dtype=float) - self.log_density(trial)
+        lw = np.where(np.isfinite(lw), lw, -np.inf)
+        if not np.any(np.isfinite(lw)):
+            return 0.0
+        w = np.exp(lw - np.max(lw))
+        return float(np.sum(np.minimum(w[:, None], w[None, :])) / (w.size * np.sum(w)))
+
     def _propose(self, coords, random):
         n, ndim = coords.shape
         g = random.randn(n, ndim)
