@@ -356,9 +356,8 @@ class Calibration:
 
         self._laplace_move = LaplaceIndependenceMove(self.laplace_["mean"], self.laplace_["cov"])
         share = float(self.laplace_.get("share", 1.0 - LAPLACE_SHARE_OTHER))
-        return [(emcee.moves.DEMove(), 0.8 * (1.0 - share)),
-                (emcee.moves.DESnookerMove(), 0.2 * (1.0 - share)),
-                (self._laplace_move, share)]
+        moves = (emcee.moves.DEMove(), emcee.moves.DESnookerMove(), self._laplace_move)
+        return list(zip(moves, _move_weights(share)))
 
     def _adapt_laplace(self, sampler):
         """Once, at the first chunk end past ``LAPLACE_ADAPT_STEPS``: the independence proposal
@@ -384,8 +383,7 @@ class Calibration:
         trial = move.draw(np.random.default_rng([int(self.seed), it]), 2 * self.n_walkers)
         acceptance = move.expected_acceptance(trial, self.log_posterior_(trial))
         share = (1.0 - LAPLACE_SHARE_OTHER) if acceptance >= LAPLACE_MIN_ACCEPTANCE else 0.0
-        weights = np.array([0.8 * (1.0 - share), 0.2 * (1.0 - share), share])
-        sampler._weights = weights / weights.sum()  # emcee's move weights
+        sampler._weights = _move_weights(share)  # emcee's move weights, in _moves' order
         info.update(mean=z.mean(axis=0).tolist(), cov=np.atleast_2d(cov).tolist(), adapted_at=it,
                     expected_acceptance=acceptance, share=share)
         if self.backend is not None:
@@ -460,6 +458,12 @@ class Calibration:
         )
         self.posterior_ = Posterior.from_sampler(self, self.sampler_, self.report_)
         return self
+
+
+def _move_weights(share):
+    """Weights of (DEMove, DESnookerMove, Laplace move) when the last takes ``share`` of the
+    steps: the DE moves split the rest 80/20 as in :func:`.runner.default_moves`."""
+    return np.array([0.8 * (1.0 - share), 0.2 * (1.0 - share), share])
 
 
 def _iteration(backend) -> int:
