@@ -91,10 +91,9 @@ def _start(truth, priors, rng, scatter):
     return out
 
 
-def run_draw(index, config: Config, workdir: Path) -> dict:
-    from discovery.calibration import Calibration
-    from discovery.calibration.runner import ConvergenceWarning
-    from models.structures import Structure, structure_space
+def coverage_scenario(index, config: Config):
+    """Draw ``index``'s scenario: every third one on the dead zone / friction offset ridge."""
+    from models.structures import structure_space
 
     seed = config.seed + index
     structure = None
@@ -105,6 +104,16 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
     scenario = draw_scenario(seed, structure=structure)
     if config.closed_seconds or config.open_seconds:
         scenario = shortened(scenario, closed=config.closed_seconds, open_=config.open_seconds)
+    return scenario
+
+
+def run_draw(index, config: Config, workdir: Path) -> dict:
+    from discovery.calibration import Calibration
+    from discovery.calibration.runner import ConvergenceWarning
+    from models.structures import Structure
+
+    seed = config.seed + index
+    scenario = coverage_scenario(index, config)
     paths = write_recordings(scenario, workdir / f"draw{index:03d}")
     truth = scenario.truth
     structure = Structure.of_params(truth)

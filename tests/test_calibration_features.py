@@ -70,3 +70,41 @@ def test_waveform_likelihood_warns_on_a_cycle_that_is_not_periodic(tmp_path):
         warnings.simplefilter("error", IllPosedLikelihoodWarning)
         cal = Calibration("M002", params=("dead_zone",), likelihood="waveform").setup([rec])
     assert cal.terms_[0].period_mismatch < 0.01 * cal.terms_[0].sigma_hat
+
+
+def test_periodic_and_wandering_cycles_are_not_taken_as_settling(tmp_path):
+    rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 3, tmp_path / "m002.csv", keep_last=10.0)
+    assert np.all(FeatureTerm(rec, 10.0, 6.0, 5e-4).settling_var == 0.0)
+    for name in ("A", "B"):  # M000's band-pass wander has no steady direction
+        term = FeatureTerm(load_recording(DATA / f"m000_closed_{name}.csv"), 10.0, 6.0, 5e-4)
+        assert np.all(term.settling_var == 0.0), name
+
+
+def test_a_cycle_still_settling_leaves_its_settled_features_inside_the_covariance(tmp_path):
+    """The coverage benchmark's draw 2 (seed 2002): a truth whose cycle grows for ~100 s, recorded
+    from 10 s to 36.5 s after rest. The record's last 10 s sit 7 % under the settled H1 (5 sd of
+    the noise-and-wander covariance, which made the right model's features inflation 58x); with
+    the settling term the settled features lie within 2 sd of the record's, feature by feature."""
+    from models import simulate
+    from models.recording import save_recording
+    from studies.bench_coverage import Config, coverage_scenario
+
+    scenario = coverage_scenario(2, Config())
+    design = scenario.recordings[0]
+    assert design.kind == "closed"
+    exp = design.experiment()
+    tr = simulate(scenario.truth, exp, 180.0, dt=2e-4, rate=1000.0)
+    keep = (tr.t >= 10.0) & (tr.t <= 10.0 + design.duration)
+    rng = np.random.default_rng(5)
+    delta = tr.delta[keep] + 2.5e-5 * rng.standard_normal(int(keep.sum()))
+    path = tmp_path / "settling.csv"
+    save_recording(path, {"t": tr.t[keep] - 10.0, "u": tr.u[keep], "delta": delta},
+                   {"kind": "closed", "kp": exp.kp, "kd": exp.kd, "mu": exp.mu})
+    term = FeatureTerm(load_recording(path), 10.0, 6.0, 5e-4)
+    h1 = term.features.index("H1")
+    assert term.settling_var[h1] > 0.0
+    late = tr.t >= 160.0
+    settled = term._data_features_at(tr.t[late] - 160.0, tr.delta[late])
+    z = (settled - term.observed) / np.sqrt(np.diag(term.cov_hat))
+    assert abs(z[h1]) > 0.5  # the record is really off its settled cycle ...
+    assert np.max(np.abs(z)) < 2.0, dict(zip(term.features, z.round(2)))  # ... and the sd says so

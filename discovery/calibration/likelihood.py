@@ -105,6 +105,14 @@ def features_inflation(whitened) -> float:
     k, q = z.size, float(np.sum(z * z))
     return q / k if q > chi2_dist.ppf(1.0 - DISCREPANCY_P, k) else 1.0
 
+#: A trend of the features across the window's pieces counts as a cycle still settling beyond
+#: this many noise-only standard errors of its slope ...
+SETTLING_SLOPE_SD = 3.0
+#: ... and this fraction of the pieces' spread (a wander has no steady direction) ...
+SETTLING_R2 = 0.8
+#: ... and the settled features are then unknown by this many times the drift over the window.
+SETTLING_WINDOWS = 2.0
+
 #: Samples either side over which a waveform's solver error is spread (its switching events move
 #: with the parameters by about a step).
 SOLVER_SPREAD_SAMPLES = 2
@@ -489,8 +497,9 @@ class FeatureTerm(_ClosedLoopTerm):
 
     Covariance: the features' spread under the recording's sensor noise (Monte Carlo over
     ``n_mc`` noise draws), plus twice the cycle's own window-to-window wander measured on
-    ``n_segments`` pieces of the window (zero for a periodic cycle), plus an optional relative
-    ``floor``. For the bundled M000 records the estimated wander of a 10 s window's frequency is
+    ``n_segments`` pieces of the window (zero for a periodic cycle), plus the uncertainty of the
+    settled features when the cycle is still settling over the window (zero for a settled one),
+    plus an optional relative ``floor``. For the bundled M000 records the estimated wander of a 10 s window's frequency is
     0.43 % (controller A) and 0.36 % (B), while 40 windows of a 420 s run spread by 0.12 % and
     0.06 %: per feature the estimate is 1.1-3.8x (A) and 3.9-7.5x (B) the measured spread, i.e.
     conservative (``tests/test_calibration_features.py``).
@@ -515,8 +524,8 @@ class FeatureTerm(_ClosedLoopTerm):
         # a cycle that is not periodic (the band-pass loop's unlocked 9-10 Hz oscillation) wanders
         # from window to window beyond what sensor noise explains; the data's and the simulated
         # window each wander by that much
-        self.wander_var = self._wander_variance(n_segments, n_mc, rng)
-        cov += np.diag(2.0 * self.wander_var)
+        self.wander_var, self.settling_var = self._wander_variance(n_segments, n_mc, rng)
+        cov += np.diag(2.0 * self.wander_var + self.settling_var)
         cov += np.diag((float(floor) * np.abs(self.observed)) ** 2)
         cov += np.diag(1e-12 * np.diag(cov) + 1e-300)
         self._data_cov = cov
@@ -552,13 +561,23 @@ class FeatureTerm(_ClosedLoopTerm):
         return np.where(np.isfinite(d), d * d, 0.0)
 
     def _wander_variance(self, n_segments, n_mc, rng):
-        """Variance of the window's features from the cycle's own wander (beyond sensor noise).
+        """``(wander, settling)`` variances of the window's features beyond sensor noise.
 
         The window is cut into ``n_segments`` pieces (fewer if a piece would hold under three
-        periods). Where the spread of the pieces' features is clearly (over 4x in variance) more
-        than sensor noise makes it at that length (``n_mc`` noise draws spread over the pieces),
-        the excess, divided by the number of pieces for the whole window, is the wander;
-        elsewhere zero. Zero too when a piece holds under two periods.
+        periods). Wander: where the spread of the pieces' features is clearly (over 4x in
+        variance) more than sensor noise makes it at that length (``n_mc`` noise draws spread over
+        the pieces), the excess, divided by the number of pieces for the whole window.
+
+        Settling: a cycle still growing or shrinking towards its limit (a drawn truth's amplitude
+        took ~20 s to settle; its record's last 10 s sat 7 % under the settled H1, 5 sd of the
+        noise-and-wander covariance, and the right model needed a 58x inflation) shows a trend
+        across the pieces. Where the trend is clear (slope over ``SETTLING_SLOPE_SD`` times its
+        noise-only standard error, and over ``SETTLING_R2`` of the pieces' spread), the settled
+        value the model simulates is taken as unknown by ``SETTLING_WINDOWS`` times the drift
+        over the window (sd), the gap left by a settling time of up to that many windows; the
+        harmonics take the amplitude's relative drift (H1 or amplitude, when among the
+        features).
+        Both are zero when a piece holds under two periods.
         """
         zero = np.zeros(len(self.features))
         if "frequency" in self.features:
@@ -566,7 +585,7 @@ class FeatureTerm(_ClosedLoopTerm):
             n_segments = min(n_segments, (self.tau[-1] - self.tau[0]) * omega / (2 * math.pi) // 3)
         n_segments = int(n_segments)
         if n_segments < 2:
-            return zero
+            return zero, zero
         edges = np.linspace(self.tau[0], self.tau[-1], n_segments + 1)
         rows, noise = [], []
         per_piece = max(2, int(n_mc) // n_segments)
@@ -578,13 +597,36 @@ class FeatureTerm(_ClosedLoopTerm):
                 draws = [self._data_features_at(tau, d + self.sigma_hat * rng.standard_normal(d.size))
                          for _ in range(per_piece)]
             except InsufficientPeriodsError:
-                return zero
+                return zero, zero
             rows.append(f)
             noise.append(np.var(draws, axis=0, ddof=1))
-        seg_var = np.var(np.asarray(rows), axis=0, ddof=1)
+        rows = np.asarray(rows)
+        seg_var = np.var(rows, axis=0, ddof=1)
         noise_var = np.mean(noise, axis=0)
-        return np.where(seg_var > 4.0 * noise_var, (seg_var - noise_var) / len(rows), 0.0)
-
+        wander = np.where(seg_var > 4.0 * noise_var, (seg_var - noise_var) / len(rows), 0.0)
+        settling = zero
+        if len(rows) >= 3:
+            c = 0.5 * (edges[:-1] + edges[1:])
+            c = c - c.mean()
+            sxx = float(np.sum(c * c))
+            slope = (c @ (rows - rows.mean(axis=0))) / sxx
+            explained = slope**2 * sxx / np.maximum((len(rows) - 1) * seg_var, 1e-300)
+            clear = ((np.abs(slope) > SETTLING_SLOPE_SD * np.sqrt(noise_var / sxx))
+                     & (explained > SETTLING_R2))
+            drift = slope * (self.tau[-1] - self.tau[0])
+            settling = np.where(clear, (SETTLING_WINDOWS * drift) ** 2, 0.0)
+            # the harmonics move with the amplitude, but over a few periods their estimates
+            # scatter by more than their slow drift (the drawn truth's H3: 2.63, 2.58, 2.59, 2.61
+            # e-4, missing its settled 2.53 by 3 %) and a wander can look like a trend (M000's
+            # B: H7 "drifted" by 3x its size): the amplitude's relative drift stands for them
+            sizes = [i for i, n in enumerate(self.features) if n in ("H1", "amplitude")]
+            if sizes:
+                i = sizes[0]
+                relative = abs(drift[i]) / max(abs(self.observed[i]), 1e-300) if clear[i] else 0.0
+                harmonic = np.array([n != "frequency" for n in self.features])
+                spread = (SETTLING_WINDOWS * relative * self.observed) ** 2
+                settling = np.where(harmonic, spread, settling)
+        return wander, settling
     def _data_features(self, d):
         return self._data_features_at(self.tau, d)
 
@@ -639,6 +681,7 @@ class FeatureTerm(_ClosedLoopTerm):
         d.update({"features": list(self.features), "observed": self.observed.tolist(),
                   "sd": np.sqrt(np.diag(self.cov_hat)).tolist(),
                   "wander_sd": np.sqrt(self.wander_var).tolist(),
+                  "settling_sd": np.sqrt(self.settling_var).tolist(),
                   "solver_sd": np.sqrt(self.solver_var).tolist()})
         return d
 
