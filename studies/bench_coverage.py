@@ -171,6 +171,9 @@ def summarise(rows) -> dict:
         # the discrepancy term on right models: 1 leaves a record's likelihood as it is
         "records": int(factors.size),
         "fraction_at_1": float(np.mean(factors == 1.0)) if factors.size else None,
+        # a factor f widens that record's share of the intervals by at most sqrt(f): <= 20 %
+        "fraction_within_20_percent": (float(np.mean(np.sqrt(factors) <= 1.2))
+                                       if factors.size else None),
         "median": float(np.median(factors)) if factors.size else None,
         "max": float(np.max(factors)) if factors.size else None,
     }
