@@ -140,6 +140,7 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
            "simulated_seconds": float(cal.log_posterior_.simulated_seconds),
            "parameters": {}}
     row["inflation"] = list(cal.inflation_)
+    row["commit"] = _commit()
     for j, n in enumerate(names):
         if n == "sigma":  # a nuisance here; its truth mixes noise and quantisation
             continue
@@ -153,6 +154,17 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
             "relative_width": float((hi - lo) / abs(value)) if value else None,
         }
     return row
+
+
+def _commit():
+    """The checkout's git commit (rows of a resumed benchmark may come from several)."""
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True, cwd=Path(__file__).parent).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
 
 
 def summarise(rows) -> dict:
@@ -178,6 +190,7 @@ def summarise(rows) -> dict:
         "max": float(np.max(factors)) if factors.size else None,
     }
     out["_all"] = {"draws": len(rows), "converged": int(sum(r["converged"] for r in rows)),
+                   "commits": sorted({str(r.get("commit")) for r in rows}),
                    "median_wall_s": float(np.median([r["wall_s"] for r in rows])),
                    "median_simulated_seconds": float(np.median([r["simulated_seconds"] for r in rows]))}
     return out

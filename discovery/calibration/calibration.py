@@ -266,7 +266,8 @@ class Calibration:
                                     "initial_simplex": _simplex(z0, lp)})
             if np.isfinite(lp(res.x)):
                 z0 = _profile_sigma(lp, res.x, self.names_)
-            if self.discrepancy and self._suspect_optimum(lp, z0):
+            searched = self.discrepancy and self._suspect_optimum(lp, z0)
+            if searched:
                 z0 = _global_start(lp, z0, int(rng.integers(2**31)), self.names_)
             if self._choose_commands(lp, z0):  # the replay moved: optimise again with it
                 res = minimize(_cost(lp), z0, method="Nelder-Mead",
@@ -274,6 +275,13 @@ class Calibration:
                                         "initial_simplex": _simplex(z0, lp)})
                 if float(np.ravel(lp(res.x))[0]) > float(np.ravel(lp(z0))[0]):
                     z0 = _profile_sigma(lp, res.x, self.names_)
+            if self.discrepancy:
+                z0 = self._polish(lp, z0)
+                if not searched and max(self._inflations_at(lp, z0)) > 1.0:
+                    # still a misfit: a local optimum (the ridge case: 448 nats under the
+                    # truth) or a wrong model; the global search tells them apart
+                    z0 = self._polish(lp, _global_start(lp, z0, int(rng.integers(2**31)),
+                                                        self.names_))
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
         if self.discrepancy:
             self._set_inflation(lp, z0)
@@ -304,6 +312,35 @@ class Calibration:
             if filled == self.n_walkers:
                 return out
         raise RuntimeError("could not place the walkers where the posterior is finite")
+
+    def _polish(self, lp, z0):
+        """Nelder-Mead restarted along the principal axes at its optimum while that optimum
+        leaves some recording a discrepancy factor over 1 and the restart gains over
+        ``POLISH_GAIN`` nats (at most ``POLISH_RESTARTS`` times).
+
+        The factor is measured where the search stopped; on a ridge an axis-aligned simplex stops
+        short of the maximum, and the misfit there reads as model discrepancy (the ridge case:
+        factors 1.6 and 2.9 for the right model, 1.0 at the truth), widening a right model's
+        intervals by up to 70 %. A right model at its maximum keeps 1, so a restart is owed
+        only while the factor is over 1.
+        """
+        from scipy.optimize import minimize
+
+        ndim = len(z0)
+        for _ in range(POLISH_RESTARTS):
+            if max(self._inflations_at(lp, z0)) <= 1.0:
+                break
+            scale = _axis_scales(lp, z0)
+            axes = _principal_axes(lp, z0, scale, _hessian(lp, z0, scale))
+            simplex = np.vstack([z0, z0[None, :] + axes.T])
+            res = minimize(_cost(lp), z0, method="Nelder-Mead",
+                           options={"maxfev": 100 * ndim, "xatol": 1e-6, "fatol": 0.05,
+                                    "initial_simplex": simplex})
+            before = float(np.ravel(lp(z0))[0])
+            if not float(np.ravel(lp(res.x))[0]) > before + POLISH_GAIN:
+                break
+            z0 = _profile_sigma(lp, res.x, self.names_)
+        return z0
 
     def _choose_commands(self, lp, z0) -> bool:
         """Each open-loop command known only as samples replayed at the centre of the edge
@@ -484,6 +521,10 @@ def _iteration(backend) -> int:
         return 0
 
 
+#: Restarts of the local search while its optimum leaves a discrepancy (:meth:`Calibration._polish`)
+POLISH_RESTARTS = 3
+#: ... each kept only if it gains more than this (nats).
+POLISH_GAIN = 0.1
 #: Misfit (as a discrepancy inflation) beyond which the local optimum is checked globally.
 SUSPECT_INFLATION = 10.0
 #: Largest principal sd of a usable Laplace approximation, as a fraction of the prior's extent.
