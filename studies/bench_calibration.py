@@ -122,7 +122,10 @@ def run_ridge_case(seed, workdir):
             "step_cap": cal.max_steps, "converged": rep.converged,
             "tau": dict(zip(RIDGE_PARAMETERS, rep.tau)), "acceptance": rep.acceptance,
             "simulated_seconds": cal.log_posterior_.simulated_seconds,
-            "inflation": list(cal.inflation_), "parameters": rows}
+            "inflation": list(cal.inflation_),
+            "start_simulated_seconds": cal.start_simulated_seconds_,
+            "laplace": {k: v for k, v in (cal.laplace_ or {}).items() if k not in ("mean", "cov")},
+            "parameters": rows}
 
 
 def main(argv=None):

@@ -311,3 +311,35 @@ def test_laplace_independence_move_samples_a_known_gaussian():
     wrong = LaplaceIndependenceMove(mean, np.diag(sd**2))  # the correlation missed
     trial = wrong.draw(rng, 48)
     assert wrong.expected_acceptance(trial, lp(trial)) < 0.15  # measured 0.05-0.08
+
+
+@pytest.mark.parametrize("correlated, kept", [(True, True), (False, False)])
+def test_laplace_move_kept_only_if_its_steps_are_accepted(correlated, kept):
+    """The check every 50 steps reads the walkers' moves off the chain: on the known Gaussian the
+    right proposal keeps its share; one that misses the 0.99 correlation (the walkers moved in
+    under 15 % of its steps), its refits spent, is switched off in the sampler and ``laplace_``."""
+    import emcee
+
+    from discovery.calibration import Calibration
+    from discovery.calibration.calibration import (LAPLACE_CHECK_STEPS, LAPLACE_MAX_REFITS,
+                                                   _move_weights)
+    from discovery.calibration.moves import LaplaceIndependenceMove
+
+    mean = np.array([1.0, -2.0, 0.5, 3.0])
+    sd = np.array([1.0, 0.01, 2.0, 0.3])
+    corr = np.full((4, 4), 0.5)
+    corr[0, 1] = corr[1, 0] = 0.99
+    np.fill_diagonal(corr, 1.0)
+    cov = corr * np.outer(sd, sd)
+    move = LaplaceIndependenceMove(mean, cov if correlated else np.diag(sd**2))
+    weights = _move_weights(0.9)
+    moves = list(zip((emcee.moves.DEMove(), emcee.moves.DESnookerMove(), move), weights))
+    _, _, sampler = sample_gaussian(mean, cov, moves=moves, seed=4, max_steps=LAPLACE_CHECK_STEPS + 1,
+                                    tau_factor=1e9)
+    cal = Calibration("M002")
+    cal.laplace_ = {"adapted_at": 1, "share": 0.9, "refits": LAPLACE_MAX_REFITS}
+    cal._laplace_move = move
+    cal._adapt_laplace(sampler)
+    assert cal.laplace_["checked_at"] == LAPLACE_CHECK_STEPS + 1
+    assert (cal.laplace_["share"] > 0) == kept, cal.laplace_
+    np.testing.assert_allclose(sampler._weights, weights if kept else _move_weights(0.0))

@@ -296,9 +296,10 @@ class Calibration:
             cov = laplace_covariance(lp, z0, hess)
             if cov is not None:
                 self.laplace_ = {"mean": z0.tolist(), "cov": cov.tolist()}
-            else:  # idle until the chain gives it a proposal (M002, 2 noise seeds of 7: the
-                # curvature at the optimum was not negative definite, and without the move the
-                # chains took 710-750 steps instead of 90-130)
+            elif _curvature_unresolved(lp, z0, hess):
+                # idle until the chain gives it a proposal (M002, 2 noise seeds of 7: an
+                # eigenvalue of -164 beside 2e4-2e11, and without the move the chains took
+                # 710-750 steps instead of 90-130); a ridge cut by the prior never gets it
                 self.laplace_ = {"mean": z0.tolist(), "cov": (axes @ axes.T).tolist(), "share": 0.0}
         self.initial_axes_ = axes
         out = np.empty((self.n_walkers, ndim))
@@ -407,35 +408,70 @@ class Calibration:
         return list(zip(moves, _move_weights(share)))
 
     def _adapt_laplace(self, sampler):
-        """Once, at the first chunk end past ``LAPLACE_ADAPT_STEPS``: the independence proposal
-        recentred on the chain's second half (its mean and covariance), which the curvature at
-        the optimum only approximates (M002 on one record: tau 5.4 without the refit, 2.3 with
-        it), then tried: ``2 n_walkers`` proposals (a seeded draw, one batch of simulations)
-        give its expected acceptance at equilibrium; under
-        ``LAPLACE_MIN_ACCEPTANCE`` the move is switched off and the DE moves take every step
-        (drawn truths whose posterior is far from Gaussian: acceptance 0.05-0.08, tau 80-95 with
-        the move kept). Frozen after, and kept in the checkpoint."""
+        """At the first chunk end past ``LAPLACE_ADAPT_STEPS``, the independence proposal is
+        refitted to the chain (:meth:`_refit_laplace`); after that, every
+        ``LAPLACE_CHECK_STEPS``, the walkers' realised acceptance over those steps is read off the
+        chain (so a resumed run decides as the uninterrupted one), and under
+        ``LAPLACE_MIN_REALISED`` the proposal is refitted again (at most
+        ``LAPLACE_MAX_REFITS`` times, then the move is switched off). The trial's importance
+        weights only see where the proposal reaches: refitted while the walkers were still
+        spreading along a ridge, a proposal accepted at 0.23 over its first 50 steps fell to an
+        overall 0.06 (the ridge case: tau 150-220, not converged in 4000 steps). Each refit is
+        kept in the checkpoint; the posterior's burn-in covers the last one."""
         move, info = self._laplace_move, self.laplace_
-        if move is None or info.get("adapted_at") is not None:
+        if move is None:
             return
         it = int(sampler.iteration)
-        if it < LAPLACE_ADAPT_STEPS:
+        if info.get("adapted_at") is None:
+            if it >= LAPLACE_ADAPT_STEPS:
+                self._refit_laplace(sampler, it)
             return
+        last = int(info.get("checked_at", info["adapted_at"]))
+        if info.get("share", 0.0) <= 0.0 or it < last + LAPLACE_CHECK_STEPS:
+            return
+        chain = sampler.get_chain(discard=it - LAPLACE_CHECK_STEPS - 1)
+        realised = float(np.mean(np.any(np.diff(chain, axis=0) != 0, axis=2)))
+        info.update(checked_at=it, realised_acceptance=realised)
+        if realised >= LAPLACE_MIN_REALISED:
+            self._save_laplace()
+        elif int(info.get("refits", 0)) < LAPLACE_MAX_REFITS:
+            info["refits"] = int(info.get("refits", 0)) + 1
+            self._refit_laplace(sampler, it)
+        else:
+            info["share"] = 0.0
+            sampler._weights = _move_weights(0.0)
+            self._save_laplace()
+
+    def _refit_laplace(self, sampler, it):
+        """The independence proposal recentred on the chain's second half (its mean and
+        covariance), which the curvature at the optimum only approximates (M002 on one record:
+        tau 5.4 without the refit, 2.3 with it), then tried: ``2 n_walkers`` proposals (a seeded
+        draw, one batch of simulations) give its expected acceptance at equilibrium; under
+        ``LAPLACE_MIN_ACCEPTANCE`` the move is switched off and the DE moves take every step
+        (drawn truths whose posterior is far from Gaussian: acceptance 0.05-0.08, tau 80-95 with
+        the move kept)."""
+        move, info = self._laplace_move, self.laplace_
         z = sampler.get_chain(discard=it // 2, flat=True)
         cov = np.cov(z, rowvar=False)
         try:
             move.set_proposal(z.mean(axis=0), cov)
         except np.linalg.LinAlgError:
+            info["share"] = 0.0
+            sampler._weights = _move_weights(0.0)
+            self._save_laplace()
             return
         trial = move.draw(np.random.default_rng([int(self.seed), it]), 2 * self.n_walkers)
         acceptance = move.expected_acceptance(trial, self.log_posterior_(trial))
         share = (1.0 - LAPLACE_SHARE_OTHER) if acceptance >= LAPLACE_MIN_ACCEPTANCE else 0.0
         sampler._weights = _move_weights(share)  # emcee's move weights, in _moves' order
         info.update(mean=z.mean(axis=0).tolist(), cov=np.atleast_2d(cov).tolist(), adapted_at=it,
-                    expected_acceptance=acceptance, share=share)
+                    checked_at=it, expected_acceptance=acceptance, share=share)
+        self._save_laplace()
+
+    def _save_laplace(self):
         if self.backend is not None:
             with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
-                f.require_group(_H5_GROUP).attrs["laplace"] = json.dumps(info)
+                f.require_group(_H5_GROUP).attrs["laplace"] = json.dumps(self.laplace_)
 
     # -- fit ------------------------------------------------------------------------------------
     def fit(self, recordings):
@@ -503,7 +539,9 @@ class Calibration:
             progress=self.progress, stop_when_converged=self.stop_when_converged,
             after_chunk=self._adapt_laplace,
         )
-        self.posterior_ = Posterior.from_sampler(self, self.sampler_, self.report_)
+        self.posterior_ = Posterior.from_sampler(
+            self, self.sampler_, self.report_,
+            min_burn=int((self.laplace_ or {}).get("adapted_at") or 0))
         return self
 
 
@@ -527,6 +565,12 @@ POLISH_RESTARTS = 3
 POLISH_GAIN = 0.1
 #: Misfit (as a discrepancy inflation) beyond which the local optimum is checked globally.
 SUSPECT_INFLATION = 10.0
+#: Steps between checks of the move's realised acceptance ...
+LAPLACE_CHECK_STEPS = 50
+#: ... and under which (the fraction of walker-steps that moved) it is switched off.
+LAPLACE_MIN_REALISED = 0.15
+#: Refits of the proposal after its first when its realised acceptance falls short.
+LAPLACE_MAX_REFITS = 3
 #: Largest principal sd of a usable Laplace approximation, as a fraction of the prior's extent.
 LAPLACE_MAX_FRACTION = 0.25
 #: Share of the DE moves when the Laplace independence move is on.
@@ -689,6 +733,20 @@ def laplace_covariance(lp, z0, hess, max_fraction=LAPLACE_MAX_FRACTION):
         if 1.0 / math.sqrt(vals[m]) >= max_fraction * _box_extent(z0, vecs[:, m], lows, highs):
             return None
     return (vecs / vals) @ vecs.T
+
+
+def _curvature_unresolved(lp, z0, hess, max_fraction=LAPLACE_MAX_FRACTION):
+    """The curvature at ``z0`` fails :func:`laplace_covariance` only by an eigenvalue that is not
+    negative (finite differences at an optimum not quite reached), with no resolved direction a
+    ridge reaching ``max_fraction`` of the prior box."""
+    if hess is None or not np.all(np.isfinite(hess)):
+        return False
+    vals, vecs = np.linalg.eigh(-hess)
+    if np.all(vals > 0):
+        return False
+    lows, highs = _box(lp)
+    return all(1.0 / math.sqrt(v) < max_fraction * _box_extent(z0, vecs[:, m], lows, highs)
+               for m, v in enumerate(vals) if v > 0)
 
 
 def _box_extent(z0, v, lows, highs):
