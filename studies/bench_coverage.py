@@ -140,7 +140,7 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
            "simulated_seconds": float(cal.log_posterior_.simulated_seconds),
            "parameters": {}}
     row["inflation"] = list(cal.inflation_)
-    row["commit"] = _commit()
+    row["commit"] = CODE_COMMIT
     for j, n in enumerate(names):
         if n == "sigma":  # a nuisance here; its truth mixes noise and quantisation
             continue
@@ -165,6 +165,10 @@ def _commit():
                               text=True, check=True, cwd=Path(__file__).parent).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return None
+
+
+#: The commit of the code this process imported (a row's, not the checkout's when it ends).
+CODE_COMMIT = _commit()
 
 
 def summarise(rows) -> dict:
