@@ -506,10 +506,10 @@ class FeatureTerm(_ClosedLoopTerm):
     ``n_mc`` noise draws), plus twice the cycle's own window-to-window wander measured on
     ``n_segments`` pieces of the window (zero for a periodic cycle), plus the uncertainty of the
     settled features when the cycle is still settling over the window (zero for a settled one),
-    plus an optional relative ``floor``. For the bundled M000 records the estimated wander of a 10 s window's frequency is
-    0.43 % (controller A) and 0.36 % (B), while 40 windows of a 420 s run spread by 0.12 % and
-    0.06 %: per feature the estimate is 1.1-3.8x (A) and 3.9-7.5x (B) the measured spread, i.e.
-    conservative (``tests/test_calibration_features.py``).
+    plus an optional relative ``floor``. For the bundled M000 records the estimated wander of a
+    10 s window's frequency is 0.43 % (controller A) and 0.36 % (B), while 40 windows of a 420 s
+    run spread by 0.12 % and 0.06 %: per feature the estimate is 1.1-3.8x (A) and 3.9-7.5x (B)
+    the measured spread, i.e. conservative (``tests/test_calibration_features.py``).
     """
 
     kind = "features"
