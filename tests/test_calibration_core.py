@@ -279,6 +279,16 @@ def test_default_delay_prior_refuses_a_start_below_the_step():
         default_prior("delay", 2.4e-4, dt=5e-4)
 
 
+def _correlated_gaussian():
+    """``(mean, sd, cov)`` of a 4-d Gaussian with one correlation 0.99 and sds over two decades."""
+    mean = np.array([1.0, -2.0, 0.5, 3.0])
+    sd = np.array([1.0, 0.01, 2.0, 0.3])
+    corr = np.full((4, 4), 0.5)
+    corr[0, 1] = corr[1, 0] = 0.99
+    np.fill_diagonal(corr, 1.0)
+    return mean, sd, corr * np.outer(sd, sd)
+
+
 def test_laplace_independence_move_samples_a_known_gaussian():
     """emcee's test pattern: a 4-d Gaussian (one correlation 0.99, sds over two decades) sampled
     with nine steps in ten from the independence move around a slightly wrong centre: moments
@@ -288,12 +298,7 @@ def test_laplace_independence_move_samples_a_known_gaussian():
 
     from discovery.calibration.moves import LaplaceIndependenceMove
 
-    mean = np.array([1.0, -2.0, 0.5, 3.0])
-    sd = np.array([1.0, 0.01, 2.0, 0.3])
-    corr = np.full((4, 4), 0.5)
-    corr[0, 1] = corr[1, 0] = 0.99
-    np.fill_diagonal(corr, 1.0)
-    cov = corr * np.outer(sd, sd)
+    mean, sd, cov = _correlated_gaussian()
     move = LaplaceIndependenceMove(mean + 0.3 * sd, cov)
     moves = [(emcee.moves.DEMove(), 0.08), (emcee.moves.DESnookerMove(), 0.02), (move, 0.9)]
     samples, report, _ = sample_gaussian(mean, cov, moves=moves, seed=3, check_every=50)
@@ -325,12 +330,7 @@ def test_laplace_move_kept_only_if_its_steps_are_accepted(correlated, kept):
                                                    _move_weights)
     from discovery.calibration.moves import LaplaceIndependenceMove
 
-    mean = np.array([1.0, -2.0, 0.5, 3.0])
-    sd = np.array([1.0, 0.01, 2.0, 0.3])
-    corr = np.full((4, 4), 0.5)
-    corr[0, 1] = corr[1, 0] = 0.99
-    np.fill_diagonal(corr, 1.0)
-    cov = corr * np.outer(sd, sd)
+    mean, sd, cov = _correlated_gaussian()
     move = LaplaceIndependenceMove(mean, cov if correlated else np.diag(sd**2))
     weights = _move_weights(0.9)
     moves = list(zip((emcee.moves.DEMove(), emcee.moves.DESnookerMove(), move), weights))
