@@ -276,12 +276,12 @@ class Calibration:
                 if float(np.ravel(lp(res.x))[0]) > float(np.ravel(lp(z0))[0]):
                     z0 = _profile_sigma(lp, res.x, self.names_)
             if self.discrepancy:
-                z0 = self._polish(lp, z0)
-                if not searched and max(self._inflations_at(lp, z0)) > 1.0:
+                z0, factors = self._polish(lp, z0)
+                if not searched and max(factors) > 1.0:
                     # still a misfit: a local optimum (the ridge case: 448 nats under the
                     # truth) or a wrong model; the global search tells them apart
-                    z0 = self._polish(lp, _global_start(lp, z0, int(rng.integers(2**31)),
-                                                        self.names_))
+                    z0, _ = self._polish(lp, _global_start(lp, z0, int(rng.integers(2**31)),
+                                                           self.names_))
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
         if self.discrepancy:
             self._set_inflation(lp, z0)
@@ -317,7 +317,7 @@ class Calibration:
     def _polish(self, lp, z0):
         """Nelder-Mead restarted along the principal axes at its optimum while that optimum
         leaves some recording a discrepancy factor over 1 and the restart gains over
-        ``POLISH_GAIN`` nats (at most ``POLISH_RESTARTS`` times).
+        ``POLISH_GAIN`` nats (at most ``POLISH_RESTARTS`` times); ``(z0, factors there)``.
 
         The factor is measured where the search stopped; on a ridge an axis-aligned simplex stops
         short of the maximum, and the misfit there reads as model discrepancy (the ridge case:
@@ -328,8 +328,9 @@ class Calibration:
         from scipy.optimize import minimize
 
         ndim = len(z0)
+        factors = self._inflations_at(lp, z0)
         for _ in range(POLISH_RESTARTS):
-            if max(self._inflations_at(lp, z0)) <= 1.0:
+            if max(factors) <= 1.0:
                 break
             scale = _axis_scales(lp, z0)
             axes = _principal_axes(lp, z0, scale, _hessian(lp, z0, scale))
@@ -341,7 +342,8 @@ class Calibration:
             if not float(np.ravel(lp(res.x))[0]) > before + POLISH_GAIN:
                 break
             z0 = _profile_sigma(lp, res.x, self.names_)
-        return z0
+            factors = self._inflations_at(lp, z0)
+        return z0, factors
 
     def _choose_commands(self, lp, z0) -> bool:
         """Each open-loop command known only as samples replayed at the centre of the edge
