@@ -725,15 +725,10 @@ def laplace_covariance(lp, z0, hess, max_fraction=LAPLACE_MAX_FRACTION):
     ``None``: the negative Hessian must be positive definite and every principal sd under
     ``max_fraction`` of the prior box's extent along it (otherwise the posterior is a ridge the
     prior cuts, far from its Gaussian)."""
-    if hess is None or not np.all(np.isfinite(hess)):
+    eig = _curvature_without_ridge(lp, z0, hess, max_fraction)
+    if eig is None or not np.all(eig[0] > 0):
         return None
-    vals, vecs = np.linalg.eigh(-hess)
-    if not np.all(vals > 0):
-        return None
-    lows, highs = _box(lp)
-    for m in range(len(vals)):
-        if 1.0 / math.sqrt(vals[m]) >= max_fraction * _box_extent(z0, vecs[:, m], lows, highs):
-            return None
+    vals, vecs = eig
     return (vecs / vals) @ vecs.T
 
 
@@ -741,14 +736,21 @@ def _curvature_unresolved(lp, z0, hess, max_fraction=LAPLACE_MAX_FRACTION):
     """The curvature at ``z0`` fails :func:`laplace_covariance` only by an eigenvalue that is not
     negative (finite differences at an optimum not quite reached), with no resolved direction a
     ridge reaching ``max_fraction`` of the prior box."""
+    eig = _curvature_without_ridge(lp, z0, hess, max_fraction)
+    return eig is not None and not np.all(eig[0] > 0)
+
+
+def _curvature_without_ridge(lp, z0, hess, max_fraction):
+    """``(vals, vecs)`` of ``-hess`` when it is finite and no direction of positive curvature has
+    a principal sd reaching ``max_fraction`` of the prior box's extent along it; else ``None``."""
     if hess is None or not np.all(np.isfinite(hess)):
-        return False
+        return None
     vals, vecs = np.linalg.eigh(-hess)
-    if np.all(vals > 0):
-        return False
     lows, highs = _box(lp)
-    return all(1.0 / math.sqrt(v) < max_fraction * _box_extent(z0, vecs[:, m], lows, highs)
-               for m, v in enumerate(vals) if v > 0)
+    for m, v in enumerate(vals):
+        if v > 0 and 1.0 / math.sqrt(v) >= max_fraction * _box_extent(z0, vecs[:, m], lows, highs):
+            return None
+    return vals, vecs
 
 
 def _box_extent(z0, v, lows, highs):
