@@ -22,8 +22,7 @@ import numpy as np
 
 from .experiments import OpenLoop
 
-__all__ = ["command_candidates", "command_from_samples", "edge_alternatives",
-           "is_piecewise_constant", "regular_edge_times"]
+__all__ = ["command_from_samples", "is_piecewise_constant", "regular_edge_times"]
 
 #: A command whose value changes at no more than this fraction of its samples is piecewise constant.
 PIECEWISE_FRACTION = 0.05
@@ -96,25 +95,6 @@ def regular_edge_times(t, k, unresolved="hold"):
     return phase + j * half
 
 
-def command_candidates(t, u) -> list:
-    """Every reading of a sampled command the samples cannot decide between (one or two).
-
-    A square wave whose edges all fall the same number of samples apart leaves their sub-sample
-    phase open: on the acquisition's clock the edges sit at the samples, off it anywhere within
-    one sample. Both replays are returned (hold first); a fit keeps the one its model explains
-    better (:class:`discovery.structure.targets.OutputTarget`).
-    """
-    first = command_from_samples(t, u)
-    if first.waveform != "piecewise" or first.t_samples.size < 3:
-        return [first]
-    t = np.asarray(t, dtype=float) - float(t[0])
-    k = np.flatnonzero(np.diff(np.asarray(u, dtype=float))) + 1
-    centre = regular_edge_times(t, k, unresolved="centre")
-    if centre is None or np.allclose(centre, first.t_samples, rtol=0.0, atol=1e-9):
-        return [first]
-    return [first, OpenLoop.piecewise(centre, first.u_samples)]
-
-
 def command_from_samples(t, u) -> OpenLoop:
     """The open-loop experiment replaying a command known as samples ``u`` at times ``t``.
 
@@ -133,38 +113,3 @@ def command_from_samples(t, u) -> OpenLoop:
         edges = t[k]
     levels = np.concatenate([[u[0]], u[k]])
     return OpenLoop.piecewise(edges, levels)
-
-
-def edge_alternatives(t, u, n_half=7, n_phase=5) -> list:
-    """Replays of a regular piecewise command spanning every edge timing its samples allow.
-
-    The samples put each edge of a square wave in ``(t[k-1], t[k]]``; over a few edges the
-    (phase, half period) pairs consistent with all of them form a polygon a sample wide in phase
-    and ``~1/n_edges`` of a sample in half period. A half period off by a fraction of a sample
-    moves the last edges by up to a sample (a drawn square at 0.313 Hz sampled at 1 kHz, edges
-    1596 samples apart: the hold replay drifted to 0.93 ms late, which left the truth's residuals
-    at 3x the noise). This returns ``n_half x n_phase`` replays over that polygon (the half
-    periods at evenly spaced quantiles of the feasible ones, the phases evenly inside each one's
-    interval) for a fit to choose from; ``[]`` when the command is not regular piecewise.
-    """
-    t = np.asarray(t, dtype=float)
-    u = np.asarray(u, dtype=float)
-    if not is_piecewise_constant(u):
-        return []
-    t = t - t[0]
-    k = np.flatnonzero(np.diff(u)) + 1
-    polygon = _edge_polygon(t, k)
-    if polygon is None:
-        return []
-    j, _, _, _, halves, phase_lo, phase_hi = polygon
-    feasible = np.flatnonzero(phase_hi - phase_lo >= 0)
-    if feasible.size == 0:
-        return []
-    levels = np.concatenate([[u[0]], u[k]])
-    picks = np.unique(feasible[np.round(np.linspace(0, feasible.size - 1, n_half)).astype(int)])
-    out = []
-    for i in picks:
-        for f in (np.arange(n_phase) + 0.5) / n_phase:
-            phase = phase_lo[i] + f * (phase_hi[i] - phase_lo[i])
-            out.append(OpenLoop.piecewise(phase + j * halves[i], levels))
-    return out

@@ -1,5 +1,6 @@
 """Pure transport delay with the project's convention: output 0 before ``t = Td``, linear
-interpolation between samples (MODELS.md "Conventions").
+interpolation between samples (MODELS.md "Conventions"); the step-by-step line ramps a jump at
+``t = 0`` in over the step before ``Td`` so that its output is continuous in the delay.
 
 Papers 002 (7 ms at the output), 001 (5.6 ms at the output, then 1.7 ms before the integrator) and
 000 (before the first integrator, section 4.2) all use it; the numba kernel inlines the same rule.
@@ -34,8 +35,11 @@ def transport_delay(t, signal, delay):
 class DelayLine:
     """Transport delay of a signal written one grid point at a time (uniform step ``dt``).
 
-    ``read(t)`` returns the written signal at ``t - delay``: 0 before ``t = delay``, linear
-    interpolation between the written samples otherwise. Reading needs the samples up to
+    ``read(t)`` returns the written signal at ``t - delay``, linearly interpolated between the
+    written samples and a 0 one step before the first (the line is empty before ``t = 0``), so
+    that the output is continuous in the delay (a jump at ``t = 0`` reaches the output over the
+    step before ``t = delay``; read at the first stage after ``t = delay``, as before, it moved in
+    jumps of half a step, and with it the likelihood of an open-loop test). Reading needs the samples up to
     ``t - delay``, so a step-by-step integrator requires ``delay >= dt``.
     """
 
@@ -51,8 +55,10 @@ class DelayLine:
         tau = (t - self.delay) / self.dt
         if abs(tau - round(tau)) < 1e-9:
             tau = float(round(tau))
-        if tau < 0:
+        if tau <= -1.0:
             return 0.0
+        if tau < 0:  # between the line's 0 before t = 0 and the first sample: continuous in delay
+            return (1.0 + tau) * self.values[0]
         j = int(math.floor(tau))
         frac = tau - j
         value = (1.0 - frac) * self.values[j]

@@ -276,7 +276,9 @@ class OpenLoop:
         on_node = np.mod(np.rint(2.0 * t / dt), 2) == 0
         half_width = np.where(on_node, dt / 6.0, dt / 3.0)
         offsets = (np.arange(SOLVER_SUBSAMPLES) + 0.5) / SOLVER_SUBSAMPLES * 2.0 - 1.0
-        pts = t[..., None] + half_width[..., None] * offsets
+        # the run starts at t = 0: the first node stands for [0, dt/6] only (a square's periodic
+        # extension before 0 averaged its first node to 0, the start's step dt/6 late)
+        pts = np.maximum(t[..., None] + half_width[..., None] * offsets, 0.0)
         return self.command(pts).mean(axis=-1)
 
     def to_dict(self) -> dict:

@@ -3,8 +3,9 @@
 The kernel is a pure function of packed arrays; :mod:`models.simulate` packs the dataclasses and
 unpacks the result. Conventions are those of MODELS.md:
 
-* the transport delay outputs 0 before ``t = Td`` and interpolates its stored input linearly
-  between grid points (the input is stored on the step grid, so ``Td >= dt`` is required); a
+* the transport delay outputs 0 before ``t = Td - dt`` and interpolates its stored input linearly
+  between grid points and a 0 one step before ``t = 0`` (continuous in ``Td``; the input is
+  stored on the step grid, so ``Td >= dt`` is required); a
   run continued from a cycle state (``P_HIST_ON``) outputs the given history line instead;
 * the play operator's memory is updated once per step; the RK4 stages clamp the memory of the
   step start to their own ``x`` (the rate-independent operator evaluated along the stage);
@@ -252,6 +253,9 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
                     delayed = (1.0 - fr) * hist[j % hist_len]
                     if fr > 0.0:
                         delayed += fr * hist[(j + 1) % hist_len]
+                elif j == -1 and not hist_on:
+                    # from the line's 0 before t = 0 to the first sample: continuous in Td
+                    delayed = fr * hist[0]
                 elif hist_on:  # before t = 0: the given history line, then the stored input
                     delayed = (1.0 - fr) * (hist_value + hist_slope * j * dt)
                     if fr > 0.0:

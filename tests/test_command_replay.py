@@ -1,10 +1,10 @@
-"""A square wave known only as samples, replayed with the edge timing its samples allow (issue 12
-item 3: "the replay error itself becomes a mismatch").
+"""A command known only as samples, its edge timing integrated out (issue 12 item 3: "the replay
+error itself becomes a mismatch").
 
-Case (from the coverage benchmark's draw 3, seed 2003): a square of 0.313 Hz sampled at 1 kHz from
-t = 0, so every edge falls 1596 samples after the previous one while the true half period is
-1595.81 samples; the hold replay drifts to 0.9 ms late by the fifth edge. The truth's open-loop
-residuals were 3x the sensor noise, and the calibration's intervals excluded it.
+Cases: the coverage benchmark's draw 3 (seed 2003), a square of 0.313 Hz sampled at 1 kHz from
+t = 0, every edge 1596 samples after the previous one while the true half period is 1595.81
+samples (a hold replay drifts 0.9 ms late by the fifth edge); and 200 Hz sampling, where every
+edge is known only to 5 ms, the size of the delay.
 """
 import json
 
@@ -12,39 +12,86 @@ import numpy as np
 import pytest
 
 from discovery.calibration import synthetic_recording
+from discovery.calibration.edge_timing import EdgeTiming
 from discovery.calibration.likelihood import make_term
 from models import M002, OpenLoop
-from models.commands import command_from_samples, edge_alternatives
+from models.commands import command_from_samples
 from models.recording import load_recording
+from models.simulate import simulate_batch
 
 FREQUENCY = 0.31331990500313334
 NOISE = 2.5e-5
 
 
-def test_alternatives_span_the_true_edges():
-    t = np.arange(0, 9.0, 1e-3)
-    exact = OpenLoop.square(0.02, FREQUENCY)
-    u = exact.command(t)
+def _true_theta(timing, true_edges):
+    a = np.stack([np.ones_like(timing.index), timing.index], axis=1)[:, : timing.dim]
+    return np.linalg.lstsq(a, true_edges - timing.centre, rcond=None)[0]
+
+
+@pytest.mark.parametrize("rate", [1000.0, 200.0])
+def test_the_true_timing_is_feasible_and_the_hold_is_not_the_truth(rate):
+    t = np.arange(0, 9.0, 1.0 / rate)
+    u = OpenLoop.square(0.02, FREQUENCY).command(t)
     true_edges = np.arange(1, 6) / (2 * FREQUENCY)
+    timing = EdgeTiming(t, u, 5e-4)
+    assert timing.dim == 2
+    theta = _true_theta(timing, true_edges)
+    assert timing.feasible(theta)
+    assert np.allclose(timing.centre + theta[0] + timing.index * theta[1], true_edges, atol=1e-9)
     hold = command_from_samples(t, u).t_samples
-    assert np.max(np.abs(hold - true_edges)) > 8e-4  # the hold replay drifts by ~a sample
-    alternatives = edge_alternatives(t, u)
-    assert len(alternatives) > 10
-    errors = [np.max(np.abs(a.t_samples - true_edges)) for a in alternatives]
-    assert min(errors) < 1.5e-4
-    for a in alternatives:  # every alternative reproduces the samples
-        assert np.array_equal(a.command(t), u)
+    assert np.max(np.abs(hold - true_edges)) > 0.8 / rate  # any single replay is off by ~a sample
+    # the simulated edges sit on the solver's grid (an off-grid edge costs RK4 its order)
+    assert np.allclose(timing.grid / 5e-4, np.round(timing.grid / 5e-4), atol=1e-9)
 
 
-def test_not_regular_commands_have_no_alternatives():
-    t = np.arange(0, 4.0, 1e-3)
-    assert edge_alternatives(t, 0.01 * np.sin(2 * np.pi * t)) == []
-    assert edge_alternatives(t, np.where(t > 1.0, 0.01, 0.0)) == []  # one edge: a step
+def test_a_step_has_one_timing_coordinate_and_smooth_commands_none():
+    t = np.arange(0, 4.0, 5e-3)
+    timing = EdgeTiming(t, np.where(t > 1.0, 0.01, 0.0), 5e-4)
+    assert timing.dim == 1
+    assert timing.log_area == pytest.approx(np.log(5e-3), abs=1e-6)
+    with pytest.raises(ValueError, match="not piecewise constant"):
+        EdgeTiming(t, 0.01 * np.sin(2 * np.pi * t), 5e-4)
 
 
-def _square_as_samples(path, seed):
+def test_laplace_volume_matches_the_numeric_integral_over_a_step_timing():
+    """The log of the timing's integral (1-D: a step at 200 Hz) against a fine quadrature."""
+    rate, dt = 200.0, 5e-4
+    t = np.arange(0, 2.0, 1.0 / rate)
+    true_edge = 0.5023  # between samples
+    u = np.where(t >= true_edge, 0.01, 0.0)
+    timing = EdgeTiming(t, u, dt)
+    truth = M002()
+    run = simulate_batch([truth], [OpenLoop.piecewise(np.array([true_edge]), np.array([0.0, 0.01]))],
+                         2.0, dt=1e-5, rate=None)
+    data = np.interp(t, run.t, run.signal("delta")[0])
+    data = data + NOISE * np.random.default_rng(1).standard_normal(t.size)
+    sim = simulate_batch([truth], [timing.experiment], 2.0, dt=dt, rate=None)
+    ts, ys = sim.t, sim.signal("delta")[0]
+    var = np.full(t.size, NOISE**2)
+    res, log_volume, theta = timing.marginal(t, data, ts, ys, var)
+    ll_star = -0.5 * np.sum(res**2 / var)
+    grid = np.linspace(timing._vertices[0, 0], timing._vertices[1, 0], 4001)
+    ll = []
+    for g in grid:
+        y, _ = timing.shifted(np.array([g]), t, ts, ys)
+        r = data - y
+        r = r - r.mean()
+        ll.append(-0.5 * np.sum(r**2 / var))
+    ll = np.array(ll)
+    weight = np.exp(ll - ll_star)
+    numeric = np.log(np.trapezoid(weight, grid)) - timing.log_area
+    mean = np.trapezoid(weight * grid, grid) / np.trapezoid(weight, grid)
+    sd = np.sqrt(np.trapezoid(weight * (grid - mean) ** 2, grid) / np.trapezoid(weight, grid))
+    assert theta[0] == pytest.approx(grid[np.argmax(ll)], abs=0.1 * sd)  # the needle's top found
+    assert abs(timing.centre[0] + theta[0] - true_edge) < 3 * sd  # and the truth under it
+    assert log_volume == pytest.approx(numeric, abs=0.15)
+    assert log_volume < -1.0  # the response times the edge far better than the samples do
+
+
+def _square_as_samples(path, seed, rate=1000.0):
     """M002 driven by the square, recorded measured-style: the command only as samples."""
-    synthetic_recording(M002(), OpenLoop.square(0.01, FREQUENCY), 9.0, NOISE, seed, path, dt=2e-4)
+    synthetic_recording(M002(), OpenLoop.square(0.01, FREQUENCY), 9.0, NOISE, seed, path, dt=2e-4,
+                        rate=rate)
     sidecar = path.with_suffix(".json")
     meta = json.loads(sidecar.read_text())
     for key in ("waveform", "amplitude", "frequency", "start", "offset", "from_rest",
@@ -54,69 +101,24 @@ def _square_as_samples(path, seed):
     return load_recording(path)
 
 
-def test_replay_at_the_centre_with_a_shared_timing_uncertainty(tmp_path):
-    """The replay at the centre of the allowed timings, its spread a rank-2 covariance (phase
-    and half period): the truth's residuals less the most probable replay component are the
-    sensor's noise, and a delay shifted within the timing's ambiguity (the allowed mean edge
-    time has an sd of 0.155 ms) is not excluded by thousands of samples counting the timing again
-    and again."""
+@pytest.mark.parametrize("rate", [1000.0, 200.0])
+def test_the_truth_fits_to_the_noise_and_the_likelihood_is_smooth_in_the_delay(tmp_path, rate):
+    """At the truth the residuals at the most probable timing are the sensor's noise; the
+    likelihood is continuous in the delay across half-step multiples of the solver (the delay
+    line read the first sample only from the first stage after Td: jumps of 5-12 nats there)
+    and peaks within its own width of the truth."""
     truth = M002()
-    rec = _square_as_samples(tmp_path / "square.csv", 3)
+    rec = _square_as_samples(tmp_path / "square.csv", 3, rate)
     term = make_term(rec, "waveform", 10.0, 6.0, 5e-4)
     term.setup(truth)
-    before = float(np.sqrt(np.mean(term.residuals([truth])[0] ** 2)))
-    assert term.choose_command(truth)
-    assert before > 1.5 * NOISE  # 1.84x: the replay error dominates the noise
-    assert term.replay_basis is not None and 1 <= term.replay_basis.shape[1] <= 4
-    sigma = np.array([NOISE])
-    scaled = term.scaled_residuals(term.residuals([truth])[0], NOISE)
-    assert float(np.sqrt(np.mean(scaled**2))) == pytest.approx(NOISE, rel=0.15)
-    # 0.1 ms more delay costs 5.3 nats with the shared covariance (mostly the response to the
-    # step at the record's start, whose time is known), 57 with the spread as independent
-    # per-sample variance
-    shifted = truth.replace(delay=truth.delay + 1e-4)
-    drop = float(term.loglike([truth], sigma)[0] - term.loglike([shifted], sigma)[0])
-    diagonal = float(term.loglike([truth], sigma, pointwise=True).sum()
-                     - term.loglike([shifted], sigma, pointwise=True).sum())
-    assert drop < 0.25 * diagonal
-    edges = term.command_edges()
-    basis = term.replay_basis
-    term2 = make_term(rec, "waveform", 10.0, 6.0, 5e-4)
-    term2.setup(truth)
-    term2.set_command_edges(edges)  # what a resumed chain does
-    term2.replay_basis = basis
-    assert np.array_equal(term2.loglike([truth], sigma), term.loglike([truth], sigma))
-
-
-def test_low_rank_loglike_equals_the_dense_gaussian():
-    """The Woodbury evaluation against the dense multivariate normal."""
-    from scipy.stats import multivariate_normal
-
-    from discovery.calibration.likelihood import _WaveformSolverError
-
-    rng = np.random.default_rng(5)
-    n = 200
-    term = _WaveformSolverError()
-    term.solver_var = rng.uniform(0, 1e-9, n)
-    term.replay_basis = rng.standard_normal((n, 2)) * 2e-5
-    term.inflation = 1.7
-    sigma = 3e-5
-    res = rng.standard_normal((2, n)) * 4e-5
-    cov = term.inflation * (np.diag(sigma**2 + term.solver_var)
-                            + term.replay_basis @ term.replay_basis.T)
-    exact = [multivariate_normal(np.zeros(n), cov).logpdf(r) for r in res]
-    got = term._gaussian_loglike(res, np.array([sigma, sigma]), pointwise=False)
-    assert np.allclose(got, exact, rtol=0, atol=1e-8)
-
-
-def test_replay_variance_marks_the_edges(tmp_path):
-    """The response's spread over the allowed timings is large at the edges, nil between them."""
-    term = make_term(_square_as_samples(tmp_path / "sq.csv", 4), "waveform", 10.0, 6.0, 5e-4)
-    term.setup(M002())
-    term.choose_command(M002())
-    sd = np.sqrt(term.replay_var)  # the diagonal of the low-rank covariance
-    edge = 1 / (2 * FREQUENCY)
-    near = np.abs(term.tau - edge - 0.01) < 0.01
-    far = np.abs(term.tau - edge - 0.8) < 0.1
-    assert sd[near].max() > 3 * NOISE
-    assert sd[far].max() < 0.1 * NOISE
+    assert term.timing is not None
+    res = term.residuals([truth])[0]
+    assert float(np.sqrt(np.mean(res**2))) == pytest.approx(NOISE, rel=0.1)
+    delays = truth.delay + np.linspace(-100e-6, 100e-6, 41)  # crosses 7.0 ms = 14 half steps
+    ll = term.loglike([truth.replace(delay=float(d)) for d in delays], np.full(delays.size, NOISE))
+    assert np.all(np.isfinite(ll))
+    assert np.max(np.abs(np.diff(ll, 2))) < 2.0  # no jumps: second differences stay small
+    peak = delays[int(np.argmax(ll))]
+    curvature = -np.polyfit(delays - truth.delay, ll, 2)[0] * 2
+    sd = 1.0 / np.sqrt(curvature)
+    assert abs(peak - truth.delay) < 3 * sd + 5e-6

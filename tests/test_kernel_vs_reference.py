@@ -45,7 +45,9 @@ def test_delay_line_outputs_zero_before_td_and_interpolates():
     line = DelayLine(delay=0.25, dt=0.1)
     for value in (1.0, 2.0, 3.0, 4.0):
         line.write(value)
-    assert line.read(0.2) == 0.0
+    assert line.read(0.1) == 0.0
+    # the step before Td ramps from the empty line's 0 to the first sample (continuous in Td)
+    assert line.read(0.2) == pytest.approx(0.5)
     assert line.read(0.25) == pytest.approx(1.0)
     assert line.read(0.30) == pytest.approx(1.5)
     t = np.arange(4) * 0.1

@@ -269,12 +269,6 @@ class Calibration:
             searched = self.discrepancy and self._suspect_optimum(lp, z0)
             if searched:
                 z0 = _global_start(lp, z0, int(rng.integers(2**31)), self.names_)
-            if self._choose_commands(lp, z0):  # the replay moved: optimise again with it
-                res = minimize(_cost(lp), z0, method="Nelder-Mead",
-                               options={"maxfev": 100 * len(z0), "xatol": 1e-6, "fatol": 0.05,
-                                        "initial_simplex": _simplex(z0, lp)})
-                if float(np.ravel(lp(res.x))[0]) > float(np.ravel(lp(z0))[0]):
-                    z0 = _profile_sigma(lp, res.x, self.names_)
             if self.discrepancy:
                 z0, factors = self._polish(lp, z0)
                 if not searched and max(factors) > 1.0:
@@ -344,30 +338,6 @@ class Calibration:
             z0 = _profile_sigma(lp, res.x, self.names_)
             factors = self._inflations_at(lp, z0)
         return z0, factors
-
-    def _choose_commands(self, lp, z0) -> bool:
-        """Each open-loop command known only as samples replayed at the centre of the edge
-        timings its samples allow, their spread a low-rank covariance of the response (see
-        :meth:`.likelihood.OpenLoopTerm.choose_command`); both are kept in the checkpoint so that
-        a resumed chain keeps its likelihood."""
-        params = lp.params_for(lp.natural(z0)[0])
-        if params is None:
-            return False
-        changed = [bool(hasattr(t, "choose_command") and t.choose_command(params))
-                   for t in self.terms_]
-        self.commands_ = [t.command_edges() if hasattr(t, "command_edges") else None
-                          for t in self.terms_]
-        replay = [getattr(t, "replay_basis", None) for t in self.terms_]
-        if self.backend is not None and (any(changed) or any(v is not None for v in replay)):
-            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
-                g = f.require_group(_H5_GROUP)
-                g.attrs["commands"] = json.dumps(self.commands_)
-                for i, v in enumerate(replay):
-                    if v is not None:
-                        if f"replay_basis_{i}" in g:
-                            del g[f"replay_basis_{i}"]
-                        g.create_dataset(f"replay_basis_{i}", data=v)
-        return any(changed)
 
     def _inflations_at(self, lp, z0) -> list:
         """Each term's discrepancy inflation at ``z0`` (inf everywhere if ``z0`` is invalid)."""
@@ -494,21 +464,10 @@ class Calibration:
                 with backend.open("r") as f:
                     old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
                     stored = f[_H5_GROUP].attrs.get("inflation") if _H5_GROUP in f else None
-                    commands = f[_H5_GROUP].attrs.get("commands") if _H5_GROUP in f else None
-                    replay = [f[_H5_GROUP][f"replay_basis_{i}"][()]
-                              if _H5_GROUP in f and f"replay_basis_{i}" in f[_H5_GROUP] else None
-                              for i in range(len(self.terms_))]
                 if stored is not None and old == config:  # resuming: the factors of the start
                     self.inflation_ = [float(v) for v in json.loads(stored)]
                     for term, value in zip(self.terms_, self.inflation_):
                         term.inflation = value
-                if commands is not None and old == config:  # and the command replays chosen
-                    for term, edges in zip(self.terms_, json.loads(commands)):
-                        if edges is not None and hasattr(term, "set_command_edges"):
-                            term.set_command_edges(edges)
-                    for term, v in zip(self.terms_, replay):
-                        if v is not None:
-                            term.replay_basis = v
                 if old is not None and old != config:
                     was, now = json.loads(old), json.loads(config)
                     changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))

@@ -134,7 +134,8 @@ def _replicated_statistics(term, params, sigmas, rng):
     in-loop noise (fresh seeds) minus its noise-free prediction, plus white sensor noise."""
     from models import simulate
 
-    clean = term.predict(params)
+    # both at the simulated edges (the replicates are not re-timed)
+    clean = term._at_samples(params) if getattr(term, "timing", None) is not None else term.predict(params)
     out = []
     for i, q in enumerate(params):
         for _ in range(REPLICATES):

@@ -161,7 +161,10 @@ class _WaveformSolverError:
         pair = _step_doubling(self, self.predict, params, warm_start)
         if pair is None:
             return np.zeros(self.n)
-        d = SOLVER_ERROR_FACTOR * (pair[0] - pair[1])
+        return self._spread_solver_error(SOLVER_ERROR_FACTOR * (pair[0] - pair[1]))
+
+    def _spread_solver_error(self, d):
+        """Per-sample variance of the solver's error ``d``, spread over its neighbours."""
         if self.offset_profiled:
             d = d - np.nanmean(d)
         var = np.where(np.isfinite(d), d * d, 0.0)
@@ -169,87 +172,28 @@ class _WaveformSolverError:
         padded = np.pad(var, k, mode="edge")
         return np.max(np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1), axis=1)
 
-    #: ``(n_samples, r)``: the replayed command's own uncertainty as a low-rank covariance
-    #: ``B B^T`` of the response (open loop; None: none)
-    replay_basis = None
-
-    @property
-    def replay_var(self):
-        """Per-sample variance of the replay's uncertainty (the diagonal of ``B B^T``)."""
-        b = self.replay_basis
-        return None if b is None else np.sum(b * b, axis=1)
-
-    def model_variance(self, replay=True):
-        """Per-sample variance of the model's waveform beyond the sensor noise: the solver's
-        error and (``replay``) the command replay's ambiguity (None when neither applies)."""
-        parts = [v for v in (self.solver_var, self.replay_var if replay else None) if v is not None]
-        return sum(parts) if parts else None
-
-    def sample_sd(self, sigma, replay=True):
-        """``(n_sets, n_samples)`` sd of each sample: noise, solver and replay, inflated."""
+    def sample_sd(self, sigma):
+        """``(n_sets, n_samples)`` sd of each sample: noise and solver error, inflated."""
         sigma = np.asarray(sigma, dtype=float)[:, None]
         var = sigma * sigma
-        extra = self.model_variance(replay)
-        if extra is not None:
-            var = var + extra[None, :]
+        if self.solver_var is not None:
+            var = var + self.solver_var[None, :]
         return np.sqrt(var * self.inflation)
 
-    def _replay_removed(self, residuals, var):
-        """Residuals less their most probable replay component, ``B c`` with ``c`` the mode of
-        ``N(0, I)`` given the residuals of per-sample variance ``var``."""
-        b = self.replay_basis
-        ok = np.isfinite(residuals)
-        if b is None or not np.all(ok):
-            return residuals
-        wb = b / var[:, None]
-        c = np.linalg.solve(np.eye(b.shape[1]) + b.T @ wb, wb.T @ residuals)
-        return residuals - b @ c
-
     def scaled_residuals(self, residuals, sigma):
-        """Residuals rescaled so that noise of sd ``sigma`` plus the model's own variance reads
-        as noise of sd ``sigma`` (for the discrepancy inflation and the checks); the replay's
-        shared uncertainty is first taken out as the component it most probably left."""
-        extra = self.model_variance(replay=False)
-        var = sigma * sigma + (0.0 if extra is None else extra)
-        residuals = self._replay_removed(residuals, np.broadcast_to(var, residuals.shape))
-        if extra is None:
+        """Residuals rescaled so that noise of sd ``sigma`` plus the solver's estimated error
+        reads as noise of sd ``sigma`` (for the discrepancy inflation and the checks)."""
+        if self.solver_var is None:
             return residuals
-        return residuals * sigma / np.sqrt(var)
+        return residuals * sigma / np.sqrt(sigma * sigma + self.solver_var)
 
     def _gaussian_loglike(self, res, sigma, pointwise):
-        """Log-likelihood of residual rows under noise, solver error (per sample, inflated) and,
-        when not ``pointwise``, the replay's low-rank covariance (Woodbury identity: one shared
-        timing uncertainty informs once, not once per sample). Pointwise: its diagonal."""
-        b = self.replay_basis
-        if pointwise or b is None:
-            sd = self.sample_sd(sigma)
-            ll = -0.5 * (res / sd) ** 2 - np.log(sd) - 0.5 * _LOG_2PI
-            ll = np.where(np.isfinite(ll), ll, -np.inf)
-            return ll if pointwise else ll.sum(axis=1)
-        var = self.sample_sd(sigma, replay=False) ** 2  # (n_sets, n)
-        bs = b * math.sqrt(self.inflation)
-        out = np.full(res.shape[0], -np.inf)
-        eye = np.eye(b.shape[1])
-        for i in range(res.shape[0]):
-            r = res[i]
-            if not np.all(np.isfinite(r)):
-                continue
-            w = 1.0 / var[i]
-            wb = bs * w[:, None]
-            m = eye + bs.T @ wb
-            a = wb.T @ r
-            chol = np.linalg.cholesky(m)
-            y = np.linalg.solve(chol, a)
-            quad = float(np.sum(w * r * r) - y @ y)
-            logdet = float(np.sum(np.log(var[i])) + 2.0 * np.sum(np.log(np.diag(chol))))
-            out[i] = -0.5 * (quad + logdet + r.size * _LOG_2PI)
-        return out
+        """Log-likelihood of residual rows under noise and solver error (per sample, inflated)."""
+        sd = self.sample_sd(sigma)
+        ll = -0.5 * (res / sd) ** 2 - np.log(sd) - 0.5 * _LOG_2PI
+        ll = np.where(np.isfinite(ll), ll, -np.inf)
+        return ll if pointwise else ll.sum(axis=1)
 
-
-#: Components of the replay's covariance kept: at most this many, each with an sd above this
-#: fraction of the first's.
-REPLAY_MAX_RANK = 4
-REPLAY_RANK_TOLERANCE = 0.02
 
 #: A simulated cycle smaller than this fraction of the recorded one counts as not oscillating.
 MIN_AMPLITUDE_RATIO = 0.2
@@ -622,12 +566,16 @@ class FeatureTerm(_ClosedLoopTerm):
             clear = ((np.abs(slope) > SETTLING_SLOPE_SD * np.sqrt(noise_var / sxx))
                      & (explained > SETTLING_R2))
             drift = slope * (self.tau[-1] - self.tau[0])
-            settling = np.where(clear, (SETTLING_WINDOWS * drift) ** 2, 0.0)
+            # a cycle whose size is settling moves the frequency too, even where its own trend
+            # is too small to pass the test (draw 2: 0.07 % over the record, the settled
+            # frequency 12 noise sd beyond the record's)
+            sizes = [i for i, n in enumerate(self.features) if n in ("H1", "amplitude")]
+            growing = bool(clear[sizes[0]]) if sizes else False
+            settling = np.where(clear | growing, (SETTLING_WINDOWS * drift) ** 2, 0.0)
             # the harmonics move with the amplitude, but over a few periods their estimates
             # scatter by more than their slow drift (the drawn truth's H3: 2.63, 2.58, 2.59, 2.61
             # e-4, missing its settled 2.53 by 3 %) and a wander can look like a trend (M000's
             # B: H7 "drifted" by 3x its size): the amplitude's relative drift stands for them
-            sizes = [i for i, n in enumerate(self.features) if n in ("H1", "amplitude")]
             if sizes:
                 i = sizes[0]
                 relative = abs(drift[i]) / max(abs(self.observed[i]), 1e-300) if clear[i] else 0.0
@@ -635,6 +583,7 @@ class FeatureTerm(_ClosedLoopTerm):
                 spread = (SETTLING_WINDOWS * relative * self.observed) ** 2
                 settling = np.where(harmonic, spread, settling)
         return wander, settling
+
     def _data_features(self, d):
         return self._data_features_at(self.tau, d)
 
@@ -698,12 +647,17 @@ class OpenLoopTerm(_WaveformSolverError):
     """Output error of an open-loop recording, simulated from rest with the recorded command.
 
     The sensor's constant offset is profiled out of the residuals (their mean removed), as a
-    measured record carries one (HWIL: ~1.5e-4 rad).
+    measured record carries one (HWIL: ~1.5e-4 rad). A piecewise-constant command known only as
+    samples (a square wave, a step) has an edge timing the samples leave open within up to a
+    sample; it is integrated out under a uniform prior (:class:`.edge_timing.EdgeTiming`), so
+    that neither a replay's choice nor its error is read as a delay.
     """
 
     kind = "waveform"
 
     def __init__(self, recording, window, transient, dt, name=None):
+        from .edge_timing import edge_timing_for
+
         if recording.kind != "open":
             raise ValueError(f"{name or recording.path}: not an open-loop recording")
         self.recording = recording
@@ -711,9 +665,11 @@ class OpenLoopTerm(_WaveformSolverError):
         t0 = recording.t[0]
         self.tau = recording.t - t0
         self.data = recording.delta
-        # the sidecar's analytic command when it reproduces u (sharp square edges), else u replayed
-        self.experiment = recording.experiment()
         self.dt = float(dt)
+        # the sidecar's analytic command when it reproduces u (sharp square edges), else u replayed
+        experiment = recording.experiment()
+        self.timing = edge_timing_for(experiment, recording.t, recording.u, self.dt)
+        self.experiment = experiment if self.timing is None else self.timing.experiment
         self.n = self.tau.size
         self.sigma_hat = estimate_noise(self.data)
         self.data_rate = float(recording.sample_rate)
@@ -723,95 +679,80 @@ class OpenLoopTerm(_WaveformSolverError):
 
     offset_profiled = True
 
+    def _rate(self, dt):
+        # the timing's shifts read the response between samples: keep every step
+        return None if self.timing is not None else output_rate_for(dt, self.data_rate)
+
     def setup(self, start_params, warm_start=True):
         self.start_params = start_params
-        self.simulator = BatchSimulator(
-            self.experiment, float(self.tau[-1]), self.dt,
-            rate=output_rate_for(self.dt, self.data_rate),
-        )
+        self.simulator = BatchSimulator(self.experiment, float(self.tau[-1]), self.dt,
+                                        rate=self._rate(self.dt))
+        self.solver_var = None
         self.solver_var = self.waveform_solver_variance(start_params)
         return self
 
-    def command_edges(self):
-        """The replayed command's edge times (s), or ``None`` for a command not replayed as
-        levels and edges."""
-        if self.experiment.waveform != "piecewise":
-            return None
-        return [float(v) for v in self.experiment.t_samples]
-
-    def set_command_edges(self, edges):
-        """Replay the command with these edge times (as chosen by :meth:`choose_command`)."""
-        from models.experiments import OpenLoop
-
-        self.experiment = OpenLoop.piecewise(np.asarray(edges, dtype=float),
-                                             self.experiment.u_samples)
-        self.setup(self.start_params)
-
-    def choose_command(self, params) -> bool:
-        """Replay the command at the centre of the edge timings its samples allow
-        (:func:`models.commands.edge_alternatives`) and keep the response's spread over all of
-        them, at ``params``, as a low-rank covariance (:attr:`replay_basis`); True when the
-        replay changed. A command from the sidecar's analytic form is kept.
-
-        The timing is a nuisance shared by every sample: in open loop it trades with the delay.
-        Picking the timing that fits the optimum best, with the spread as independent per-sample
-        variance, locked the optimum's delay in and counted the timing's information once per
-        sample (coverage draw 3: a 0.5 ms ambiguity against a 1.25 ms delay; the truth's square
-        record 3750 nats below the optimum, its delay 2.2 % outside a 1.8 % wide interval).
-        """
-        from models.commands import edge_alternatives
-        from models.simulate import simulate_batch
-
-        if self.experiment.waveform != "piecewise":
-            return False
-        alternatives = edge_alternatives(self.recording.t, self.recording.u)
-        if not alternatives:
-            return False
-        runs = simulate_batch([params] * len(alternatives), alternatives, float(self.tau[-1]),
-                              dt=self.dt, rate=output_rate_for(self.dt, self.data_rate))
-        ok = np.flatnonzero(runs.status == "ok")
-        if ok.size < 2:
-            return False
-        delta = runs.signal("delta")
-        models = np.array([np.interp(self.tau, runs.t, delta[i]) for i in ok])
-        models -= models.mean(axis=1, keepdims=True)  # the offset is profiled out
-        spread = models - models.mean(axis=0, keepdims=True)
-        _, sv, vt = np.linalg.svd(spread, full_matrices=False)
-        scale = sv / math.sqrt(ok.size)
-        keep = scale > REPLAY_RANK_TOLERANCE * scale[0] if scale[0] > 0 else scale > 0
-        keep[REPLAY_MAX_RANK:] = False
-        self.replay_basis = (vt[keep] * scale[keep, None]).T if np.any(keep) else None
-        edges = np.array([a.t_samples for a in alternatives])
-        centre = int(np.argmin(np.max(np.abs(edges - edges.mean(axis=0)), axis=1)))
-        changed = not np.array_equal(alternatives[centre].t_samples, self.experiment.t_samples)
-        self.experiment = alternatives[centre]
-        self.setup(self.start_params)
-        return changed
+    def waveform_solver_variance(self, params, warm_start=True):
+        pair = _step_doubling(self, self._at_samples, params, warm_start)
+        if pair is None:
+            return np.zeros(self.n)
+        return self._spread_solver_error(SOLVER_ERROR_FACTOR * (pair[0] - pair[1]))
 
     def _halved_simulator(self, params, warm_start):
         half = self.dt / 2
-        return BatchSimulator(self.experiment, float(self.tau[-1]), half,
-                              rate=output_rate_for(half, self.data_rate))
+        return BatchSimulator(self.experiment, float(self.tau[-1]), half, rate=self._rate(half))
 
-    def predict(self, param_sets):
+    def _at_samples(self, param_sets):
+        """The simulated output at the record's samples, edges as simulated."""
         delta, ok = self.simulator.run(param_sets)
         out = np.full((len(param_sets), self.n), np.nan)
         for i in np.flatnonzero(ok):
             out[i] = np.interp(self.tau, self.simulator.t, delta[i])
         return out
 
-    def residuals(self, param_sets):
+    def _profiled(self, param_sets, sigma=None):
+        """``(model, log_volume)``: the model at the record's samples at each set's most probable
+        edge timing (offset not removed) and the log of the timing's integral (zeros without a
+        timing nuisance)."""
+        n_sets = len(param_sets)
+        if self.timing is None:
+            return self._at_samples(param_sets), np.zeros(n_sets)
+        delta, ok = self.simulator.run(param_sets)
+        sig = np.full(n_sets, self.sigma_hat) if sigma is None else np.broadcast_to(
+            np.asarray(sigma, dtype=float), (n_sets,))
+        var = self.sample_sd(sig) ** 2
+        out = np.full((n_sets, self.n), np.nan)
+        log_volume = np.zeros(n_sets)
+        for i in np.flatnonzero(ok):
+            if not np.all(np.isfinite(delta[i])):
+                continue
+            res, log_volume[i], _ = self.timing.marginal(self.tau, self.data, self.simulator.t,
+                                                         delta[i], var[i])
+            out[i] = self.data - res  # offset removed: the mean residual goes into the model
+        return out, log_volume
+
+    def predict(self, param_sets, sigma=None):
+        """The model at the record's samples (edge timing at its most probable value)."""
+        return self._profiled(param_sets, sigma)[0]
+
+    def residuals(self, param_sets, sigma=None):
         """Data - model, with a constant sensor offset profiled out (one number against
         thousands of samples); NaN rows for invalid runs."""
-        res = self.data[None, :] - self.predict(param_sets)
+        res = self.data[None, :] - self.predict(param_sets, sigma)
         return res - np.mean(res, axis=1, keepdims=True)
 
     def discrepancy(self, params, sigma) -> float:
         """:func:`waveform_inflation` of the residuals at ``params`` (solver error scaled out)."""
-        return waveform_inflation(self.scaled_residuals(self.residuals([params])[0], sigma), sigma)
+        return waveform_inflation(self.scaled_residuals(self.residuals([params], [sigma])[0], sigma),
+                                  sigma)
 
     def loglike(self, param_sets, sigma, pointwise=False):
-        return self._gaussian_loglike(self.residuals(param_sets), sigma, pointwise)
+        """Gaussian output error; with a timing nuisance, its log integral spread evenly over
+        the samples when ``pointwise``."""
+        model, log_volume = self._profiled(param_sets, sigma)
+        res = self.data[None, :] - model
+        res = res - np.mean(res, axis=1, keepdims=True)
+        ll = self._gaussian_loglike(res, sigma, pointwise)
+        return ll + (log_volume[:, None] / self.n if pointwise else log_volume)
 
     def describe(self):
         return {"name": self.name, "kind": "open", "samples": int(self.n),

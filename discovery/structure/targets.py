@@ -31,8 +31,8 @@ import math
 import numpy as np
 
 from discovery.calibration.fastsim import BatchSimulator, output_rate_for
+from discovery.calibration.edge_timing import edge_timing_for
 from discovery.calibration.likelihood import estimate_noise
-from models.commands import command_candidates
 from models.features import CROSSING_HYSTERESIS, upward_mean_crossings
 
 __all__ = [
@@ -362,30 +362,34 @@ class CycleTarget(_Target):
 
 
 class OutputTarget(_Target):
-    """Output error of one open-loop recording, sensor offset profiled out."""
+    """Output error of one open-loop recording, sensor offset profiled out.
+
+    A piecewise-constant command known only as samples (a square wave, a step) is simulated once
+    with its edges on the solver's grid and read at each parameter set's best edge timing among
+    those its samples allow (:class:`discovery.calibration.edge_timing.EdgeTiming`, the same
+    nuisance the calibration integrates out): no replay's choice is read as a delay.
+    """
 
     kind = "open"
 
     def __init__(self, recording, dt):
         self.recording = recording
         self.name = recording.path.stem if recording.path else "recording"
-        self.experiment = recording.experiment()
-        # a sampled square wave whose edge phase the samples leave open is replayed both ways
-        self.experiments = ([self.experiment] if self.experiment.waveform != "piecewise"
-                            else command_candidates(recording.t, recording.u))
+        self.dt = float(dt)
+        experiment = recording.experiment()
+        self.timing = edge_timing_for(experiment, recording.t, recording.u, self.dt)
+        self.experiment = experiment if self.timing is None else self.timing.experiment
         self.tau = recording.t - recording.t[0]
         self.data = recording.delta
-        self.dt = float(dt)
         self.rms = float(np.std(self.data))
         if not self.rms > 0:
             raise ValueError(f"{recording.path or self.name}: the output never moves (constant delta)")
-        self.simulators = [BatchSimulator(e, float(self.tau[-1]), self.dt,
-                                          rate=output_rate_for(self.dt, float(recording.sample_rate)))
-                           for e in self.experiments]
-        self.simulator = self.simulators[0]
+        rate = None if self.timing is not None else output_rate_for(self.dt, float(recording.sample_rate))
+        self.simulator = BatchSimulator(self.experiment, float(self.tau[-1]), self.dt, rate=rate)
         self.n_residuals = self.tau.size
         self.noise_sd = estimate_noise(self.data)
         self.unit = math.hypot(self.noise_sd, OUTPUT_TOLERANCE * self.rms)
+        self._var = np.full(self.tau.size, self.unit**2)
         self._mask = slice(None)
         self._norm = 1.0 / (self.unit * math.sqrt(self.tau.size))
 
@@ -407,9 +411,20 @@ class OutputTarget(_Target):
         return None  # from rest (OpenLoop.from_rest)
 
     def _model(self, delta, ok):
+        """The model at the record's samples (at the best edge timing on this target's mask)."""
         model = np.full((delta.shape[0], self.tau.size), np.nan)
         for i in np.flatnonzero(ok):
-            model[i] = np.interp(self.tau, self.simulator.t, delta[i])
+            if not np.all(np.isfinite(delta[i])):
+                continue
+            if self.timing is None:
+                model[i] = np.interp(self.tau, self.simulator.t, delta[i])
+                continue
+            var = self._var
+            if not isinstance(self._mask, slice):  # a fold: only its samples time the edges
+                var = np.full_like(self._var, np.inf)
+                var[self._mask] = self._var[self._mask]
+            _, _, theta = self.timing.marginal(self.tau, self.data, self.simulator.t, delta[i], var)
+            model[i] = self.timing.shifted(theta, self.tau, self.simulator.t, delta[i])[0]
         return model
 
     def residuals_of_runs(self, delta, ok):
@@ -419,38 +434,26 @@ class OutputTarget(_Target):
         out[~np.all(np.isfinite(out), axis=1)] = PENALTY / math.sqrt(out.shape[1])
         return out
 
-    def _best_runs(self, param_sets):
-        """Per set, the run (and residuals) of the command reading it explains best."""
-        runs = [sim.run(param_sets) for sim in self.simulators]
-        res = [self.residuals_of_runs(d, ok) for d, ok in runs]
-        if len(runs) == 1:
-            return runs[0][0], res[0]
-        pick = np.argmin(np.column_stack([np.sum(r * r, axis=1) for r in res]), axis=1)
-        rows = np.arange(len(param_sets))
-        delta = np.stack([runs[j][0][i] for i, j in zip(rows, pick)])
-        return delta, np.stack([res[j][i] for i, j in zip(rows, pick)])
-
     def residuals(self, param_sets):
-        return self._best_runs(param_sets)[1]
+        return self.residuals_of_runs(*self.simulator.run(param_sets))
 
     def offset(self, param_sets):
-        delta, _ = self._best_runs(param_sets)
-        return np.mean(self.data[None, :] - self._model(delta, np.isfinite(delta).all(axis=1)),
-                       axis=1)
+        delta, ok = self.simulator.run(param_sets)
+        return np.mean(self.data[None, :] - self._model(delta, ok), axis=1)
 
     def noise(self, params):
         """RMS of the output error at ``params`` (rad): the sensor noise if the model is right."""
-        delta, _ = self._best_runs([params])
-        return float(np.std(self.data - self._model(delta, np.ones(1, bool))[0]))
+        delta, ok = self.simulator.run([params])
+        return float(np.std(self.data - self._model(delta, ok)[0]))
 
     def describe(self):
         exp = self.experiment
         return {"name": self.name, "kind": "open", "samples": int(self.tau.size),
                 "duration": float(self.tau[-1]), "sample_rate": float(self.recording.sample_rate),
-                "command": exp.waveform if exp.waveform != "piecewise"
-                else f"piecewise constant from samples ({exp.t_samples.size} edges)"
-                + (", edge phase undecided by the samples: replayed both at the samples and "
-                   "centred, the better kept" if len(self.experiments) > 1 else "")}
+                "command": exp.waveform if self.timing is None
+                else f"piecewise constant from samples ({exp.t_samples.size} edges, their timing "
+                     f"fitted within the {'phase and half period' if self.timing.dim == 2 else 'shift'}"
+                     " the samples allow)"}
 
 
 def make_target(recording, dt):
