@@ -69,7 +69,7 @@ def test_drawn_truth_oscillates_at_every_setting_and_recordings_read_as_measured
     for rd in sc.recordings:
         if rd.kind == "closed":
             assert oscillates(sc.truth, rd.experiment())
-    paths = write_recordings(sc, tmp_path)
+    paths = write_recordings(sc, tmp_path, dt=2e-4)  # the format is tested here, not accuracy
     assert len(paths) == len(sc.recordings)
     for path, rd in zip(paths, sc.recordings):
         meta = json.loads(path.with_suffix(".json").read_text())
@@ -86,3 +86,24 @@ def test_drawn_truth_oscillates_at_every_setting_and_recordings_read_as_measured
     truth = json.loads((tmp_path / "truth" / "scenario.json").read_text())
     assert truth["structure"] == sc.structure.name
     assert math.isclose(truth["truth"]["dead_zone"], sc.truth.dead_zone)
+
+
+def test_the_data_step_keeps_the_solver_error_under_the_smallest_noise():
+    """The reference path's RK4 error near square edges and switching events must stay below the
+    generator's smallest sensor noise (1e-5 rad), or a right model's fit reads it as a misfit
+    (coverage draw 8's 1 kHz square: rms 1.36e-5 at 2e-4, discrepancy factor 12.8 at the truth)."""
+    from models.simulate import simulate_batch
+    from studies.bench_coverage import Config, coverage_scenario
+    from studies.scenarios import DATA_DT
+
+    sc = coverage_scenario(8, Config())
+    rd = next(r for r in sc.recordings if r.kind == "open" and r.waveform == "square")
+    exp, t_end = rd.experiment(), 6.0
+    exact = simulate_batch([sc.truth], exp, t_end, dt=5e-6, rate=1000.0).signal("delta")[0]
+
+    def rms_error(dt):
+        e = simulate_batch([sc.truth], exp, t_end, dt=dt, rate=1000.0).signal("delta")[0] - exact
+        return float(np.sqrt(np.mean(e**2)))
+
+    assert rms_error(2e-4) > 1e-5  # the old step: the error was the noise's size
+    assert rms_error(DATA_DT) < 0.3e-5
