@@ -191,34 +191,32 @@ class EdgeTiming:
         theta : ndarray
         """
         w = 1.0 / var
-        theta = np.zeros(self.dim)
-        if not self.feasible(theta):
-            theta = self._vertices.mean(axis=0)
-        hess = None
-        for _ in range(GN_ITERATIONS):
+
+        def linearised(theta):
+            """Residuals at ``theta``, and the weighted normal matrix and gradient there
+            (``r(theta + d) ~ r - jac d``)."""
             y, jac = self.shifted(theta, tau, t_sim, y_sim)
             r = data - y
             if demean:
                 r = r - r.mean()
                 jac = jac - jac.mean(axis=0)
-            # r(theta + d) ~ r - jac d
-            hess = jac.T @ (jac * w[:, None])
-            grad = jac.T @ (w * r)
+            return r, jac.T @ (jac * w[:, None]), jac.T @ (w * r)
+
+        theta = np.zeros(self.dim)
+        if not self.feasible(theta):
+            theta = self._vertices.mean(axis=0)
+        for _ in range(GN_ITERATIONS):
+            _, hess, grad = linearised(theta)
             try:
                 step = np.linalg.lstsq(hess, grad, rcond=1e-12)[0]
             except np.linalg.LinAlgError:
                 break
             new = self._project(theta + step, hess)
-            if np.all(np.abs(new - theta) < 1e-8):
-                theta = new
-                break
+            done = np.all(np.abs(new - theta) < 1e-8)
             theta = new
-        y, jac = self.shifted(theta, tau, t_sim, y_sim)
-        r = data - y
-        if demean:
-            r = r - r.mean()
-            jac = jac - jac.mean(axis=0)
-        hess = jac.T @ (jac * w[:, None])
+            if done:
+                break
+        r, hess, _ = linearised(theta)
         sign, logdet = np.linalg.slogdet(hess)
         if sign <= 0 or not np.isfinite(logdet):
             return r, 0.0, theta
