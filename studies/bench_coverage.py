@@ -114,7 +114,7 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
 
     seed = config.seed + index
     scenario = coverage_scenario(index, config)
-    paths = write_recordings(scenario, workdir / f"draw{index:03d}")
+    paths = write_recordings(scenario, workdir / f"draw{index:03d}", reuse=True)
     truth = scenario.truth
     structure = Structure.of_params(truth)
     priors = priors_for(structure)

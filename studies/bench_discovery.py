@@ -1,6 +1,6 @@
 """Discovery benchmark: random truths and designs, data from the reference path, read as measured.
 
-``python -m studies.bench_discovery [--quick] [--draws N] [--seed S] [--out DIR]``
+``python -m studies.bench_discovery [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]``
 
 Each draw (:func:`studies.scenarios.draw_scenario`, seeded) is a truth over every structure of the
 grammar and an experiment design (limit cycles at 1-3 controller settings, open-loop squares and
@@ -89,7 +89,7 @@ def run_draw(seed, out_dir, quick):
     scenario = draw_scenario(seed)
     draw_dir = out_dir / f"draw{seed:03d}"
     t0 = time.perf_counter()
-    paths = write_recordings(scenario, draw_dir)
+    paths = write_recordings(scenario, draw_dir, reuse=True)
     t_data = time.perf_counter() - t0
     t0 = time.perf_counter()
     disc = StructureDiscovery(seed=seed, quick=quick, use_sindy=not quick).fit(paths)
@@ -135,11 +135,29 @@ def failed_draw(seed, exc):
             "seconds_discovery": math.nan}
 
 
-def summarise(rows):
+def guarded_draw(seed, out_dir, quick):
+    """:func:`run_draw`, or :func:`failed_draw`'s row if discovery raised (a failed draw is wrong)."""
+    try:
+        return run_draw(seed, out_dir, quick)
+    except (ValueError, RuntimeError, ArithmeticError) as exc:
+        return failed_draw(seed, exc)
+
+
+def structure_class(row):
+    """Dead-zone and delay positions of the truth's structure."""
+    return "+".join(row["structure"].split("+")[:2])
+
+
+def design_class(row):
+    """How much the design shows: closed-loop settings and open-loop tests."""
+    kinds = [r["kind"] for r in row["design"]["recordings"]]
+    return f"{kinds.count('closed')} closed + {kinds.count('open')} open"
+
+
+def summarise(rows, key=structure_class):
     by = {}
     for r in rows:
-        key = r["structure"].split("+")[0] + "+" + r["structure"].split("+")[1]
-        by.setdefault(key, []).append(r)
+        by.setdefault(key(r), []).append(r)
     table = {}
     for key, rs in sorted(by.items()) + [("overall", rows)]:
         table[key] = {
@@ -158,29 +176,48 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="a handful of draws, small searches")
     parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
     parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="draws run at once, one process each (default 1)")
     parser.add_argument("--out", default="results/bench_discovery", help="output directory")
     args = parser.parse_args(argv)
     n = args.draws or (2 if args.quick else 30)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    path = out / "bench.json"
     rows = []
-    for seed in range(args.seed, args.seed + n):
-        try:
-            row = run_draw(seed, out, args.quick)
-        except (ValueError, RuntimeError, ArithmeticError) as exc:  # a failed draw counts as wrong
-            row = failed_draw(seed, exc)
-            print(f"draw {seed}: FAILED {type(exc).__name__}: {exc}", flush=True)
-            rows.append(row)
-            continue
+    if path.exists():  # resume: keep finished draws of the same mode
+        old = json.loads(path.read_text())
+        if old.get("quick") == args.quick:
+            rows = [r for r in old["rows"] if args.seed <= r["seed"] < args.seed + n]
+
+    def record(seed, row):
         rows.append(row)
-        ident = {k: round(v["error"], 4) for k, v in row["coordinates"].items() if v["identifiable"]}
-        print(f"draw {seed}: truth {row['structure']}\n  winner {row['winner']} right={row['right_winner']} "
-              f"in set={row['truth_in_set']} (set {row['set_size']}) identifiable errors {ident} "
-              f"[{row['seconds_discovery']:.0f} s]", flush=True)
-        (out / "bench.json").write_text(json.dumps({"rows": rows, "table": summarise(rows)}, indent=2))
+        rows.sort(key=lambda r: r["seed"])
+        if "error" in row:
+            print(f"draw {seed}: FAILED {row['error']}", flush=True)
+        else:
+            ident = {k: round(v["error"], 4) for k, v in row["coordinates"].items() if v["identifiable"]}
+            print(f"draw {seed}: truth {row['structure']}\n  winner {row['winner']} "
+                  f"right={row['right_winner']} in set={row['truth_in_set']} (set {row['set_size']}) "
+                  f"identifiable errors {ident} [{row['seconds_discovery']:.0f} s]", flush=True)
+        path.write_text(json.dumps({"quick": args.quick, "rows": rows, "table": summarise(rows),
+                                    "by_design": summarise(rows, key=design_class)}, indent=2))
+
+    done = {r["seed"] for r in rows}
+    seeds = [s for s in range(args.seed, args.seed + n) if s not in done]
+    n = len(seeds)
+    if args.jobs > 1 and len(seeds) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            for seed, row in zip(seeds, pool.map(guarded_draw, seeds, [out] * n, [args.quick] * n)):
+                record(seed, row)
+    else:
+        for seed in seeds:
+            record(seed, guarded_draw(seed, out, args.quick))
     table = summarise(rows)
     print(f"\n{'class':42s} draws  winner  right|set<=3  ident<=5%  median s")
-    for key, t in table.items():
+    for key, t in list(table.items()) + list(summarise(rows, key=design_class).items())[:-1]:
         print(f"{key:42s} {t['draws']:5d}  {t['right_winner']:6.2f}  {t['right_or_in_set_le3']:11.2f}  "
               f"{t['identifiable_within_5pc']:9.2f}  {t['median_seconds']:8.0f}")
     overall = table["overall"]

@@ -209,17 +209,31 @@ def ridge_scenario(seed, duration=40.0, noise_sd=1e-4) -> Scenario:
     raise RuntimeError(f"ridge scenario {seed}: no truth oscillated at A and B in 200 draws")
 
 
-def write_recordings(scenario: Scenario, directory, dt=None) -> list:
+def write_recordings(scenario: Scenario, directory, dt=None, reuse=False) -> list:
     """Make the data with the reference path (step ``dt``, default :data:`DATA_DT`) and write
-    measured-style recordings; CSV paths."""
+    measured-style recordings; CSV paths.
+
+    ``reuse``: keep the recordings already in ``directory`` when its ``truth/scenario.json`` holds
+    the same scenario made at the same step (benchmarks rerun on the same draws; the reference
+    path at 5e-5 s costs about 1-3 s per simulated second). Delete the directory after changing
+    the reference path itself.
+    """
     directory = Path(directory)
     (directory / "truth").mkdir(parents=True, exist_ok=True)
+    dt = dt or DATA_DT
+    provenance = {**scenario.to_dict(), "data_dt": dt}
+    provenance = json.loads(json.dumps(provenance, default=str))
+    names = [directory / f"rec{i:02d}_{rd.kind}.csv" for i, rd in enumerate(scenario.recordings)]
+    stored = directory / "truth" / "scenario.json"
+    if reuse and stored.exists() and all(p.exists() and p.with_suffix(".json").exists() for p in names):
+        if json.loads(stored.read_text()) == provenance:
+            return names
     acq = scenario.acquisition
     paths = []
     for i, rd in enumerate(scenario.recordings):
         exp = rd.experiment()
         lead = 10.0 if rd.kind == "closed" else 0.0
-        tr = simulate_reference(scenario.truth, exp, rd.duration + lead, dt=dt or DATA_DT,
+        tr = simulate_reference(scenario.truth, exp, rd.duration + lead, dt=dt,
                                 rate=rd.rate)
         keep = tr.t >= lead - 1e-9
         t = tr.t[keep] - tr.t[keep][0]
@@ -231,10 +245,10 @@ def write_recordings(scenario: Scenario, directory, dt=None) -> list:
                 "generator": "studies/scenarios.py (reference path)"}
         if rd.kind == "closed":
             meta.update(kp=rd.kp, kd=rd.kd, mu=rd.mu, controller_rate=rd.controller_rate)
-        path = directory / f"rec{i:02d}_{rd.kind}.csv"
+        path = names[i]
         save_recording(path, {"t": t, "u": tr.u[keep], "delta": delta}, meta)
         paths.append(path)
-    (directory / "truth" / "scenario.json").write_text(json.dumps(scenario.to_dict(), indent=2, default=str))
+    stored.write_text(json.dumps(provenance, indent=2))
     return paths
 
 

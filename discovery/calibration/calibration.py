@@ -305,8 +305,27 @@ class Calibration:
             out[filled: filled + len(take)] = take
             filled += len(take)
             if filled == self.n_walkers:
+                if self._set_transient_variance(lp, out) and self.discrepancy:
+                    self._set_inflation(lp, z0)  # measured against the widened covariance
                 return out
         raise RuntimeError("could not place the walkers where the posterior is finite")
+
+    def _set_transient_variance(self, lp, z) -> bool:
+        """Each features term's start imprint (:meth:`.likelihood.FeatureTerm.transient_variance`)
+        over the walkers' starting points ``z``, kept in the checkpoint; True if any is nonzero."""
+        terms = [t for t in self.terms_ if hasattr(t, "transient_variance")]
+        if not terms:
+            return False
+        x = lp.natural(z)
+        sets = [p for p in (lp.params_for(row) for row in x) if p is not None]
+        values = {}
+        for term in terms:
+            term.set_transient_variance(term.transient_variance(sets))
+            values[term.name] = term.transient_var.tolist()
+        if self.backend is not None:
+            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
+                f.require_group(_H5_GROUP).attrs["transient_var"] = json.dumps(values)
+        return any(np.any(t.transient_var > 0) for t in terms)
 
     def _polish(self, lp, z0):
         """Nelder-Mead restarted along the principal axes at its optimum while that optimum
@@ -464,6 +483,12 @@ class Calibration:
                 with backend.open("r") as f:
                     old = f[_H5_GROUP].attrs.get("config") if _H5_GROUP in f else None
                     stored = f[_H5_GROUP].attrs.get("inflation") if _H5_GROUP in f else None
+                    transient = f[_H5_GROUP].attrs.get("transient_var") if _H5_GROUP in f else None
+                if transient is not None and old == config:  # resuming: the start's imprint
+                    values = json.loads(transient)
+                    for term in self.terms_:
+                        if term.name in values:
+                            term.set_transient_variance(values[term.name])
                 if stored is not None and old == config:  # resuming: the factors of the start
                     self.inflation_ = [float(v) for v in json.loads(stored)]
                     for term, value in zip(self.terms_, self.inflation_):

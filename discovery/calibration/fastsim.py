@@ -7,9 +7,13 @@ directly. Each row still goes through :meth:`models.ActuatorParams.replace` and 
 packing, so every check and convention of :mod:`models` applies (nothing is re-implemented here).
 
 Warm start (MODELS.md, "Calibration facts"): the dead zone, the play operator and the linear parts
-are positively homogeneous, so a cycle state taken from one reference run, scaled by
-``dead_zone / dead_zone_ref``, lands each walker's run near its own cycle and a short transient
-(6 s at controller A) suffices. In-loop output noise is never simulated here: the sensor noise of a
+are positively homogeneous, so a cycle state taken from one reference run and scaled lands a
+walker's run near its own cycle and a short transient (6 s at controller A) suffices. The scale
+brings the reference cycle to the recorded cycle's size (rms), which is the size of every walker
+that fits; scaling by ``dead_zone / dead_zone_ref`` instead (the fallback) ignores the other
+parameters that set the size: a drawn truth's cycle started 73 % too large from a start 30 % off in
+the delay, settled with a ~5 s time constant, and 20 s later its features still missed the data
+by 1.6 %, which moved the posterior along the dead zone / friction ridge past the truth. In-loop output noise is never simulated here: the sensor noise of a
 calibration is a likelihood parameter (``sigma``), not a forcing.
 """
 from __future__ import annotations
@@ -44,10 +48,13 @@ class WarmStart:
     theta, thetad, y, yd, x : float
         State at an upward crossing of the cycle's mean by ``x``.
     dead_zone_ref : float
-        Dead zone of the reference run; a run with dead zone ``z`` starts from the state times
-        ``z / dead_zone_ref`` (1 when either is 0).
+        Dead zone of the reference run; without a size target, a run with dead zone ``z`` starts
+        from the state times ``z / dead_zone_ref`` (1 when either is 0).
     memory : float
         The play operator's memory there (NaN: the kernel's default).
+    rms_ref, rms_target : float
+        RMS about its mean of the reference cycle's ``x`` (rad), and the size (rad) every run is
+        to start at (the recorded cycle's rms); NaN falls back to the dead-zone ratio.
     history : tuple or None
         ``(value, slope)`` of the delayed signal at that instant (rad or rad/s per s), the line
         the delay outputs before t = 0; ``None`` leaves the delay's 0.
@@ -68,8 +75,13 @@ class WarmStart:
     dead_zone_ref: float
     memory: float = math.nan
     history: tuple | None = None
+    rms_ref: float = math.nan
+    rms_target: float = math.nan
 
     def scale(self, params: ActuatorParams) -> float:
+        """``rms_target / rms_ref`` when both are known, else the dead-zone ratio."""
+        if self.rms_ref > 0 and self.rms_target > 0:
+            return self.rms_target / self.rms_ref
         if self.dead_zone_ref > 0 and params.dead_zone > 0:
             return params.dead_zone / self.dead_zone_ref
         return 1.0
@@ -85,9 +97,10 @@ class WarmStart:
             p[K.P_HIST_VALUE], p[K.P_HIST_SLOPE] = k * self.history[0], k * self.history[1]
 
 
-def warm_start_state(params: ActuatorParams, experiment, dt, t_ref=20.0):
+def warm_start_state(params: ActuatorParams, experiment, dt, t_ref=20.0, rms_target=math.nan):
     """Cycle state of ``params`` in the closed loop ``experiment`` after ``t_ref`` seconds.
 
+    ``rms_target`` (rad): the size runs started from it are scaled to (:class:`WarmStart`).
     Returns ``None`` for an open-loop experiment, a diverging run or one that does not oscillate
     (the caller then starts from the hypothesis' own initial conditions).
     """
@@ -119,6 +132,8 @@ def warm_start_state(params: ActuatorParams, experiment, dt, t_ref=20.0):
         dead_zone_ref=float(params.dead_zone),
         memory=float(tr.backlash[i]),
         history=_delayed_signal_line(tr, params, i, dt),
+        rms_ref=float(np.sqrt(np.mean((x[tail] - level) ** 2))),
+        rms_target=float(rms_target),
     )
 
 

@@ -306,8 +306,15 @@ class _ClosedLoopTerm:
         self.sim_t_end = self.transient + span + 2.5 * self.period + 0.2
         self.simulator = None
 
+    @property
+    def cycle_rms(self) -> float:
+        """RMS of the recorded cycle about its mean, sensor noise removed (rad): the size warm
+        starts are scaled to."""
+        return math.sqrt(max(float(np.var(self.data)) - self.sigma_hat**2, 0.0))
+
     def setup(self, start_params, warm_start=True):
-        ws = warm_start_state(start_params, self.experiment, self.dt) if warm_start else None
+        ws = (warm_start_state(start_params, self.experiment, self.dt, rms_target=self.cycle_rms)
+              if warm_start else None)
         self.warm_start = ws
         self.simulator = BatchSimulator(
             self.experiment, self.sim_t_end, self.dt,
@@ -321,7 +328,8 @@ class _ClosedLoopTerm:
     def _halved_simulator(self, params, warm_start):
         """The simulator at half the step (ValueError when it does not fit the output grid)."""
         half = self.dt / 2
-        ws = warm_start_state(params, self.experiment, half) if warm_start else None
+        ws = (warm_start_state(params, self.experiment, half, rms_target=self.cycle_rms)
+              if warm_start else None)
         return BatchSimulator(self.experiment, self.sim_t_end, half,
                               rate=output_rate_for(half, self.data_rate), warm_start=ws)
 
@@ -481,6 +489,7 @@ class FeatureTerm(_ClosedLoopTerm):
         cov += np.diag(1e-12 * np.diag(cov) + 1e-300)
         self._data_cov = cov
         self.solver_var = np.zeros(len(self.features))
+        self.transient_var = np.zeros(len(self.features))
         self._factor(cov)
 
     def _factor(self, cov):
@@ -493,8 +502,47 @@ class FeatureTerm(_ClosedLoopTerm):
         """The simulator, and the solver's own error in the covariance (:meth:`solver_variance`)."""
         super().setup(start_params, warm_start)
         self.solver_var = self.solver_variance(start_params, warm_start)
-        self._factor(self._data_cov + np.diag(self.solver_var))
+        self._refactor()
         return self
+
+    def _refactor(self):
+        self._factor(self._data_cov + np.diag(self.solver_var + self.transient_var))
+
+    def set_transient_variance(self, value):
+        """Set :attr:`transient_var` (from :meth:`transient_variance`, or a checkpoint)."""
+        self.transient_var = np.asarray(value, dtype=float).reshape(len(self.features))
+        self._refactor()
+
+    def transient_variance(self, param_sets):
+        """Mean squared change of the simulated features from the window after the transient
+        to the next one, over ``param_sets`` (the walkers' starting points).
+
+        A run starts on the reference cycle, not on its own; where the cycle attracts slowly, or
+        is not periodic, the window's features still depend on that start. A drawn truth
+        (dead zone on the velocity signal with a friction offset, settling time ~5 s) changed its
+        log-likelihood by 20-40 nats between transients of 20, 40, 60, 80 and 120 s, so a sampler
+        read the start's imprint as information and put the dead zone / friction offset ridge's
+        mass 40 % below the truth. The change to the next window measures that imprint (and a
+        wander of the model's own cycle, which the data's pieces may not show); its square is
+        added to the features' variance like the solver's error. Zero for a cycle that has
+        settled within the transient.
+        """
+        span = float(self.tau[-1])
+        sim = BatchSimulator(self.experiment, self.sim_t_end + span, self.dt,
+                             rate=self.simulator.rate, warm_start=self.warm_start)
+        delta, ok = sim.run(param_sets)
+        t = sim.t
+        first = (t >= self.transient) & (t <= self.transient + span)
+        second = (t >= self.transient + span) & (t <= self.transient + 2 * span)
+        changes = []
+        for i in np.flatnonzero(ok):
+            a = cycle_features(t[first], delta[i, first], self.features)
+            b = cycle_features(t[second], delta[i, second], self.features)
+            if a is not None and b is not None:
+                changes.append(np.asarray(a) - np.asarray(b))
+        if not changes:
+            return np.zeros(len(self.features))
+        return np.mean(np.square(changes), axis=0)
 
     def solver_variance(self, params, warm_start=True):
         """Squared change of the simulated features when the step is halved, at ``params``,
@@ -639,7 +687,8 @@ class FeatureTerm(_ClosedLoopTerm):
                   "sd": np.sqrt(np.diag(self.cov_hat)).tolist(),
                   "wander_sd": np.sqrt(self.wander_var).tolist(),
                   "settling_sd": np.sqrt(self.settling_var).tolist(),
-                  "solver_sd": np.sqrt(self.solver_var).tolist()})
+                  "solver_sd": np.sqrt(self.solver_var).tolist(),
+                  "transient_sd": np.sqrt(self.transient_var).tolist()})
         return d
 
 

@@ -55,6 +55,10 @@ N_STARTS = 3
 #: Floor of the margin within which a score is indistinguishable from the best, per recording
 #: (:func:`indistinguishable_margin`).
 TOL_ABS = 0.1
+#: Most structures given the out-of-sample ranking, and the screen's allowance per recording
+#: (:func:`in_sample_screen`).
+MAX_RANKED = 24
+SCREEN_ABS = 0.5
 #: Cost per recording at or above which a fit reproduces nothing (a fraction of a penalty run's
 #: 1e8 = ``PENALTY**2``: some recordings or residuals of every run diverged or did not oscillate).
 NO_FIT_COST = 1e6
@@ -180,7 +184,9 @@ class StructureDiscovery:
     progress : bool
         Progress bars (tqdm).
     max_ranked : int
-        Structures (best in-sample first) that get the leave-one-recording-out ranking.
+        Structures (best in-sample first) that always get the out-of-sample ranking; any further
+        structure whose in-sample cost is within :func:`in_sample_screen` of the best's is ranked
+        too (up to ``MAX_RANKED``), so that the reported set is not cut at a fixed size.
 
     Attributes
     ----------
@@ -377,8 +383,10 @@ class StructureDiscovery:
         targets = self.targets_
         folds = [t.halves() for t in targets]
         fit_on = [[h[k] for h in folds] for k in (0, 1)]
-        candidates = order[: self.max_ranked]
-        for f in order[self.max_ranked:]:
+        limit = in_sample_screen(order[0].cost, len(targets))
+        candidates = [f for i, f in enumerate(order)
+                      if i < self.max_ranked or (f.cost <= limit and i < MAX_RANKED)]
+        for f in order[len(candidates):]:
             f.score, f.criterion = math.inf, "not ranked (in-sample cost far from the best)"
         for f in _progress(candidates, "two-fold out-of-sample ranking", self.progress):
             per_unit = np.zeros((2, len(targets)))
@@ -466,6 +474,18 @@ class StructureDiscovery:
         fits[s] = self._fit_record(s, spaces[s], fr, origin, [])
         fits[s].sindy_seeds = seeds
         return True
+
+
+def in_sample_screen(best_cost, n_recordings):
+    """In-sample cost above which a structure cannot be indistinguishable from the best.
+
+    A score is a held-out cost, which is at least about the in-sample cost (the overfit of a few
+    parameters to hundreds of residuals is a small fraction of a unit per recording), so a structure
+    whose in-sample cost exceeds the best's by far more than :func:`indistinguishable_margin` can
+    allow is left unranked. The screen is twice the best's cost plus ``SCREEN_ABS`` per recording:
+    generous, since two folds that disagree widen the margin beyond its floor.
+    """
+    return 2.0 * best_cost + SCREEN_ABS * n_recordings
 
 
 def indistinguishable_margin(best_units, other_units, n_recordings):
