@@ -108,3 +108,42 @@ def test_a_cycle_still_settling_leaves_its_settled_features_inside_the_covarianc
     z = (settled - term.observed) / np.sqrt(np.diag(term.cov_hat))
     assert abs(z[h1]) > 0.5  # the record is really off its settled cycle ...
     assert np.max(np.abs(z)) < 2.0, dict(zip(term.features, z.round(2)))  # ... and the sd says so
+
+
+def test_start_imprint_of_a_slowly_settling_cycle_is_counted(tmp_path):
+    """Coverage draw 20's truth (drawn by the shared generator: dead zone on the velocity signal,
+    friction offset, delay at the output; its cycle at A settles with a ~5 s time constant), its
+    settled cycle recorded at A. Runs start on the cycle of a start 30 % off in the delay: after a
+    20 s transient the truth's features still carry that start, and its log-likelihood moves by
+    over a hundred nats between transients of 20 and 60 s. The start imprint measured over a few
+    points near the truth must cover that move (under 3 nats once it is in the variance; measured
+    1.5), and it must be
+    negligible for a run started on its own cycle (periodic M002: the warm start is its own, scaled
+    by the record's noisy rms; measured up to 0.06 sd, a 0.4 % wider variance)."""
+    from studies.bench_coverage import Config, coverage_scenario
+
+    truth = coverage_scenario(20, Config()).truth
+    rec = synthetic_recording(truth, CONTROLLER_A, 70.0, 7e-5, 5, tmp_path / "d20.csv", keep_last=10.0,
+                              dt=2e-4)
+    start = truth.replace(delay=1.3 * truth.delay)
+    near = [truth.replace(dead_zone=truth.dead_zone * f, friction_offset=truth.friction_offset
+                          - truth.dead_zone * (1 - f)) for f in (0.8, 1.0, 1.25)]
+
+    def loglike(transient, imprint):
+        term = FeatureTerm(rec, 10.0, transient, 5e-4).setup(start)
+        if imprint:
+            term.set_transient_variance(term.transient_variance(near))
+        return term, float(term.loglike([truth], np.array([term.sigma_hat]))[0])
+
+    _, short = loglike(20.0, False)
+    _, long = loglike(60.0, False)
+    assert abs(short - long) > 50.0  # measured: 155 nats (-100 at 20 s, 55 at 60 s)
+    term, short = loglike(20.0, True)
+    _, long = loglike(60.0, True)
+    assert np.any(term.transient_var > 0)
+    assert abs(short - long) < 3.0
+
+    m002 = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 3, tmp_path / "m002.csv", keep_last=10.0)
+    own = FeatureTerm(m002, 10.0, 6.0, 5e-4).setup(M002())
+    sd = np.sqrt(own.transient_variance([M002()]) / np.diag(own.cov_hat))
+    assert np.all(sd < 0.1)
