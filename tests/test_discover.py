@@ -179,3 +179,30 @@ def test_delay_moved_into_the_block_keeps_the_cycle():
         assert f[1].frequency == pytest.approx(f[0].frequency, rel=2e-3)
         if kp == 5.84:
             assert abs(f[2].amplitude / f[0].amplitude - 1) > 0.03
+
+
+def test_transferred_start_is_valid_for_every_structure_and_keeps_the_threshold():
+    """Another structure's optimum carried over as a start (discovery's last cross-seeding): a
+    valid parameter object of the target structure for every pair of the space; the threshold
+    keeps its size in rad of error across dead-zone positions (z_error = (z - off) / g0) and a
+    round trip velocity -> error -> velocity keeps the moving threshold z - off."""
+    from discovery.structure.discover import transferred
+    from models import hypothesis
+    from models.hypotheses import DeadZonePosition
+    from models.structures import Structure, structure_space
+
+    kept, _ = structure_space()
+    m000 = hypothesis("M000")
+    g0 = m000.gain / m000.stiffness
+    sources = [m000, hypothesis("M002"), hypothesis("M001f")]
+    for src in sources:
+        for s in kept:
+            p = transferred(src, s)
+            assert Structure.of_params(p) == s, (src.name, s.name)
+    err = Structure.parse("dz_error+delay_before_first_integrator+backlash")
+    on_error = transferred(m000, err)
+    assert on_error.dead_zone == pytest.approx((m000.dead_zone - m000.friction_offset) / g0, rel=1e-9)
+    back = transferred(on_error, Structure.parse("dz_velocity+delay_before_first_integrator+backlash"))
+    assert back.dead_zone_position is DeadZonePosition.VELOCITY
+    assert back.dead_zone - back.friction_offset == pytest.approx(m000.dead_zone - m000.friction_offset,
+                                                                  rel=1e-9)

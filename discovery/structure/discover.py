@@ -43,7 +43,7 @@ from .search import Objective, distinct_members, global_search, local_sd, refine
 from .targets import make_target
 
 __all__ = ["StructureDiscovery", "StructureFit", "validate_recordings", "DiscoveryInputError",
-           "delay_moved", "indistinguishable_margin"]
+           "delay_moved", "transferred", "indistinguishable_margin", "in_sample_screen"]
 
 #: Template of the fields a search does not set (paper 001's linear block, only a placeholder; the
 #: papers' kick x0 so that a reported model, simulated in closed loop, leaves the equilibrium).
@@ -334,6 +334,7 @@ class StructureDiscovery:
                 origin = f"least squares from {parent.structure.name} with the component removed"
             fits[s] = self._fit_record(s, spaces[s], fr, origin, sindy.get(s.name, []))
         self.repaired_ = self._repair_supersets(fits, spaces, objective)
+        self._seed_from_best(fits, spaces, objective)
         timings["nested"] = time.perf_counter() - t0
 
         best_fit = min(fits.values(), key=lambda f: f.cost)
@@ -444,6 +445,22 @@ class StructureDiscovery:
                 self._keep_better(fits, spaces, objective, s, start,
                                   f"least squares from the optimum of {other.structure.name}")
 
+    def _seed_from_best(self, fits, spaces, objective):
+        """Refine every structure from the best fit of all, carried over (:func:`transferred`).
+
+        The global searches run per (dead-zone position, delay position, band-pass loop) class and
+        the cross-seeding within a class; a class whose search missed its basin (benchmark draw
+        1019: the generating structure fitted at 2.2 while its band-pass superset reached 1.44
+        and the true parameters give 1.56) is reached here from the others' best optimum.
+        """
+        best = min(fits.values(), key=lambda f: f.cost)
+        for s in sorted(fits, key=lambda s: s.name):
+            if s == best.structure or fits[s].cost <= best.cost:
+                continue
+            self._keep_better(fits, spaces, objective, s, transferred(best.params, s),
+                              f"least squares from the optimum of {best.structure.name}")
+        self._repair_supersets(fits, spaces, objective)
+
     def _repair_supersets(self, fits, spaces, objective):
         """Refit a structure that fits worse than one of its nested structures.
 
@@ -531,6 +548,33 @@ def delay_moved(params, position):
     d = brentq(mismatch, 1.0, 20.0)
     return params.replace(gain=k1 * d, damping=(d - 1.0) / (td * d), stiffness=k3 * d,
                           delay=td * d, delay_position=position)
+
+
+def transferred(params, structure):
+    """Another structure's ``params`` as a start for ``structure``.
+
+    The delay is moved with :func:`delay_moved`; a dead zone moved between the error and the
+    velocity signal keeps its threshold in rad of error (``z_error = (z - off) / g0``, ``g0 = K1/K3``
+    the second-order block's static gain, the search coordinate ``log_c_e``); a component removed
+    leaves the moving threshold as it was (:func:`_reduced_values`), one added starts small
+    (:func:`_widen`; the band-pass loop at gain 40 and a saturation of 5e-4 rad of error).
+    """
+    p = delay_moved(params, structure.delay_position)
+    g0 = p.gain / p.stiffness
+    values = _reduced_values(p, structure)
+    moving = values.get("dead_zone", p.dead_zone - p.friction_offset)
+    if p.dead_zone_position is not structure.dead_zone_position:
+        if structure.dead_zone_position is DeadZonePosition.VELOCITY:
+            values["dead_zone"] = moving * g0
+        else:
+            values["dead_zone"] = moving / g0
+        values["friction_offset"] = 0.0
+    elif not structure.friction:
+        values["friction_offset"] = 0.0
+    if structure.bandpass and p.bandpass_gain == 0.0:
+        values.update(bandpass_gain=40.0, bandpass_saturation=5e-4 * g0)
+    start = structure.to_params(p, **values)
+    return structure.to_params(start, **_widen(start, structure))
 
 
 def _fixed_for(structure, fixed):
