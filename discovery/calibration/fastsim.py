@@ -13,8 +13,9 @@ brings the reference cycle to the recorded cycle's size (rms), which is the size
 that fits; scaling by ``dead_zone / dead_zone_ref`` instead (the fallback) ignores the other
 parameters that set the size: a drawn truth's cycle started 73 % too large from a start 30 % off in
 the delay, settled with a ~5 s time constant, and 20 s later its features still missed the data
-by 1.6 %, which moved the posterior along the dead zone / friction ridge past the truth. In-loop output noise is never simulated here: the sensor noise of a
-calibration is a likelihood parameter (``sigma``), not a forcing.
+by 1.6 %, which moved the posterior along the dead zone / friction ridge past the truth. In-loop
+output noise is never simulated here: the sensor noise of a calibration is a likelihood parameter
+(``sigma``), not a forcing.
 """
 from __future__ import annotations
 

@@ -519,10 +519,11 @@ class FeatureTerm(_ClosedLoopTerm):
 
         A run starts on the reference cycle, not on its own; where the cycle attracts slowly, or
         is not periodic, the window's features still depend on that start. A drawn truth
-        (dead zone on the velocity signal with a friction offset, settling time ~5 s) changed its
-        log-likelihood by 20-40 nats between transients of 20, 40, 60, 80 and 120 s, so a sampler
-        read the start's imprint as information and put the dead zone / friction offset ridge's
-        mass 40 % below the truth. The change to the next window measures that imprint (and a
+        (coverage draw 20: dead zone on the velocity signal with a friction offset, settling time
+        ~5 s), started from a cycle 30 % off in the delay, changed its log-likelihood by 155 nats
+        between transients of 20 and 60 s (``tests/test_calibration_features.py``), and a sampler
+        read the start's imprint as information: the dead zone / friction offset ridge's mass sat
+        40 % below the truth. The change to the next window measures that imprint (and a
         wander of the model's own cycle, which the data's pieces may not show); its square is
         added to the features' variance like the solver's error. Zero for a cycle that has
         settled within the transient.

@@ -14,9 +14,11 @@ Pipeline (issue 11):
    structures that differ from it only in the delay's position; every nested structure (no
    friction, no backlash) is refined from its parent's optimum with the component removed.
    A structure that fits worse than one of its nested structures (a search failure: it can
-   reproduce them) is refined again from that optimum.
-4. **Rank** -- by two-fold out-of-sample error: each structure is refitted (locally, from its
-   optimum) on one half of every recording and scored on the other half, both ways round
+   reproduce them) is refined again from that optimum; last, every structure is refined from the
+   best optimum of all, carried over (:func:`transferred`).
+4. **Rank** -- by two-fold out-of-sample error: each structure within :func:`in_sample_screen` of
+   the best in-sample cost is refitted (locally, from its optimum) on one half of every recording
+   and scored on the other half, both ways round
    (:meth:`StructureDiscovery._rank` says why not leave-one-recording-out).
 5. **Report what the data cannot decide** -- structures whose score is within
    :func:`indistinguishable_margin` of the best (twice the standard error of the score
