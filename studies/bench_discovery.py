@@ -20,9 +20,12 @@ Printed per structure class and overall, and written to ``DIR/bench.json``:
 * timings.
 
 Goals (issue 11): right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
-parameters within 5 % in >= 90 %. ``--quick`` (CI) runs a handful of draws with smaller searches,
-their data made at a 2e-4 s step (the search's cost units, 0.1-0.3 % of the cycle, are far above
-that step's error), and asserts the same rates scaled down (at least half of the draws).
+parameters within 5 % in >= 90 %. ``--quick`` (CI) runs a handful of draws with smaller searches
+on the same data (full-length records at the generator's step: cut to 12 s, a band-pass cycle's
+wander rests on two pieces of six periods and draw 1000's truth missed its own record by 13.6 cost
+units, 0.7 on the full 31 s; at a 2e-4 s step the data's own RK4 error near square edges is of the
+order of the open-loop targets' unit, the sensor noise), and asserts the same rates scaled down (at
+least half of the draws).
 """
 from __future__ import annotations
 
@@ -86,17 +89,11 @@ def _objective_of(disc):
     return Objective(disc.targets_)
 
 
-#: ``--quick`` (CI): the data's step (s). Records keep their drawn lengths: cut to 12 s, a
-#: band-pass cycle's wander (estimated from pieces of six periods) rests on two pieces, and draw
-#: 1000's truth missed its own 12 s record by 13.6 cost units (0.7 on the full 31 s).
-QUICK_DATA_DT = 2e-4
-
-
 def run_draw(seed, out_dir, quick):
     scenario = draw_scenario(seed)
     draw_dir = out_dir / f"draw{seed:03d}"
     t0 = time.perf_counter()
-    paths = write_recordings(scenario, draw_dir, dt=QUICK_DATA_DT if quick else None, reuse=True)
+    paths = write_recordings(scenario, draw_dir, reuse=True)
     t_data = time.perf_counter() - t0
     t0 = time.perf_counter()
     disc = StructureDiscovery(seed=seed, quick=quick, use_sindy=not quick).fit(paths)

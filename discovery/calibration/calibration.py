@@ -424,7 +424,15 @@ class Calibration:
                 self._refit_laplace(sampler, it)
             return
         last = int(info.get("checked_at", info["adapted_at"]))
-        if info.get("share", 0.0) <= 0.0 or it < last + LAPLACE_CHECK_STEPS:
+        if info.get("share", 0.0) <= 0.0:
+            # switched off while the walkers were still spreading along a ridge: tried again once
+            # the chain has doubled (the ridge case: 0.15 expected at step 200)
+            retries = int(info.get("retries", 0))
+            if retries < LAPLACE_MAX_RETRIES and it >= 2 * int(info["adapted_at"]):
+                info["retries"] = retries + 1
+                self._refit_laplace(sampler, it)
+            return
+        if it < last + LAPLACE_CHECK_STEPS:
             return
         chain = sampler.get_chain(discard=it - LAPLACE_CHECK_STEPS - 1)
         realised = float(np.mean(np.any(np.diff(chain, axis=0) != 0, axis=2)))
@@ -571,6 +579,8 @@ LAPLACE_SHARE_OTHER = 0.1
 LAPLACE_ADAPT_STEPS = 50
 #: Expected acceptance of the refitted proposal under which it is switched off.
 LAPLACE_MIN_ACCEPTANCE = 0.25
+#: Times a switched-off proposal is refitted again (each when the chain has doubled).
+LAPLACE_MAX_RETRIES = 3
 
 
 def _global_start(lp, z0, seed, names):
