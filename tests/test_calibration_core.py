@@ -343,3 +343,32 @@ def test_laplace_move_kept_only_if_its_steps_are_accepted(correlated, kept):
     assert cal.laplace_["checked_at"] == LAPLACE_CHECK_STEPS + 1
     assert (cal.laplace_["share"] > 0) == kept, cal.laplace_
     np.testing.assert_allclose(sampler._weights, weights if kept else _move_weights(0.0))
+
+
+def test_switched_off_laplace_move_is_tried_again_once_the_chain_has_doubled():
+    """A proposal switched off early (refitted while the walkers still spread: the ridge case's
+    expected acceptance 0.15 at step 200) is refitted again to the chain when it has doubled; on
+    the known Gaussian, sampled meanwhile by the DE moves, the refit matches it and the move comes
+    back on, and a retry is spent only once per doubling."""
+    import emcee
+
+    from discovery.calibration import Calibration
+    from discovery.calibration.calibration import LAPLACE_MAX_RETRIES, _move_weights
+    from discovery.calibration.moves import LaplaceIndependenceMove
+    from discovery.calibration.testing import GaussianLogProb
+
+    mean, sd, cov = _correlated_gaussian()
+    move = LaplaceIndependenceMove(mean, np.diag(sd**2))  # the one that was switched off
+    moves = list(zip((emcee.moves.DEMove(), emcee.moves.DESnookerMove(), move), _move_weights(0.0)))
+    _, _, sampler = sample_gaussian(mean, cov, moves=moves, seed=5, max_steps=400, tau_factor=1e9)
+    cal = Calibration("M002", n_walkers=16, seed=5)
+    cal.log_posterior_ = GaussianLogProb(mean, cov)
+    cal._laplace_move = move
+    cal.laplace_ = {"adapted_at": 250, "checked_at": 250, "share": 0.0}
+    cal._adapt_laplace(sampler)  # 400 < 2 x 250: not yet
+    assert cal.laplace_["share"] == 0.0 and "retries" not in cal.laplace_
+    cal.laplace_ = {"adapted_at": 200, "checked_at": 200, "share": 0.0}
+    cal._adapt_laplace(sampler)
+    assert cal.laplace_["retries"] == 1 <= LAPLACE_MAX_RETRIES
+    assert cal.laplace_["adapted_at"] == 400 and cal.laplace_["expected_acceptance"] > 0.5
+    np.testing.assert_allclose(sampler._weights, _move_weights(0.9))
