@@ -106,15 +106,7 @@ def run_draw(seed, out_dir, quick):
     errors = coordinate_errors(disc, scenario.truth, truth_s)
     own = next((f for f in disc.ranking_ if f.structure == truth_s), None)
     at_truth = truth_cost(disc, scenario.truth)
-    if own is not None and own.cost <= at_truth:
-        # the truth's structure fitted at least as well as the truth: what the fit changes by
-        # over 5 % the recordings do not pin, however sharp the optimum at the truth
-        for v in errors.values():
-            if v["identifiable"] and not v["within"]:
-                v["identifiable"] = False
-                v["undecided"] = "an optimum fitting at least as well as the truth differs"
-    ident = {k: v for k, v in errors.items() if v["identifiable"]}
-    return {
+    row = {
         "seed": seed,
         "structure": truth_s.name,
         "design": scenario.to_dict(),
@@ -132,10 +124,28 @@ def run_draw(seed, out_dir, quick):
         "truth_structure_score": None if own is None else own.score,
         "winner_cost": disc.best_.cost,
         "winner_score": disc.best_.score,
-        "identifiable_within": all(v["within"] for v in ident.values()),
         "seconds_data": t_data,
         "seconds_discovery": t_disc,
     }
+    return undecided_marked(row)
+
+
+def undecided_marked(row):
+    """``row`` with the coordinates the recordings leave open marked, and its verdict.
+
+    When the truth's structure fitted at least as well as the truth itself, what that fit moves by
+    over 5 % the recordings do not pin, however sharp the optimum at the truth: such coordinates
+    are not counted as identifiable (idempotent; applied to resumed rows too).
+    """
+    own, at_truth = row.get("truth_structure_cost"), row.get("cost_at_truth")
+    if own is not None and at_truth is not None and own <= at_truth:
+        for v in row["coordinates"].values():
+            if v["identifiable"] and not v["within"]:
+                v["identifiable"] = False
+                v["undecided"] = "an optimum fitting at least as well as the truth differs"
+    row["identifiable_within"] = all(v["within"] for v in row["coordinates"].values()
+                                     if v["identifiable"])
+    return row
 
 
 def failed_draw(seed, exc):
@@ -201,7 +211,8 @@ def main(argv=None) -> int:
     if path.exists():  # resume: keep finished draws of the same mode
         old = json.loads(path.read_text())
         if old.get("quick") == args.quick:
-            rows = [r for r in old["rows"] if args.seed <= r["seed"] < args.seed + n]
+            rows = [undecided_marked(r) if "error" not in r else r
+                    for r in old["rows"] if args.seed <= r["seed"] < args.seed + n]
 
     def record(seed, row):
         rows.append(row)
