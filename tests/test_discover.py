@@ -206,3 +206,20 @@ def test_transferred_start_is_valid_for_every_structure_and_keeps_the_threshold(
     assert back.dead_zone_position is DeadZonePosition.VELOCITY
     assert back.dead_zone - back.friction_offset == pytest.approx(m000.dead_zone - m000.friction_offset,
                                                                   rel=1e-9)
+
+
+def test_benchmark_counts_a_coordinate_moved_by_an_equally_good_fit_as_undecided():
+    """The discovery benchmark's identifiability rule: a coordinate sharp at the truth but moved
+    by over 5 % in a fit of the truth's structure that costs no more than the truth is left open
+    by the recordings (not a discovery error); the same miss with a worse fit is an error."""
+    from studies.bench_discovery import undecided_marked
+
+    def row(own_cost):
+        return {"truth_structure_cost": own_cost, "cost_at_truth": 0.78,
+                "coordinates": {"delay": {"identifiable": True, "within": False, "error": 0.46},
+                                "log_K": {"identifiable": True, "within": True, "error": 0.003}}}
+
+    as_good = undecided_marked(row(0.12))
+    assert as_good["identifiable_within"] and not as_good["coordinates"]["delay"]["identifiable"]
+    assert as_good["coordinates"]["log_K"]["identifiable"]
+    assert not undecided_marked(row(1.5))["identifiable_within"]
