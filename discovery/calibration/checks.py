@@ -139,8 +139,9 @@ def _replicated_statistics(term, params, sigmas, rng):
     out = []
     for i, q in enumerate(params):
         for _ in range(REPLICATES):
+            # at the term's own step (an open-loop term may have refined it, OpenLoopTerm.setup)
             noisy = simulate(q.replace(noise_seed=int(rng.integers(2**31))), term.experiment,
-                             float(term.tau[-1]), dt=term.dt)
+                             float(term.tau[-1]), dt=term.simulator.dt)
             e = np.interp(term.tau, noisy.t, noisy.delta) - clean[i]
             e = e + sigmas[i] * rng.standard_normal(e.size)
             out.append(misfit_statistic(e, sigmas[i]))
