@@ -336,7 +336,7 @@ class StructureDiscovery:
                 origin = f"least squares from {parent.structure.name} with the component removed"
             fits[s] = self._fit_record(s, spaces[s], fr, origin, sindy.get(s.name, []))
         self.repaired_ = self._repair_supersets(fits, spaces, objective)
-        self._seed_from_best(fits, spaces, objective)
+        self.repaired_ += self._seed_from_best(fits, spaces, objective)
         timings["nested"] = time.perf_counter() - t0
 
         best_fit = min(fits.values(), key=lambda f: f.cost)
@@ -454,6 +454,7 @@ class StructureDiscovery:
         the cross-seeding within a class; a class whose search missed its basin (benchmark draw
         1019: the generating structure fitted at 2.2 while its band-pass superset reached 1.44
         and the true parameters give 1.56) is reached here from the others' best optimum.
+        Returns the structures the superset repair that follows refitted.
         """
         best = min(fits.values(), key=lambda f: f.cost)
         for s in sorted(fits, key=lambda s: s.name):
@@ -461,7 +462,7 @@ class StructureDiscovery:
                 continue
             self._keep_better(fits, spaces, objective, s, transferred(best.params, s),
                               f"least squares from the optimum of {best.structure.name}")
-        self._repair_supersets(fits, spaces, objective)
+        return self._repair_supersets(fits, spaces, objective)
 
     def _repair_supersets(self, fits, spaces, objective):
         """Refit a structure that fits worse than one of its nested structures.
