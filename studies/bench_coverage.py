@@ -219,6 +219,18 @@ def plot_ranks(summary, path):
     plt.close(fig)
 
 
+def parse_indices(text: str) -> set:
+    """Draw indices from ``'10,14-29'`` (ranges inclusive)."""
+    out = set()
+    for part in text.split(","):
+        lo, _, hi = part.strip().partition("-")
+        try:
+            out.update(range(int(lo), int(hi or lo) + 1))
+        except ValueError:
+            raise ValueError(f"draw indices {text!r}: {part!r} is not N or N-M") from None
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="two short draws (CI)")
@@ -227,6 +239,9 @@ def main(argv=None) -> int:
     parser.add_argument("--max-steps", type=int, default=None, help="MCMC step cap per draw")
     parser.add_argument("--jobs", type=int, default=1,
                         help="draws calibrated at once, one process each (default 1)")
+    parser.add_argument("--indices", default=None,
+                        help="run only these draws of the config, e.g. '10,14-29' (to share a "
+                             "benchmark between machines or sessions; the table covers the rows done)")
     parser.add_argument("--out", default="results/bench_coverage", help="output directory")
     args = parser.parse_args(argv)
     config = QUICK if args.quick else Config()
@@ -243,6 +258,14 @@ def main(argv=None) -> int:
             rows = old["rows"]
     done = {r["index"] for r in rows}
     todo = [i for i in range(config.draws) if i not in done]
+    if args.indices:
+        try:
+            wanted = parse_indices(args.indices)
+        except ValueError as err:
+            parser.error(str(err))
+        if not wanted <= set(range(config.draws)):
+            parser.error(f"--indices {args.indices}: draws outside 0-{config.draws - 1}")
+        todo = [i for i in todo if i in wanted]
 
     def record(row):
         rows.append(row)

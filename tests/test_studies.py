@@ -256,3 +256,14 @@ def test_h6_controller_design_predicts_filters_boundary_and_next_test(quick_resu
     report = (quick_results / "report.md").read_text()
     section = report.split("## h6_controller_design", 1)[1]
     assert "Next experiment" in section and "(h6_controller_design/filters.png)" in section
+
+
+def test_bench_coverage_indices_select_draws_and_reject_bad_text():
+    """``--indices 10,14-29`` selects those draws (ranges inclusive); text that is not N or N-M
+    is refused with a message naming it."""
+    from studies.bench_coverage import parse_indices
+
+    assert parse_indices("10,14-16") == {10, 14, 15, 16}
+    assert parse_indices("3") == {3}
+    with pytest.raises(ValueError, match="'a-2' is not N or N-M"):
+        parse_indices("a-2")

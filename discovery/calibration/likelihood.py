@@ -160,12 +160,55 @@ class _WaveformSolverError:
     """
 
     solver_var = None
+    #: chi-square the step's error adds over the record, at the estimated noise (set by
+    #: :meth:`waveform_solver_variance`)
+    solver_load = 0.0
+
+    def _solver_outputs(self, param_sets):
+        """What the step-doubling compares: the model at the record's samples."""
+        return self.predict(param_sets)
 
     def waveform_solver_variance(self, params, warm_start=True):
-        pair = _step_doubling(self, self.predict, params, warm_start)
+        pair = _step_doubling(self, self._solver_outputs, params, warm_start)
         if pair is None:
+            self.solver_load = 0.0
             return np.zeros(self.n)
+        change = pair[0] - pair[1]
+        if self.offset_profiled:
+            change = change - np.nanmean(change)
+        change = np.where(np.isfinite(change), change, 0.0)
+        self.solver_load = float(np.sum(change * change)) / self.sigma_hat**2
         return self._spread_solver_error(SOLVER_ERROR_FACTOR * (pair[0] - pair[1]))
+
+    def _refine_step(self, start_params, warm_start, build):
+        """Build the simulator (``build(dt)``) at the coarsest step whose error the record
+        cannot see, and the solver variance at that step.
+
+        The step is halved (down to ``dt / MAX_STEP_REFINEMENT``) while the step-doubling change
+        at ``start_params`` adds more than ``SOLVER_LOAD_LIMIT`` to the record's chi-square
+        (:attr:`solver_load`). Near switching events RK4 converges at first order, and the error,
+        though under the noise sample by sample, is one-signed over thousands of samples, so the
+        parameters can absorb it (a shifted delay cancels a phase error) where a variance cannot:
+        coverage draw 10 (two 1 kHz squares, noise 1.3e-5 rad) had loads of 590 and 1130 at
+        5e-4 s, the posterior's dead zone and backlash 5 % and 58 % above the truth, which beat
+        it by 48 nats at 5e-4 s and lost by 65 at 1e-4 s; the ridge case (seed 0, limit cycle at
+        B, 1e-4 rad noise) had a load of 33 at 5e-4 s (0.2 at 2.5e-4 s) and its posterior beat the
+        truth by 21 nats, the dead zone and the delay just outside their 90 % intervals.
+        A halved step that does not fit the output grid reports no change and is kept.
+        """
+        dt = self.dt
+        while True:
+            build(dt)
+            self.solver_var = None
+            self.solver_var = self.waveform_solver_variance(start_params, warm_start)
+            if self.solver_load <= SOLVER_LOAD_LIMIT or dt <= self.dt / MAX_STEP_REFINEMENT:
+                return
+            dt /= 2
+
+    @property
+    def sim_dt(self) -> float:
+        """The step the simulations use (s): ``dt``, or finer (:meth:`_refine_step`)."""
+        return self.simulator.dt
 
     def _spread_solver_error(self, d):
         """Per-sample variance of the solver's error ``d``, spread over its neighbours."""
@@ -317,21 +360,24 @@ class _ClosedLoopTerm:
         return math.sqrt(max(float(np.var(self.data)) - self.sigma_hat**2, 0.0))
 
     def setup(self, start_params, warm_start=True):
-        ws = (warm_start_state(start_params, self.experiment, self.dt, rms_target=self.cycle_rms)
+        self._build_simulator(start_params, warm_start, self.dt)
+        return self
+
+    def _build_simulator(self, start_params, warm_start, dt):
+        ws = (warm_start_state(start_params, self.experiment, dt, rms_target=self.cycle_rms)
               if warm_start else None)
         self.warm_start = ws
         self.simulator = BatchSimulator(
-            self.experiment, self.sim_t_end, self.dt,
-            rate=output_rate_for(self.dt, self.data_rate), warm_start=ws,
+            self.experiment, self.sim_t_end, dt,
+            rate=output_rate_for(dt, self.data_rate), warm_start=ws,
         )
-        return self
 
     def simulate(self, param_sets):
         return self.simulator.run(param_sets)
 
     def _halved_simulator(self, params, warm_start):
         """The simulator at half the step (ValueError when it does not fit the output grid)."""
-        half = self.dt / 2
+        half = self.simulator.dt / 2
         ws = (warm_start_state(params, self.experiment, half, rms_target=self.cycle_rms)
               if warm_start else None)
         return BatchSimulator(self.experiment, self.sim_t_end, half,
@@ -373,8 +419,10 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
     offset_profiled = False
 
     def setup(self, start_params, warm_start=True):
-        super().setup(start_params, warm_start)
-        self.solver_var = self.waveform_solver_variance(start_params, warm_start)
+        """The simulator at the coarsest step whose error the record cannot see
+        (:meth:`_refine_step`), and a check that the start's simulated cycle is periodic."""
+        self._refine_step(start_params, warm_start,
+                          lambda dt: self._build_simulator(start_params, warm_start, dt))
         self.period_mismatch = self.period_mismatch_of(start_params)
         if self.period_mismatch > PERIOD_MISMATCH_LIMIT * self.sigma_hat:
             warnings.warn(IllPosedLikelihoodWarning(
@@ -533,7 +581,7 @@ class FeatureTerm(_ClosedLoopTerm):
         settled within the transient.
         """
         span = float(self.tau[-1])
-        sim = BatchSimulator(self.experiment, self.sim_t_end + span, self.dt,
+        sim = BatchSimulator(self.experiment, self.sim_t_end + span, self.simulator.dt,
                              rate=self.simulator.rate, warm_start=self.warm_start)
         delta, ok = sim.run(param_sets)
         t = sim.t
@@ -743,45 +791,21 @@ class OpenLoopTerm(_WaveformSolverError):
         return None if self.timing is not None else output_rate_for(dt, self.data_rate)
 
     def setup(self, start_params, warm_start=True):
-        """The simulator at the coarsest step whose error the record cannot see.
-
-        The step is halved (down to ``dt / MAX_STEP_REFINEMENT``) while the step-doubling change
-        at ``start_params`` adds more than ``SOLVER_LOAD_LIMIT`` to the record's chi-square
-        (:attr:`solver_load`). Near a square's edges RK4 converges at first order, and the error,
-        though under the noise sample by sample, is one-signed over thousands of samples: coverage
-        draw 10 (two 1 kHz squares, noise 1.3e-5 rad) had loads of 590 and 1130 at 5e-4 s, the
-        posterior's dead zone and backlash 5 % and 58 % above the truth, which beat it by 48 nats
-        at 5e-4 s and lost by 65 at 1e-4 s; at 6.25e-5 s the loads are 4.6 and 12.9. A record
-        with 1e-4 rad of noise sampled at 200 Hz keeps the step it was given.
-        """
+        """The simulator at the coarsest step whose error the record cannot see
+        (:meth:`_refine_step`; a record with 1e-4 rad of noise sampled at 200 Hz keeps the step
+        it was given), edges re-timed on that step's grid."""
         self.start_params = start_params
-        dt = self.dt
-        while True:
+
+        def build(dt):
             self._time_edges(dt)
             self.simulator = BatchSimulator(self.experiment, float(self.tau[-1]), dt,
                                             rate=self._rate(dt))
-            self.solver_var = None
-            self.solver_var = self.waveform_solver_variance(start_params)
-            # a halved step that does not fit the output grid gave no change (load 0): kept
-            if self.solver_load <= SOLVER_LOAD_LIMIT or dt <= self.dt / MAX_STEP_REFINEMENT:
-                return self
-            dt /= 2
 
-    @property
-    def sim_dt(self) -> float:
-        """The step the simulations use (s): ``dt``, or finer (:meth:`setup`)."""
-        return self.simulator.dt
+        self._refine_step(start_params, warm_start, build)
+        return self
 
-    def waveform_solver_variance(self, params, warm_start=True):
-        pair = _step_doubling(self, self._at_samples, params, warm_start)
-        if pair is None:
-            self.solver_load = 0.0
-            return np.zeros(self.n)
-        change = pair[0] - pair[1]
-        change = np.where(np.isfinite(change), change - np.nanmean(change), 0.0)
-        #: chi-square the step's error adds over the record (at the estimated noise)
-        self.solver_load = float(np.sum(change * change)) / self.sigma_hat**2
-        return self._spread_solver_error(SOLVER_ERROR_FACTOR * (pair[0] - pair[1]))
+    def _solver_outputs(self, param_sets):
+        return self._at_samples(param_sets)
 
     def _halved_simulator(self, params, warm_start):
         half = self.simulator.dt / 2
