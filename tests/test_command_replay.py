@@ -192,3 +192,26 @@ def test_closed_loop_waveform_step_refined_where_its_error_would_bias_the_fit(tm
           (("refined", term), ("fine", fine), ("coarse", coarse))}
     assert abs(ll["refined"] - ll["fine"]) < 3.0, ll
     assert abs(ll["coarse"] - ll["fine"]) > 10.0, ll
+
+
+def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path):
+    """The load moves with the parameters: at the ridge case's start (``run_ridge_case``: the
+    truth's four parameters 20 % off) controller B's cycle loads 0.09 at 5e-4 s, at the truth 37.
+    ``refine_at`` (what Calibration runs at the maximum a posteriori) halves the step there, and a
+    later check where the load is small keeps the finer step."""
+    import math
+
+    from studies.scenarios import RIDGE_PARAMETERS, ridge_scenario
+
+    scenario = ridge_scenario(0)
+    truth = scenario.truth
+    rng = np.random.default_rng([0, 1])
+    start = truth.replace(**{n: getattr(truth, n) * math.exp(0.2 * rng.standard_normal())
+                             for n in RIDGE_PARAMETERS})
+    path = tmp_path / "B.csv"
+    synthetic_recording(truth, scenario.recordings[1].experiment(), 30.0, 1e-4, 3, path,
+                        keep_last=12.0, dt=5e-5)
+    term = make_term(load_recording(path), "waveform", 10.0, 20.0, 5e-4).setup(start)
+    assert term.sim_dt == 5e-4
+    assert term.refine_at(truth).sim_dt == 2.5e-4
+    assert term.refine_at(start).sim_dt == 2.5e-4

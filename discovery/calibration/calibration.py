@@ -277,6 +277,7 @@ class Calibration:
                     z0, _ = self._polish(lp, _global_start(lp, z0, int(rng.integers(2**31)),
                                                            self.names_))
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
+        self._refine_steps_at(self.map_start_)
         if self.discrepancy:
             self._set_inflation(lp, z0)
         scale = _axis_scales(lp, z0)
@@ -309,6 +310,21 @@ class Calibration:
                     self._set_inflation(lp, z0)  # measured against the widened covariance
                 return out
         raise RuntimeError("could not place the walkers where the posterior is finite")
+
+    def _refine_steps_at(self, point, save=True):
+        """Each output-error term's simulation step checked again at ``point`` (natural
+        coordinates; the maximum a posteriori), never coarser than set up
+        (:meth:`.likelihood._WaveformSolverError.refine_at`); ``point`` is kept in the
+        checkpoint so that a resumed run rebuilds the same likelihood."""
+        params = self.log_posterior_.params_for(np.array([point[n] for n in self.names_]))
+        if params is None:
+            return
+        for term in self.terms_:
+            if hasattr(term, "refine_at"):
+                term.refine_at(params)
+        if save and self.backend is not None:
+            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
+                f.require_group(_H5_GROUP).attrs["step_check_at"] = json.dumps(point)
 
     def _set_transient_variance(self, lp, z) -> bool:
         """Each features term's start imprint (:meth:`.likelihood.FeatureTerm.transient_variance`)
@@ -502,6 +518,9 @@ class Calibration:
                     stored = f[_H5_GROUP].attrs.get("inflation") if _H5_GROUP in f else None
                     transient = ({k: v[()] for k, v in f[_H5_GROUP]["transient_var"].items()}
                                  if _H5_GROUP in f and "transient_var" in f[_H5_GROUP] else None)
+                    step_check = f[_H5_GROUP].attrs.get("step_check_at") if _H5_GROUP in f else None
+                if step_check is not None and old == config:  # resuming: the steps of the start
+                    self._refine_steps_at(json.loads(step_check), save=False)
                 if transient is not None and old == config:  # resuming: the start's imprint
                     for term in self.terms_:
                         if term.name in transient:

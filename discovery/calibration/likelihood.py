@@ -180,7 +180,7 @@ class _WaveformSolverError:
         self.solver_load = float(np.sum(change * change)) / self.sigma_hat**2
         return self._spread_solver_error(SOLVER_ERROR_FACTOR * (pair[0] - pair[1]))
 
-    def _refine_step(self, start_params, warm_start, build):
+    def _refine_step(self, params, warm_start, build, dt=None):
         """Build the simulator (``build(dt)``) at the coarsest step whose error the record
         cannot see, and the solver variance at that step.
 
@@ -195,15 +195,29 @@ class _WaveformSolverError:
         B, 1e-4 rad noise) had a load of 33 at 5e-4 s (0.2 at 2.5e-4 s) and its posterior beat the
         truth by 21 nats, the dead zone and the delay just outside their 90 % intervals.
         A halved step that does not fit the output grid reports no change and is kept.
+        The load is measured at ``params``, from step ``dt`` (default the term's ``dt``) down;
+        :meth:`refine_at` repeats it at the maximum a posteriori.
         """
-        dt = self.dt
+        self._build = build
+        self._warm = warm_start
+        dt = self.dt if dt is None else dt
         while True:
             build(dt)
             self.solver_var = None
-            self.solver_var = self.waveform_solver_variance(start_params, warm_start)
+            self.solver_var = self.waveform_solver_variance(params, warm_start)
             if self.solver_load <= SOLVER_LOAD_LIMIT or dt <= self.dt / MAX_STEP_REFINEMENT:
                 return
             dt /= 2
+
+    def refine_at(self, params):
+        """The step check of :meth:`setup` again at ``params`` (the maximum a posteriori), from
+        the present step down (never coarser), and the solver variance measured there.
+
+        The load moves with the parameters: the ridge case's cycle at B had a load of 33 at the
+        truth and under 10 at its start 20 % away, so a check at the start alone kept 5e-4 s and
+        the posterior beat the truth by 21 nats."""
+        self._refine_step(params, self._warm, self._build, dt=self.simulator.dt)
+        return self
 
     @property
     def sim_dt(self) -> float:
@@ -421,6 +435,7 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
     def setup(self, start_params, warm_start=True):
         """The simulator at the coarsest step whose error the record cannot see
         (:meth:`_refine_step`), and a check that the start's simulated cycle is periodic."""
+        # the warm start stays the start's when refine_at re-checks the step elsewhere
         self._refine_step(start_params, warm_start,
                           lambda dt: self._build_simulator(start_params, warm_start, dt))
         self.period_mismatch = self.period_mismatch_of(start_params)
