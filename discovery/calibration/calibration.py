@@ -55,6 +55,16 @@ def truths_from_recordings(recordings, names, hypothesis_name):
     return {n: truths.get(n) for n in names}
 
 
+#: Default RK4 step per likelihood (s). A limit cycle with a jump in its dynamics (a friction
+#: offset at the dead zone's edge) locks its period to the step's grid (the ridge case's truth:
+#: 1574 steps of 5e-4 s for delays within +-2 %), and its phase-aligned waveform carries an error
+#: that moves erratically with the parameters (step-doubling loads 0-219 around the posterior),
+#: which a check at one point cannot catch: at 5e-4 s every posterior sample beat the truth (HPD
+#: rank 1.00, dead zone and delay outside), at 2.5e-4 s the truth's rank was 0.73 and all four
+#: inside (970 steps instead of 1150). The features' first-order error is corrected instead.
+DEFAULT_DT = {"waveform": 2.5e-4, "features": 5e-4}
+
+
 class Calibration:
     """Posterior over chosen parameters of a hypothesis, given one or more recordings.
 
@@ -79,8 +89,11 @@ class Calibration:
         Seconds of each closed-loop recording used (its end); ``None`` for all of it.
     transient : float
         Seconds simulated before the compared window (after the warm start).
-    dt : float
-        RK4 step; 5e-4 keeps log-likelihood errors below 0.1 (MODELS.md).
+    dt : float or None
+        RK4 step of the simulations (each output-error record may halve it further,
+        :meth:`.likelihood._WaveformSolverError._refine_step`). Default ``DEFAULT_DT``: 2.5e-4 s
+        for the waveform likelihood, 5e-4 s for the features (whose solver error is corrected).
+        Learned attribute ``dt_``: the step used.
     n_walkers, max_steps, tau_factor
         Ensemble size, step cap, ``N > tau_factor * tau``.
     moves : emcee moves, optional
@@ -124,7 +137,7 @@ class Calibration:
 
     def __init__(self, hypothesis, params=("backlash", "dead_zone", "delay", SIGMA),
                  priors=None, fixed=None, start=None, likelihood="waveform",
-                 features=DEFAULT_FEATURES, window=10.0, transient=6.0, dt=5e-4, n_walkers=16,
+                 features=DEFAULT_FEATURES, window=10.0, transient=6.0, dt=None, n_walkers=16,
                  max_steps=4000, check_every=10, tau_factor=50.0, moves=None, pool=None,
                  backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
                  stop_when_converged=True, spread="axes", discrepancy=True, laplace_move=True):
@@ -175,7 +188,7 @@ class Calibration:
             "features": list(self.features),
             "window": self.window,
             "transient": self.transient,
-            "dt": self.dt,
+            "dt": self.dt_,
             "n_walkers": self.n_walkers,
             "recordings": [t.describe()["name"] for t in self.terms_],
             "discrepancy": bool(self.discrepancy),
@@ -191,8 +204,10 @@ class Calibration:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer (got {v!r})")
-        if not (isinstance(self.dt, (int, float)) and self.dt > 0):
-            raise ValueError(f"dt must be > 0 (got {self.dt!r})")
+        dt = DEFAULT_DT[self.likelihood] if self.dt is None else self.dt
+        if not (isinstance(dt, (int, float)) and dt > 0):
+            raise ValueError(f"dt must be > 0 (got {dt!r})")
+        self.dt_ = float(dt)
         if self.spread not in ("axes", "hessian"):
             raise ValueError(f"spread must be 'axes' or 'hessian' (got {self.spread!r})")
         if self.transient < 0:
@@ -221,7 +236,7 @@ class Calibration:
         for i, rec in enumerate(self.recordings_):
             name = rec.path.stem if rec.path is not None else f"recording{i}"
             self.terms_.append(make_term(rec, self.likelihood, self.window, self.transient,
-                                         self.dt, name=name, features=self.features, rng=rng))
+                                         self.dt_, name=name, features=self.features, rng=rng))
         self.sigma_hat_ = float(np.sqrt(np.mean([t.sigma_hat**2 for t in self.terms_])))
         sigma_fixed = float((self.fixed or {}).get(SIGMA, self.sigma_hat_))
         start_values = {}
@@ -233,7 +248,7 @@ class Calibration:
             else:
                 start_values[n] = float(getattr(base, n))
             if n not in priors:
-                priors[n] = default_prior(n, start_values[n], dt=self.dt)
+                priors[n] = default_prior(n, start_values[n], dt=self.dt_)
             p = priors[n]
             if not p.low <= start_values[n] <= p.high:
                 raise ValueError(
