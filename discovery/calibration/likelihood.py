@@ -186,7 +186,7 @@ class _WaveformSolverError:
         cannot see, and the solver variance at that step.
 
         The step is halved (down to ``dt / MAX_STEP_REFINEMENT``) while the step-doubling change
-        at ``start_params`` adds more than ``SOLVER_LOAD_LIMIT`` to the record's chi-square
+        at ``params`` adds more than ``SOLVER_LOAD_LIMIT`` to the record's chi-square
         (:attr:`solver_load`). Near switching events RK4 converges at first order, and the error,
         though under the noise sample by sample, is one-signed over thousands of samples, so the
         parameters can absorb it (a shifted delay cancels a phase error) where a variance cannot:
@@ -623,11 +623,11 @@ class FeatureTerm(_ClosedLoopTerm):
         switching event, and over a 10-40 s record the features are known to a precision the
         step's error can exceed by tens of sd (a drawn truth at dt = 5e-4 missed its own data's
         H1 by 61 sd; at 2.5e-4 the features moved by about as much). The error is one-signed and
-        alike across a design's records, so the parameters absorb it if it is only counted as
+        alike across a design's records, so the parameters can absorb it if it is only counted as
         variance: coverage draw 16 (three limit cycles, noise 1.9e-5 rad) had H1 2.3, 3.9 and 1.1
-        sd low at the truth at 5e-4 s, and the posterior put the dead zone 5 % below the truth
-        (rank 0.999) with that variance in place. Corrected, the truth's H1 is 0.14-0.32 sd from
-        a 5e-5 s simulation's. Zeros when the halved step does not fit the grid.
+        sd low at the truth at 5e-4 s; corrected, 0.14-0.32 sd from a 5e-5 s simulation's (that
+        draw's posterior, whose dead zone sits 5 % below the truth, did not move: its open-loop
+        square decides it). Zeros when the halved step does not fit the grid.
         """
         self.solver_bias = np.zeros(len(self.features))
         pair = _step_doubling(self, self.model_features, params, warm_start)
