@@ -36,6 +36,8 @@ from .commands.discover import discover
 from .common import study_main
 
 NAME = "discover"
+#: Started first by ``tvcid study all --jobs N`` (the structure search takes most of the time).
+LONG_RUNNING = True
 DATA = Path(__file__).resolve().parents[1] / "data"
 
 

@@ -1,7 +1,8 @@
 """The studies ``tvcid study`` knows, in the order ``tvcid study all`` runs them.
 
 Each study module exposes ``NAME``, a frozen ``Config``, ``QUICK`` and
-``run(config, seed, out_dir) -> dict``.
+``run(config, seed, out_dir) -> dict``; ``LONG_RUNNING = True`` makes ``tvcid study all --jobs N``
+start it first.
 """
 from __future__ import annotations
 

@@ -243,6 +243,10 @@ def test_pool_with_map_is_accepted(short_record):
     b = _small(max_steps=10).fit([short_record])
     assert pool.calls >= 10
     assert np.array_equal(a.sampler_.get_chain(), b.sampler_.get_chain())
+    # the cost in steps: one record, every point simulated at the record's (possibly refined) step
+    lp, sim = b.log_posterior_, b.log_posterior_.terms[0].simulator
+    assert lp.simulated_steps == pytest.approx(lp.simulated_seconds / sim.dt)
+    assert sim.dt <= b.dt_
 
 
 def test_open_loop_command_rebuilt_from_sidecar(tmp_path):

@@ -10,9 +10,9 @@ from studies.registry import STUDIES
 
 @pytest.fixture(scope="session")
 def quick_results(tmp_path_factory):
-    """``tvcid study all --quick`` run once for the session; the results directory."""
+    """``tvcid study all --quick --jobs 2`` run once for the session; the results directory."""
     results = tmp_path_factory.mktemp("results")
-    assert main(["study", "all", "--quick", "--results", str(results)]) == 0
+    assert main(["study", "all", "--quick", "--jobs", "2", "--results", str(results)]) == 0
     return results
 
 
@@ -59,6 +59,8 @@ def test_reference_cycles_within_one_percent_of_models_md(tmp_path):
 def test_unknown_study_is_named(capsys):
     assert main(["study", "h9_nothing"]) == 2
     assert "unknown study 'h9_nothing'" in capsys.readouterr().err
+    assert main(["study", "all", "--jobs", "0"]) == 2
+    assert "--jobs 0: need at least 1" in capsys.readouterr().err
 
 
 def test_h3_inner_integrators_select_the_small_cycle_and_x0_alone_does_not(quick_results):

@@ -72,6 +72,14 @@ class LogPosterior:
                         if getattr(t, "simulator", None) is not None)
         return self.n_points * per_point
 
+    @property
+    def simulated_steps(self) -> float:
+        """RK4 steps taken so far (the cost :attr:`simulated_seconds` does not see: a record
+        whose step was halved costs twice per simulated second)."""
+        per_point = sum(float(t.simulator.t_end) / float(t.simulator.dt) for t in self.terms
+                        if getattr(t, "simulator", None) is not None)
+        return self.n_points * per_point
+
     def natural(self, z):
         """Internal -> natural coordinates, ``(n, ndim)``."""
         z = np.atleast_2d(np.asarray(z, dtype=float))

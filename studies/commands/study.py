@@ -19,7 +19,18 @@ def register(sub):
     p.add_argument("--quick", action="store_true", help="short runs (CI)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     p.add_argument("--results", default="results", help="results directory")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="studies run at once, one process each (default 1; the longest start first)")
     p.set_defaults(func=run)
+
+
+def _run_one(name, quick, seed, results):
+    """Run study ``name``; its output directory."""
+    module = STUDIES[name]
+    config = module.QUICK if quick else module.Config()
+    out = Path(results) / name
+    module.run(config, seed, out)
+    return out
 
 
 def run(args) -> int:
@@ -29,12 +40,21 @@ def run(args) -> int:
         names = [args.name]
     else:
         raise ValueError(f"unknown study {args.name!r}; choose 'all' or one of {', '.join(STUDIES)}")
-    for name in tqdm(names, desc="studies", unit="study", disable=len(names) == 1):
-        module = STUDIES[name]
-        config = module.QUICK if args.quick else module.Config()
-        out = Path(args.results) / name
-        module.run(config, args.seed, out)
-        tqdm.write(f"study {name}: wrote {out}")
+    if args.jobs < 1:
+        raise ValueError(f"--jobs {args.jobs}: need at least 1")
+    if args.jobs > 1 and len(names) > 1:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        # the long studies first, so that the short ones fill the other processes meanwhile
+        names.sort(key=lambda n: not getattr(STUDIES[n], "LONG_RUNNING", False))
+        with ProcessPoolExecutor(max_workers=min(args.jobs, len(names))) as pool:
+            futures = {pool.submit(_run_one, n, args.quick, args.seed, args.results): n for n in names}
+            for fut in tqdm(as_completed(futures), total=len(futures), desc="studies", unit="study"):
+                tqdm.write(f"study {futures[fut]}: wrote {fut.result()}")
+    else:
+        for name in tqdm(names, desc="studies", unit="study", disable=len(names) == 1):
+            out = _run_one(name, args.quick, args.seed, args.results)
+            tqdm.write(f"study {name}: wrote {out}")
     report = write_report(args.results)
     print(f"wrote {report}")
     return 0
