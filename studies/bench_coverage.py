@@ -278,9 +278,11 @@ def main(argv=None) -> int:
                                     "summary": summarise(rows)}, indent=2))
 
     if args.jobs > 1 and len(todo) > 1:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures import as_completed
 
-        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        from .common import process_pool
+
+        with process_pool(args.jobs) as pool:
             futures = [pool.submit(run_draw, i, config, out / "data") for i in todo]
             for fut in as_completed(futures):
                 record(fut.result())

@@ -231,9 +231,9 @@ def main(argv=None) -> int:
     seeds = [s for s in range(args.seed, args.seed + n) if s not in done]
     n = len(seeds)
     if args.jobs > 1 and len(seeds) > 1:
-        from concurrent.futures import ProcessPoolExecutor
+        from .common import process_pool
 
-        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        with process_pool(args.jobs) as pool:
             for seed, row in zip(seeds, pool.map(guarded_draw, seeds, [out] * n, [args.quick] * n)):
                 record(seed, row)
     else:

@@ -5,6 +5,18 @@ import argparse
 from pathlib import Path
 
 
+def process_pool(jobs):
+    """A pool of ``jobs`` spawned processes (benchmarks and ``tvcid study all --jobs``).
+
+    Spawned, not forked: a process whose numba kernels already ran OpenMP threads cannot fork
+    safely (libgomp terminates the child: seen under pytest-xdist).
+    """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    return ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"))
+
+
 def pyplot():
     """``matplotlib.pyplot`` on the Agg backend (studies write files, never open windows)."""
     import matplotlib

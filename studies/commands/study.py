@@ -43,11 +43,13 @@ def run(args) -> int:
     if args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs}: need at least 1")
     if args.jobs > 1 and len(names) > 1:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures import as_completed
+
+        from ..common import process_pool
 
         # the long studies first, so that the short ones fill the other processes meanwhile
         names.sort(key=lambda n: not getattr(STUDIES[n], "LONG_RUNNING", False))
-        with ProcessPoolExecutor(max_workers=min(args.jobs, len(names))) as pool:
+        with process_pool(min(args.jobs, len(names))) as pool:
             futures = {pool.submit(_run_one, n, args.quick, args.seed, args.results): n for n in names}
             for fut in tqdm(as_completed(futures), total=len(futures), desc="studies", unit="study"):
                 tqdm.write(f"study {futures[fut]}: wrote {fut.result()}")
