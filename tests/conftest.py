@@ -19,3 +19,11 @@ def cycle_at_a():
         return _cycle(name, **overrides)
 
     return get
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Files that set ``RUN_FIRST`` (their rough minutes on one core) are collected first, longest
+    first: on two xdist workers (a file each) a long file started last would run alone at the end.
+    Only the two longest set it: xdist gives each worker two files at the start, and a third long
+    one would queue behind the first on the same worker."""
+    items.sort(key=lambda item: -getattr(getattr(item, "module", None), "RUN_FIRST", 0))

@@ -14,6 +14,9 @@ from discovery.calibration.checks import predictive_check
 from discovery.calibration.likelihood import features_inflation, waveform_inflation
 from discovery.calibration.runner import ConvergenceWarning
 
+#: Collected first (tests/conftest.py): minutes on one core (the bundled records' fits).
+RUN_FIRST = 5
+
 
 def test_white_residuals_are_not_inflated():
     """White noise of the assumed sd: factor 1 in 20 of 20 seeds (each factor triggers beyond

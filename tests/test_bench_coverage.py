@@ -1,0 +1,39 @@
+"""The coverage benchmark's quick run and its command line (a file of their own, so that a
+second test worker runs them beside the quick studies of ``test_studies.py``)."""
+import json
+
+import pytest
+
+
+def test_bench_coverage_quick_rows_agree_with_their_summary(tmp_path):
+    """``python -m studies.bench_coverage --quick`` (one draw here): every sampled parameter's row
+    holds ordered quantiles, a rank in [0, 1] and an 'inside' flag that matches them; the summary's
+    coverage and rank histogram are those of the rows. (The coverage itself needs the full run:
+    README, "Known limits".)"""
+    from studies.bench_coverage import RANK_BINS
+    from studies.bench_coverage import main as bench_main
+
+    assert bench_main(["--quick", "--draws", "1", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "bench.json").read_text())
+    (row,) = report["rows"]
+    assert row["parameters"] and row["simulated_seconds"] > 0 and len(row["inflation"]) == len(row["design"])
+    for name, cell in row["parameters"].items():
+        assert cell["q05"] <= cell["q50"] <= cell["q95"] and 0.0 <= cell["rank"] <= 1.0
+        assert cell["inside"] == (cell["q05"] <= cell["truth"] <= cell["q95"])
+        s = report["summary"][name]
+        assert s["coverage"] == float(cell["inside"]) and sum(s["rank_histogram"]) == 1
+        assert s["rank_histogram"][min(int(cell["rank"] * RANK_BINS), RANK_BINS - 1)] == 1
+    infl = report["summary"]["_inflation"]
+    assert infl["records"] == len(row["inflation"]) and infl["max"] == max(row["inflation"])
+    assert (tmp_path / "ranks.png").stat().st_size > 0
+
+
+def test_bench_coverage_indices_select_draws_and_reject_bad_text():
+    """``--indices 10,14-29`` selects those draws (ranges inclusive); text that is not N or N-M
+    is refused with a message naming it."""
+    from studies.bench_coverage import parse_indices
+
+    assert parse_indices("10,14-16") == {10, 14, 15, 16}
+    assert parse_indices("3") == {3}
+    with pytest.raises(ValueError, match="'a-2' is not N or N-M"):
+        parse_indices("a-2")
