@@ -37,3 +37,20 @@ def test_bench_coverage_indices_select_draws_and_reject_bad_text():
     assert parse_indices("3") == {3}
     with pytest.raises(ValueError, match="'a-2' is not N or N-M"):
         parse_indices("a-2")
+
+
+def test_oracle_gain_of_a_known_quadratic_and_bad_arguments(capsys):
+    """``studies.coverage_oracle``'s maximiser returns the drop from the truth (z = 0) to the
+    optimum of a known quadratic, and where it is; a negative index is refused."""
+    import numpy as np
+
+    from studies.coverage_oracle import _maximise
+    from studies.coverage_oracle import main as oracle_main
+
+    centre = np.array([0.02, -0.05, 0.01])
+    gain, move = _maximise(lambda z: 0.5 * float(np.sum(((z - centre) / 0.01) ** 2)) + 3.0, 3)
+    assert gain == pytest.approx(0.5 * np.sum((centre / 0.01) ** 2), rel=1e-3)
+    assert np.allclose(move, centre, atol=2e-4)
+    with pytest.raises(SystemExit):
+        oracle_main(["-1"])
+    assert "non-negative" in capsys.readouterr().err

@@ -51,8 +51,12 @@ def run(args) -> int:
         names.sort(key=lambda n: not getattr(STUDIES[n], "LONG_RUNNING", False))
         with process_pool(min(args.jobs, len(names))) as pool:
             futures = {pool.submit(_run_one, n, args.quick, args.seed, args.results): n for n in names}
-            for fut in tqdm(as_completed(futures), total=len(futures), desc="studies", unit="study"):
-                tqdm.write(f"study {futures[fut]}: wrote {fut.result()}")
+            try:
+                for fut in tqdm(as_completed(futures), total=len(futures), desc="studies", unit="study"):
+                    tqdm.write(f"study {futures[fut]}: wrote {fut.result()}")
+            except BaseException:  # a failed study: do not start the ones still queued
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
     else:
         for name in tqdm(names, desc="studies", unit="study", disable=len(names) == 1):
             out = _run_one(name, args.quick, args.seed, args.results)

@@ -1,0 +1,153 @@
+"""Is a coverage miss the data's own noise, or the method? An exact-edge oracle on a draw's open-loop records.
+
+``python -m studies.coverage_oracle INDEX [--renoise K] [--out DIR]``
+
+Hypothesis: when the coverage benchmark (:mod:`studies.bench_coverage`) puts a truth outside its
+90 % interval because an open-loop record prefers another point, either the likelihood term is
+biased (the command's replay from 200 Hz samples, its edge-timing nuisance, the solver's step) or
+that record's noise realisation happens to favour the other point. An oracle separates the two:
+it knows the square's exact edges (the generator's analytic command) and simulates 10x finer than
+the fit (:data:`ORACLE_DT`), so it has neither the replay nor the solver error. Deciding numbers,
+per open-loop record of draw ``INDEX``:
+
+* ``term_gain``: how much the calibration's own term (:class:`discovery.calibration.likelihood.
+  OpenLoopTerm`, at the benchmark's step and refinement) improves on the truth's log-likelihood by moving
+  the sampled parameters (Nelder-Mead from the truth), and where to;
+* ``oracle_gain``: the same for the oracle on the same data;
+* ``renoised_gains``: the oracle's gain on ``K`` fresh noise realisations of the same truth and
+  command (acquisition as the generator's: noise, offset, quantisation), and the share of them at
+  least as large as the record's own (a small share: the record's noise is a tail one);
+* ``reference_vs_kernel``: the largest difference between the plain-Python reference path (which
+  made the data) and the kernel on the noise-free response.
+
+A term gain far above the oracle's points at the method; an oracle gain as large as the term's,
+and common among re-noised records, at the noise. Chi-square/2 with as many degrees of freedom as
+parameters moved is the reference for a smooth likelihood (mean k/2).
+
+Written: ``DIR/draw<INDEX>.json``; data reuse ``results/bench_coverage/data`` (the benchmark's).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+#: Step (s) of the oracle's simulations: 10x finer than the features' 5e-4 s and the data's
+#: generator step (:data:`studies.scenarios.DATA_DT`) apart by the same factor.
+ORACLE_DT = 5e-5
+#: Relative size of the Nelder-Mead start simplex around the truth.
+SIMPLEX = 0.03
+
+
+def _maximise(cost, n):
+    """``(gain, relative move)``: the drop of ``cost`` from the truth (relative move 0)."""
+    from scipy.optimize import minimize
+
+    at_truth = cost(np.zeros(n))
+    res = minimize(cost, np.zeros(n), method="Nelder-Mead",
+                   options={"xatol": 1e-5, "fatol": 1e-3,
+                            "initial_simplex": np.vstack([np.zeros(n), SIMPLEX * np.eye(n)])})
+    return float(at_truth - res.fun), res.x
+
+
+def oracle_check(index, renoise=6, workdir=Path("results/bench_coverage/data")):
+    """The numbers of the module docstring for every open-loop record of draw ``index``."""
+    from discovery.calibration.likelihood import OpenLoopTerm
+    from models import SimulationDiverged, simulate
+    from models.recording import load_recording
+    from models.reference import simulate_reference
+    from models.structures import Structure
+
+    from .bench_coverage import SAMPLED, Config, coverage_scenario, priors_for
+    from .scenarios import DATA_DT, write_recordings
+
+    config = Config()
+    scenario = coverage_scenario(index, config)
+    truth, acq = scenario.truth, scenario.acquisition
+    names = [n for n in SAMPLED if n in priors_for(Structure.of_params(truth))]
+    x0 = np.array([getattr(truth, n) for n in names])
+
+    def at(z):
+        return truth.replace(**dict(zip(names, x0 * (1.0 + np.asarray(z)))))
+
+    paths = write_recordings(scenario, Path(workdir) / f"draw{index:03d}", reuse=True)
+    rows = []
+    for i, (design, path) in enumerate(zip(scenario.recordings, paths)):
+        if design.kind != "open":
+            continue
+        rec = load_recording(path)
+        sigma = acq.noise_sd
+        exp = design.experiment()
+        term = OpenLoopTerm(rec, None, None, config.dt).setup(truth)  # as the benchmark builds it
+
+        def term_cost(z):
+            ll = term.loglike([at(z)], [sigma])[0]
+            return -float(ll) if np.isfinite(ll) else np.inf
+
+        def oracle_cost(z, data):
+            try:
+                tr = simulate(at(z), exp, float(rec.t[-1]), dt=ORACLE_DT, rate=design.rate)
+            except (ValueError, ArithmeticError, SimulationDiverged):
+                return np.inf
+            r = data - np.interp(rec.t, tr.t, tr.delta)
+            r = r - r.mean()  # the sensor offset, profiled as the term does
+            return 0.5 * float(np.sum(r * r)) / sigma**2
+
+        term_gain, term_move = _maximise(term_cost, len(names))
+        oracle_gain, oracle_move = _maximise(lambda z: oracle_cost(z, rec.delta), len(names))
+        clean = simulate_reference(truth, exp, design.duration, dt=DATA_DT, rate=design.rate)
+        kernel = simulate(truth, exp, design.duration, dt=DATA_DT, rate=design.rate)
+        renoised = []
+        for k in range(renoise):
+            rng = np.random.default_rng([scenario.seed, i, 7919, k])
+            data = clean.delta + acq.noise_sd * rng.standard_normal(clean.t.size) + acq.offset
+            if acq.quantisation > 0:
+                data = acq.quantisation * np.round(data / acq.quantisation)
+            renoised.append(_maximise(lambda z: oracle_cost(z, data[: rec.t.size]), len(names))[0])
+        rows.append({
+            "recording": path.name, "design": design.__dict__, "parameters": names,
+            "term_step": term.sim_dt,
+            "term_gain": term_gain, "term_move_relative": dict(zip(names, term_move.tolist())),
+            "oracle_gain": oracle_gain,
+            "oracle_move_relative": dict(zip(names, oracle_move.tolist())),
+            "renoised_gains": renoised,
+            "share_renoised_at_least_as_large": float(np.mean(np.array(renoised) >= oracle_gain))
+            if renoised else None,
+            "chi2_half_mean": len(names) / 2,
+            "reference_vs_kernel": float(np.max(np.abs(clean.delta - kernel.delta))),
+        })
+    return {"index": index, "seed": scenario.seed, "structure": Structure.of_params(truth).name,
+            "truth": {n: float(getattr(truth, n)) for n in names}, "noise_sd": acq.noise_sd,
+            "records": rows}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("index", type=int, help="the coverage benchmark's draw index")
+    parser.add_argument("--renoise", type=int, default=6, help="fresh noise realisations (default 6)")
+    parser.add_argument("--out", default="results/coverage_oracle", help="output directory")
+    args = parser.parse_args(argv)
+    if args.index < 0 or args.renoise < 0:
+        parser.error("INDEX and --renoise must be non-negative")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    result = oracle_check(args.index, args.renoise)
+    if not result["records"]:
+        print(f"draw {args.index} has no open-loop record: nothing to check")
+    for r in result["records"]:
+        print(f"{r['recording']}: term gain {r['term_gain']:.2f} nats, oracle {r['oracle_gain']:.2f} "
+              f"(moves {', '.join(f'{n} {v:+.3f}' for n, v in r['oracle_move_relative'].items())}); "
+              f"re-noised {', '.join(f'{g:.2f}' for g in r['renoised_gains'])} "
+              f"(chi-square/2 mean {r['chi2_half_mean']:.1f}); reference vs kernel "
+              f"{r['reference_vs_kernel']:.2g} rad")
+    path = out / f"draw{args.index:03d}.json"
+    path.write_text(json.dumps(result, indent=2, default=float))
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
