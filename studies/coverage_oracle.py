@@ -1,6 +1,6 @@
 """Is a coverage miss the data's own noise, or the method? An exact-edge oracle on a draw's open-loop records.
 
-``python -m studies.coverage_oracle INDEX [--renoise K] [--out DIR]``
+``python -m studies.coverage_oracle INDEX [--renoise K] [--out DIR]``  (5-15 minutes a draw)
 
 Hypothesis: when the coverage benchmark (:mod:`studies.bench_coverage`) puts a truth outside its
 90 % interval because an open-loop record prefers another point, either the likelihood term is
@@ -19,6 +19,12 @@ per open-loop record of draw ``INDEX``:
   least as large as the record's own (a small share: the record's noise is a tail one);
 * ``reference_vs_kernel``: the largest difference between the plain-Python reference path (which
   made the data) and the kernel on the noise-free response.
+
+Per closed-loop record (the features likelihood), the step ladder: the model's features at the
+truth at the benchmark's step and at 1/2, 1/4 and 1/8 of it, each as the features term builds it
+(its own step-doubling correction included), in sd of the observed features. A cycle whose period
+locks to the step's grid keeps the same features at a step and its half, so the step-doubling
+check sees no error there while a finer pair moves (``ladder``; draw 2's second record).
 
 A term gain far above the oracle's points at the method; an oracle gain as large as the term's,
 and common among re-noised records, at the noise. Chi-square/2 with as many degrees of freedom as
@@ -119,9 +125,36 @@ def oracle_check(index, renoise=6, workdir=Path("results/bench_coverage/data")):
             "chi2_half_mean": len(names) / 2,
             "reference_vs_kernel": float(np.max(np.abs(clean.delta - kernel.delta))),
         })
+    ladders = [step_ladder(truth, names, path, config) for design, path in
+               zip(scenario.recordings, paths) if design.kind == "closed"]
     return {"index": index, "seed": scenario.seed, "structure": Structure.of_params(truth).name,
             "truth": {n: float(getattr(truth, n)) for n in names}, "noise_sd": acq.noise_sd,
-            "records": rows}
+            "records": rows, "closed_loop": ladders}
+
+
+def step_ladder(truth, names, path, config, levels=4):
+    """The features term of one closed-loop record at the truth, at the benchmark's step and
+    ``levels - 1`` halvings of it: features, their step-doubling change and the whitened
+    residuals (sd of the observed features)."""
+    from discovery.calibration import Calibration
+    from models.structures import Structure
+
+    from .bench_coverage import priors_for
+
+    priors = priors_for(Structure.of_params(truth))
+    ladder = []
+    for j in range(levels):
+        dt = config.dt / 2**j
+        cal = Calibration(truth, params=tuple(names), priors=priors, likelihood="features",
+                          window=config.window, transient=config.transient, dt=dt, seed=0,
+                          spread=config.spread).setup([path])
+        term = cal.terms_[0]
+        d = term.describe()
+        z = term.whitened_residuals([truth], np.array([term.sigma_hat]))[0]
+        ladder.append({"dt": term.simulator.dt, "model": term.model_features([truth])[0].tolist(),
+                       "step_doubling_sd": d["solver_sd"], "whitened_at_truth": z.tolist()})
+    return {"recording": Path(path).name, "features": list(d["features"]),
+            "observed": d["observed"], "sd": d["sd"], "ladder": ladder}
 
 
 def main(argv=None) -> int:
@@ -136,13 +169,17 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     result = oracle_check(args.index, args.renoise)
     if not result["records"]:
-        print(f"draw {args.index} has no open-loop record: nothing to check")
+        print(f"draw {args.index} has no open-loop record: closed-loop step ladders only")
     for r in result["records"]:
         print(f"{r['recording']}: term gain {r['term_gain']:.2f} nats, oracle {r['oracle_gain']:.2f} "
               f"(moves {', '.join(f'{n} {v:+.3f}' for n, v in r['oracle_move_relative'].items())}); "
               f"re-noised {', '.join(f'{g:.2f}' for g in r['renoised_gains'])} "
               f"(chi-square/2 mean {r['chi2_half_mean']:.1f}); reference vs kernel "
               f"{r['reference_vs_kernel']:.2g} rad")
+    for c in result["closed_loop"]:
+        steps = "; ".join(f"{r['dt']:.3g} s: " + " ".join(f"{v:+.2f}" for v in r["whitened_at_truth"])
+                          for r in c["ladder"])
+        print(f"{c['recording']} ({', '.join(c['features'])}) at the truth, in sd: {steps}")
     path = out / f"draw{args.index:03d}.json"
     path.write_text(json.dumps(result, indent=2, default=float))
     print(f"wrote {path}")
