@@ -93,10 +93,11 @@ ONE_STRUCTURE = ["--fix", "dead_zone_position=velocity", "--fix", "delay_positio
                  "--fix", "bandpass_saturation=0.01"]
 
 
-def test_never_oscillating_structure_is_one_line_error(capsys):
+def test_never_oscillating_structure_is_one_line_error(tmp_path, capsys):
     """A fixed linear block that cannot move the actuator: no candidate oscillates."""
     args = ["discover", DATA, *ONE_STRUCTURE, "--fix", "gain=1", "--fix", "damping=200",
-            "--fix", "stiffness=14520", "--quick", "--no-mcmc", "--no-progress", "--out", "unused"]
+            "--fix", "stiffness=14520", "--quick", "--no-mcmc", "--no-progress",
+            "--out", str(tmp_path / "unused")]
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert "no structure reproduces the recordings" in err and len(err.splitlines()) == 1
