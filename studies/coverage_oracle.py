@@ -109,9 +109,7 @@ def oracle_check(index, renoise=6, workdir=Path("results/bench_coverage/data")):
         renoised = []
         for k in range(renoise):
             rng = np.random.default_rng([scenario.seed, i, 7919, k])
-            data = clean.delta + acq.noise_sd * rng.standard_normal(clean.t.size) + acq.offset
-            if acq.quantisation > 0:
-                data = acq.quantisation * np.round(data / acq.quantisation)
+            data = acq.measure(clean.delta, rng)
             renoised.append(_maximise(lambda z: oracle_cost(z, data[: rec.t.size]), len(names))[0])
         rows.append({
             "recording": path.name, "design": design.__dict__, "parameters": names,

@@ -83,6 +83,14 @@ class Acquisition:
     offset: float
     quantisation: float
 
+    def measure(self, delta, rng):
+        """``delta`` (rad) as this sensor records it: plus white noise drawn from ``rng`` and the
+        offset, then quantised."""
+        out = np.asarray(delta) + self.noise_sd * rng.standard_normal(np.size(delta)) + self.offset
+        if self.quantisation > 0:
+            out = self.quantisation * np.round(out / self.quantisation)
+        return out
+
 
 @dataclass(frozen=True)
 class Scenario:
@@ -238,9 +246,7 @@ def write_recordings(scenario: Scenario, directory, dt=None, reuse=False) -> lis
         keep = tr.t >= lead - 1e-9
         t = tr.t[keep] - tr.t[keep][0]
         rng = np.random.default_rng([scenario.seed, i])
-        delta = tr.delta[keep] + acq.noise_sd * rng.standard_normal(t.size) + acq.offset
-        if acq.quantisation > 0:
-            delta = acq.quantisation * np.round(delta / acq.quantisation)
+        delta = acq.measure(tr.delta[keep], rng)
         meta = {"kind": rd.kind, "source": "simulated",
                 "generator": "studies/scenarios.py (reference path)"}
         if rd.kind == "closed":
