@@ -82,7 +82,9 @@ def test_cli_run_interrupted_resumes_without_losing_a_step(tmp_path, limit_cycle
     """``tvcid fit`` killed (SIGKILL), terminated (SIGTERM: status 130, one line) or stopped by
     Ctrl-C (SIGINT) mid-run continues from DIR/chain.h5: the finished chain equals an
     uninterrupted run's, step for step (60 steps: the run converges at 75; the independence
-    proposal is refitted at step 50, on either side of the kill)."""
+    proposal is refitted at step 50, on either side of the kill). The signal may land between two
+    10-step chunks, where a default handler's KeyboardInterrupt could be swallowed by a finaliser:
+    the runner defers it over the whole loop."""
     import signal
 
     import emcee
@@ -92,11 +94,11 @@ def test_cli_run_interrupted_resumes_without_losing_a_step(tmp_path, limit_cycle
             "--walkers", "16", "--window", "3", "--transient", "3", "--seed", "4",
             "--max-steps", "60", "--no-progress"]
     killed = tmp_path / "killed"
-    kill_once_checkpointed(["fit", *args, "--out", str(killed)], "chain.h5", killed, min_steps=20,
+    kill_once_checkpointed(["fit", *args, "--out", str(killed)], "chain.h5", killed, min_steps=12,
                            max_steps=60, stderr_path=tmp_path / "stderr.txt", timeout=120,
                            sig=getattr(signal, sig))
     partial = emcee.backends.HDFBackend(str(killed / "chain.h5"), read_only=True).iteration
-    assert 20 <= partial < 60
+    assert 12 <= partial < 60
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         assert main(["fit", *args, "--out", str(killed)]) == 0

@@ -245,24 +245,28 @@ def run_ensemble(
     start_it = sampler.iteration
     t0 = time.perf_counter()
     report = convergence_report(sampler, tau_factor)
-    while sampler.iteration < max_steps:
-        if stop_when_converged and report.converged:
-            break
-        it = sampler.iteration
-        n = min(check_every - it % check_every, max_steps - it)
-        # emcee's run_mcmc, step by step: an interruption waits for the step's checkpoint
-        last = state if state is not None else sampler._previous_state
-        with deferred_interrupts() as interrupt:
+    # one deferred scope over all chunks: a signal during a chunk's last step (or between
+    # chunks) is not lost when the chunk ends
+    with deferred_interrupts() as interrupt:
+        while sampler.iteration < max_steps:
+            if stop_when_converged and report.converged:
+                break
+            it = sampler.iteration
+            n = min(check_every - it % check_every, max_steps - it)
+            # emcee's run_mcmc, step by step: an interruption waits for the step's checkpoint
+            last = state if state is not None else sampler._previous_state
             for last in sampler.sample(last, iterations=n, progress=progress, progress_kwargs={
                     "desc": f"steps {it}-{it + n} of <= {max_steps}"}):
                 if interrupt["signal"] is not None:
                     sampler._previous_state = last
                     raise KeyboardInterrupt(f"interrupted after step {sampler.iteration}")
-        sampler._previous_state = last
-        state = None  # continue from the sampler's (or backend's) last state
-        if after_chunk is not None:
-            after_chunk(sampler)
-        report = convergence_report(sampler, tau_factor)
+            sampler._previous_state = last
+            state = None  # continue from the sampler's (or backend's) last state
+            if after_chunk is not None:
+                after_chunk(sampler)
+            report = convergence_report(sampler, tau_factor)
+        if interrupt["signal"] is not None:
+            raise KeyboardInterrupt(f"interrupted after step {sampler.iteration}")
     report = convergence_report(
         sampler, tau_factor, new_steps=sampler.iteration - start_it,
         wall_time=time.perf_counter() - t0,
