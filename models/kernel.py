@@ -9,7 +9,10 @@ unpacks the result. Conventions are those of MODELS.md:
   run continued from a cycle state (``P_HIST_ON``) outputs the given history line instead;
 * the play operator's memory is updated once per step; the RK4 stages clamp the memory of the
   step start to their own ``x`` (the rate-independent operator evaluated along the stage);
-* ``sign(0) = 0`` in the friction offset;
+* ``sign(0) = 0`` in the friction offset, whose jump is located inside the step: RK4's weighted
+  mean of the offset over the stages is replaced by its mean with the switching signal linear
+  between the first and last stages (:func:`models.nonlinearities.sign_switch_average`), so the
+  cycle does not lock to the step grid;
 * closed loop, ``u = -(C x_c + D v)`` with ``v = Kp (theta_m + Kd theta_m')``: the compensator's
   output for the input ``v`` (``D = 1`` and no states without a compensator, which is bit for bit
   ``u = -Kp (theta + Kd theta')``); ``theta_m = theta + q`` adds the bending mode's ``q`` when there
@@ -80,6 +83,22 @@ def _dead_zone(q, z):
     if q < -z:
         return q + z
     return 0.0
+
+
+@njit(cache=True)
+def _fraction_above(a, b, c):
+    if a > c and b > c:
+        return 1.0
+    if a <= c and b <= c:
+        return 0.0
+    crossing = (c - a) / (b - a)
+    return 1.0 - crossing if b > c else crossing
+
+
+@njit(cache=True)
+def _sign_switch_average(q_start, q_end, z):
+    """The kernel's :func:`models.nonlinearities.sign_switch_average`."""
+    return _fraction_above(q_start, q_end, z) - _fraction_above(-q_start, -q_end, z)
 
 
 @njit(cache=True)
@@ -181,6 +200,9 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
 
     u_held = 0.0
     vc = 0.0  # the PD output, the compensator's input
+    z_switch = z if dz_vel else 0.0
+    q_stage = np.zeros(4)  # the friction offset's switching signal and sign at each RK4 stage
+    sign_stage = np.zeros(4)
     n_noise = noise.shape[0]
     stage_c = (0, 1, 1, 2)  # half-step index of each RK4 stage
     for k in range(n_steps + 1):
@@ -276,13 +298,17 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
                     acc += bp_c[i] * ss[N_CORE_STATES + i]
                 pfb = min(max(bp_gain * acc, -bp_sat), bp_sat)
             q = v + pfb
+            q_stage[stage] = q
             if dz_vel:
                 q = _dead_zone(q, z)
             w = q
+            sign_stage[stage] = 0.0
             if q > 0.0:
                 w = q + off
+                sign_stage[stage] = 1.0
             elif q < 0.0:
                 w = q - off
+                sign_stage[stage] = -1.0
             delta = xd
             if noise_rate > 0.0:
                 idx = int((k + 0.5 * ci) * dt * noise_rate + 1e-9)
@@ -324,6 +350,14 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
         for i in range(ns):
             s[i] += dt / 6.0 * (kk[0, i] + 2.0 * kk[1, i] + 2.0 * kk[2, i] + kk[3, i])
             total += s[i]
+        if off != 0.0 and not (sign_stage[0] == sign_stage[1] == sign_stage[2] == sign_stage[3]):
+            # the offset's jump located inside the step (x and the band-pass states integrate w)
+            rk4_mean = (sign_stage[0] + 2.0 * sign_stage[1] + 2.0 * sign_stage[2]
+                        + sign_stage[3]) / 6.0
+            jump = dt * off * (_sign_switch_average(q_stage[0], q_stage[3], z_switch) - rk4_mean)
+            s[4] += jump
+            for i in range(nbp):
+                s[N_CORE_STATES + i] += jump * bp_b[i]
         memory = min(max(memory, s[4] - r), s[4] + r)
         if not math.isfinite(total):
             return NON_FINITE, k + 1

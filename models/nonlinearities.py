@@ -13,6 +13,7 @@ __all__ = [
     "dead_zone",
     "saturation",
     "friction_offset",
+    "sign_switch_average",
     "play_operator",
     "play_step",
     "backlash_half_width_from_full",
@@ -48,6 +49,43 @@ def friction_offset(q, offset):
     """
     q = np.asarray(q, dtype=float)
     return q + offset * np.sign(q)
+
+
+def sign_switch_average(q_start, q_end, threshold):
+    """Mean over one step of ``sign(DZ_z(q))`` with ``q`` linear from ``q_start`` to ``q_end``.
+
+    The friction offset ``off*sign(q)`` jumps where ``q`` (after a velocity dead zone: where
+    ``|q|`` crosses ``z``) changes side. RK4 samples it at the step's start, middle and end, so it
+    places the jump at one of a few fixed fractions of the step and the limit cycle's period locks
+    to the step grid (the features stop changing with the step or the parameters). The simulators
+    replace RK4's weighted mean of the stage signs by this mean, the jump located by linear
+    interpolation of ``q`` between the step's first and last stages (error O(dt^2)).
+
+    Parameters
+    ----------
+    q_start, q_end : float
+        The switching signal (before the velocity dead zone) at the step's first and last RK4
+        stages.
+    threshold : float
+        ``z`` when the dead zone acts on the velocity signal, else 0.
+
+    Returns
+    -------
+    float
+        In [-1, 1]: the fraction of the step above ``threshold`` minus the fraction below
+        ``-threshold``.
+    """
+    q_start, q_end, z = float(q_start), float(q_end), float(threshold)
+
+    def fraction_above(a, b, c):  # of the step where a + (b - a) tau > c
+        if a > c and b > c:
+            return 1.0
+        if a <= c and b <= c:
+            return 0.0
+        crossing = (c - a) / (b - a)
+        return 1.0 - crossing if b > c else crossing
+
+    return fraction_above(q_start, q_end, z) - fraction_above(-q_start, -q_end, z)
 
 
 def play_step(memory, x, half_width):

@@ -20,7 +20,7 @@ from .experiments import ClosedLoop, OpenLoop
 from .hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 from .linear import bandpass_state_space
 from .noise import band_limited_white_noise
-from .nonlinearities import dead_zone, friction_offset, play_step, saturation
+from .nonlinearities import dead_zone, friction_offset, play_step, saturation, sign_switch_average
 from .simulate import (
     DEFAULT_BOUND,
     DEFAULT_DT,
@@ -165,7 +165,10 @@ def simulate_reference(
             return -continuous_filter.output(st["comp"], pd_output(st))
         return -pd_output(st)
 
-    def evaluate(t, st, store):
+    switch = [None] * 4  # the friction offset's switching signal and sign at each RK4 stage
+    z_switch = params.dead_zone if params.dead_zone_position is DeadZonePosition.VELOCITY else 0.0
+
+    def evaluate(t, st, store, stage):
         """Derivatives and the recorded signals at time ``t`` and state ``st``."""
         u = command(t, st)
         b = play_step(memory, st["x"], r)
@@ -187,10 +190,11 @@ def simulate_reference(
         if params.has_bandpass_loop:
             p = _scalar(saturation, params.bandpass_gain * float(bp_c @ st["bp"]),
                         params.bandpass_saturation)
-        q = v + p
+        q = q_switch = v + p
         if params.dead_zone_position is DeadZonePosition.VELOCITY:
             q = _scalar(dead_zone, q, params.dead_zone)
         w = _scalar(friction_offset, q, params.friction_offset)
+        switch[stage] = (q_switch, float(np.sign(q)))
         delta = out
         if noise is not None:
             delta += noise[min(int(t * noise_rate + 1e-9), noise.size - 1)]
@@ -221,18 +225,26 @@ def simulate_reference(
         if hold is not None and k % hold == 0:
             v = pd_output(state)
             u_held = -(held_filter.step(v) if held_filter is not None else v)
-        k1, record = evaluate(t, state, store=True)
+        k1, record = evaluate(t, state, store=True, stage=0)
         if k % decimation == 0:
             rows.append(record)
         if k == n_steps:
             break
-        k2, _ = evaluate(t_half, advance(state, k1, dt / 2), store=False)
-        k3, _ = evaluate(t_half, advance(state, k2, dt / 2), store=False)
-        k4, _ = evaluate(t_full, advance(state, k3, dt), store=False)
+        k2, _ = evaluate(t_half, advance(state, k1, dt / 2), store=False, stage=1)
+        k3, _ = evaluate(t_half, advance(state, k2, dt / 2), store=False, stage=2)
+        k4, _ = evaluate(t_full, advance(state, k3, dt), store=False, stage=3)
         state = {
             key: state[key] + dt / 6 * (k1[key] + 2 * k2[key] + 2 * k3[key] + k4[key])
             for key in state
         }
+        signs = [sign for _, sign in switch]
+        if params.friction_offset != 0 and len(set(signs)) > 1:
+            # the offset's jump located inside the step, not at RK4's stage weights
+            rk4_mean = (signs[0] + 2 * signs[1] + 2 * signs[2] + signs[3]) / 6
+            jump = dt * params.friction_offset * (
+                sign_switch_average(switch[0][0], switch[3][0], z_switch) - rk4_mean)
+            state["x"] = state["x"] + jump
+            state["bp"] = state["bp"] + jump * bp_b
         memory = play_step(memory, state["x"], r)
         if not all(np.all(np.isfinite(v)) for v in state.values()):
             raise SimulationDiverged(f"{params.name} (reference) became non-finite at t = {t:.4g} s")
