@@ -214,9 +214,10 @@ class _WaveformSolverError:
         """The step check of :meth:`setup` again at ``params`` (the maximum a posteriori), from
         the present step down (never coarser), and the solver variance measured there.
 
-        The load moves with the parameters: the ridge case's cycle at B had a load of 33 at the
-        truth and under 10 at its start 20 % away, so a check at the start alone kept 5e-4 s and
-        the posterior beat the truth by 21 nats."""
+        The load moves with the parameters: before the friction offset's jump was located inside
+        the step, the ridge case's cycle at B had a load of 33 at the truth and under 10 at its
+        start 20 % away, so a check at the start alone kept 5e-4 s and the posterior beat the truth
+        by 21 nats."""
         self._refine_step(params, self._warm, self._build, dt=self.simulator.dt)
         return self
 
