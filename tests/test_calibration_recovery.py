@@ -81,7 +81,7 @@ def test_cli_fit_writes_outputs_and_resumes(tmp_path, limit_cycle, capsys):
 def test_cli_run_interrupted_resumes_without_losing_a_step(tmp_path, limit_cycle, sig):
     """``tvcid fit`` killed (SIGKILL), terminated (SIGTERM: status 130, one line) or stopped by
     Ctrl-C (SIGINT) mid-run continues from DIR/chain.h5: the finished chain equals an
-    uninterrupted run's, step for step (60 steps: the run converges at 75; the independence
+    uninterrupted run's, step for step (60 steps: the run converges at 70; the independence
     proposal is refitted at step 50, on either side of the kill). The signal may land between two
     10-step chunks, where a default handler's KeyboardInterrupt could be swallowed by a finaliser:
     the runner defers it over the whole loop."""

@@ -55,14 +55,14 @@ def truths_from_recordings(recordings, names, hypothesis_name):
     return {n: truths.get(n) for n in names}
 
 
-#: Default RK4 step per likelihood (s). A limit cycle with a jump in its dynamics (a friction
-#: offset at the dead zone's edge) locks its period to the step's grid (the ridge case's truth:
-#: 1574 steps of 5e-4 s for delays within +-2 %), and its phase-aligned waveform carries an error
-#: that moves erratically with the parameters (step-doubling loads 0-219 around the posterior),
-#: which a check at one point cannot catch: at 5e-4 s every posterior sample beat the truth (HPD
-#: rank 1.00, dead zone and delay outside), at 2.5e-4 s the truth's rank was 0.73 and all four
-#: inside (970 steps instead of 1150). The features' first-order error is corrected instead.
-DEFAULT_DT = {"waveform": 2.5e-4, "features": 5e-4}
+#: Default RK4 step per likelihood (s). The waveform's was 2.5e-4 s while RK4 sampled the friction
+#: offset's jump at its stages: the ridge case's cycle then locked its period to the 5e-4 s grid
+#: (1574 steps for delays within +-2 %) and every posterior sample beat the truth. With the jump
+#: located inside the step (``models.nonlinearities.sign_switch_average``) the same case at 5e-4 s
+#: converged in 260 steps (27 s) with all four truths inside (HPD rank 0.30), against 970 steps
+#: (159 s) at 2.5e-4 s; records that need a finer step still get one (``_refine_step``). The
+#: features' first-order error is corrected instead.
+DEFAULT_DT = {"waveform": 5e-4, "features": 5e-4}
 
 
 class Calibration:
@@ -91,8 +91,7 @@ class Calibration:
         Seconds simulated before the compared window (after the warm start).
     dt : float or None
         RK4 step of the simulations (each output-error record may halve it further,
-        :meth:`.likelihood._WaveformSolverError._refine_step`). Default ``DEFAULT_DT``: 2.5e-4 s
-        for the waveform likelihood, 5e-4 s for the features (whose solver error is corrected).
+        :meth:`.likelihood._WaveformSolverError._refine_step`). Default ``DEFAULT_DT``: 5e-4 s.
         Learned attribute ``dt_``: the step used.
     n_walkers, max_steps, tau_factor
         Ensemble size, step cap, ``N > tau_factor * tau``.

@@ -44,7 +44,8 @@ def register(sub):
     p.add_argument("--window", type=float, default=10.0, help="seconds of each closed-loop record used (its end)")
     p.add_argument("--transient", type=float, default=6.0, help="seconds simulated before the window")
     p.add_argument("--dt", type=float, default=None,
-                   help="RK4 step of the likelihood simulations, s (default 2.5e-4 waveform, 5e-4 features)")
+                   help="RK4 step of the likelihood simulations, s (default 5e-4; a record whose solver error "
+                        "the data would see halves it)")
     p.add_argument("--processes", type=int, default=0,
                    help="map walker batches over a multiprocessing pool of this size (0: none; "
                    "the batch kernel already uses every core)")
