@@ -3,8 +3,9 @@
 It composes the element functions of :mod:`models.nonlinearities`, a :class:`models.delay.DelayLine` and
 a generic RK4 stepper over a state dictionary, where the kernel fuses everything into one loop over
 packed arrays. Both discretise the same way (RK4 on a fixed grid, the delay line interpolated
-linearly between grid points, the play memory updated once per step), so they agree to round-off on
-periodic cycles; it is ~500x slower and meant for tests and the benchmark only.
+linearly between grid points, the play memory updated once per step, the friction offset's jump
+located inside the step by :func:`models.nonlinearities.sign_switch_average`), so they agree to
+round-off on periodic cycles; it is ~500x slower and meant for tests and the benchmark only.
 
 The compensator is realised here independently of :mod:`models.controllers`' own realisations:
 continuous, in observable canonical form built from ``num``/``den``; held, as the difference
