@@ -16,6 +16,7 @@ import numpy as np
 __all__ = [
     "InsufficientPeriodsError",
     "LimitCycleFeatures",
+    "crossing_hysteresis",
     "limit_cycle_features",
     "upward_mean_crossings",
     "white_noise_sd",
@@ -120,6 +121,17 @@ def white_noise_sd(x) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
+def crossing_hysteresis(x, amplitude) -> float:
+    """Hysteresis of the mean-crossing trigger for a cycle of half peak-to-peak ``amplitude``.
+
+    ``CROSSING_HYSTERESIS * amplitude``, raised to ``NOISE_HYSTERESIS`` times the white noise's sd
+    on ``x`` (:func:`white_noise_sd`), so that noise on a small cycle cannot fire the trigger. On a
+    noise-free simulated cycle it is the amplitude term alone, as every caller that compares a
+    simulation with a record needs.
+    """
+    return max(CROSSING_HYSTERESIS * float(amplitude), NOISE_HYSTERESIS * white_noise_sd(x))
+
+
 def limit_cycle_features(t, delta, n_harmonics=11) -> LimitCycleFeatures:
     """Features of the limit cycle in ``delta(t)``.
 
@@ -148,8 +160,7 @@ def limit_cycle_features(t, delta, n_harmonics=11) -> LimitCycleFeatures:
     if amplitude <= 0:
         raise InsufficientPeriodsError("no oscillation: the signal is constant over the window")
     level = float(np.mean(x))
-    hysteresis = max(CROSSING_HYSTERESIS * amplitude, NOISE_HYSTERESIS * white_noise_sd(x))
-    ups = upward_mean_crossings(t, x, level, hysteresis)
+    ups = upward_mean_crossings(t, x, level, crossing_hysteresis(x, amplitude))
     if ups.size < 3:
         raise InsufficientPeriodsError(
             f"the window of {span:.4g} s holds {max(ups.size - 1, 0)} whole period(s) of the "

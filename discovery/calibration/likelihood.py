@@ -24,8 +24,8 @@ import warnings
 import numpy as np
 
 from models.features import (
-    CROSSING_HYSTERESIS,
     InsufficientPeriodsError,
+    crossing_hysteresis,
     limit_cycle_features,
     upward_mean_crossings,
 )
@@ -353,7 +353,7 @@ class _ClosedLoopTerm:
         self.level = float(np.mean(self.data))
         self.amplitude = 0.5 * float(np.max(self.data) - np.min(self.data))
         ups = upward_mean_crossings(
-            self.tau, self.data, self.level, CROSSING_HYSTERESIS * self.amplitude
+            self.tau, self.data, self.level, crossing_hysteresis(self.data, self.amplitude)
         )
         if ups.size < 3:
             raise ValueError(

@@ -25,7 +25,7 @@ import pysindy as ps
 from scipy.optimize import minimize
 from sklearn.base import BaseEstimator
 
-from models.features import CROSSING_HYSTERESIS, upward_mean_crossings
+from models.features import crossing_hysteresis, upward_mean_crossings
 
 from .candidates import Candidate
 from .forms import MOVING_FRACTION, TARGET, form_by_name
@@ -171,7 +171,7 @@ class WeakSINDyActuator(BaseEstimator):
             if rec.kind == "closed":  # the ranking compares cycles: two periods at least
                 amp = 0.5 * float(np.ptp(rec.delta))
                 ups = upward_mean_crossings(rec.t, rec.delta, float(np.mean(rec.delta)),
-                                            CROSSING_HYSTERESIS * amp)
+                                            crossing_hysteresis(rec.delta, amp))
                 if ups.size < 3:
                     raise ValueError(
                         f"{rec.path or 'recording'}: the closed-loop record of "

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.features import (
-    CROSSING_HYSTERESIS,
     InsufficientPeriodsError,
+    crossing_hysteresis,
     upward_mean_crossings,
 )
 
@@ -48,7 +48,7 @@ def whole_periods(samples):
     amplitude = 0.5 * (np.max(x) - np.min(x))
     if amplitude <= 0:
         raise InsufficientPeriodsError("no oscillation: the record is constant")
-    ups = upward_mean_crossings(t, x, float(np.mean(x)), CROSSING_HYSTERESIS * amplitude)
+    ups = upward_mean_crossings(t, x, float(np.mean(x)), crossing_hysteresis(x, amplitude))
     if ups.size < 3:
         raise InsufficientPeriodsError(
             f"the record of {t[-1] - t[0]:.4g} s holds {max(ups.size - 1, 0)} whole period(s) of "

@@ -33,7 +33,7 @@ import numpy as np
 from discovery.calibration.fastsim import BatchSimulator, output_rate_for
 from discovery.calibration.edge_timing import edge_timing_for
 from discovery.calibration.likelihood import estimate_noise
-from models.features import CROSSING_HYSTERESIS, upward_mean_crossings
+from models.features import crossing_hysteresis, upward_mean_crossings
 
 __all__ = [
     "CycleTarget",
@@ -168,7 +168,8 @@ def stationary_tail(t, d, name="recording"):
     half = t >= 0.5 * (t[0] + t[-1])
     amp = 0.5 * float(np.ptp(d[half]))
     level = float(np.mean(d[half]))
-    ups = upward_mean_crossings(t, d, level, CROSSING_HYSTERESIS * amp) if amp > 0 else np.zeros(0)
+    ups = (upward_mean_crossings(t, d, level, crossing_hysteresis(d[half], amp)) if amp > 0
+           else np.zeros(0))
     ups = fundamental_crossings(ups, _sizes(t, d, ups), signal=(t, d))
     if ups.size < 3:
         raise NoCycleError(
@@ -196,7 +197,7 @@ def cycle_of(t, x):
     level = float(np.mean(x))
     # the record's crossings are counted with the same Schmitt trigger (a flat stretch of the
     # cycle near its mean must not add crossings on one side only)
-    c = upward_mean_crossings(t, x, level, CROSSING_HYSTERESIS * 0.5 * float(np.ptp(x)))
+    c = upward_mean_crossings(t, x, level, crossing_hysteresis(x, 0.5 * float(np.ptp(x))))
     c = fundamental_crossings(c, _sizes(t, x, c), signal=(t, x))
     if c.size < 3:
         return None
