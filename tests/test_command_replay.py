@@ -219,3 +219,32 @@ def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path, mon
     assert term.sim_dt == 5e-4
     assert term.refine_at(other).sim_dt == 2.5e-4
     assert term.refine_at(truth).sim_dt == 2.5e-4
+
+
+@pytest.mark.parametrize("index, hunts", [(5, True), (7, False)])
+def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunts):
+    """Coverage draw 5's square (band-pass loop, backlash, friction offset): the output hunts on
+    every plateau, so the grid's response shifted to other edges is not the response to them
+    (noise-free, at the truth, 11 s: rms 5.6e-5 rad for noise 8.9e-5). The term simulates the
+    edges where they are, at the most probable timing (4 s: 0.9 ms from the centre, rms 2.9e-5
+    when simulated at the centre), and fits to under a tenth of the noise (1.7e-6). Draw 7's
+    square settles and keeps the grid."""
+    from models.recording import Recording
+    from models.reference import simulate_reference
+    from studies.bench_coverage import Config, coverage_scenario
+    from discovery.calibration.likelihood import OpenLoopTerm
+
+    scenario = coverage_scenario(index, Config())
+    truth, noise = scenario.truth, scenario.acquisition.noise_sd
+    design = next(r for r in scenario.recordings if r.waveform == "square")
+    ref = simulate_reference(truth, design.experiment(), 4.0, dt=5e-5, rate=design.rate)
+    rec = Recording(columns={"t": ref.t - ref.t[0], "u": ref.u, "delta": ref.delta},
+                    meta={"kind": "open", "sample_rate": design.rate})
+    term = OpenLoopTerm(rec, None, 0.0, 5e-4)
+    term.sigma_hat = noise  # the noise-free record stands for one with the draw's noise
+    term.setup(truth, warm_start=False)
+    assert term.edges_on_grid is not hunts
+    loads = term.edge_loads_  # chi-square against the centre edges simulated 8x finer
+    assert (loads["grid"] > 10 * loads["centre"]) is hunts
+    res = term.residuals([truth], [noise])[0]
+    assert np.sqrt(np.mean(res**2)) < 0.1 * noise

@@ -127,6 +127,8 @@ SOLVER_SPREAD_SAMPLES = 2
 #: the chi-square over the record (:meth:`OpenLoopTerm.setup`), at most this many times over.
 SOLVER_LOAD_LIMIT = 10.0
 MAX_STEP_REFINEMENT = 8
+#: How much finer than the step the reference of :meth:`OpenLoopTerm.edge_loads` runs.
+EDGE_CHECK_REFINEMENT = 8
 
 
 def _step_doubling(term, evaluate, params, warm_start):
@@ -802,6 +804,12 @@ class OpenLoopTerm(_WaveformSolverError):
         self.dt = float(dt)
         # the sidecar's analytic command when it reproduces u (sharp square edges), else u replayed
         self._recorded_experiment = recording.experiment()
+        #: simulated edges on the step grid, then shifted (:mod:`.edge_timing`); cleared by
+        #: :meth:`setup` when the response does not settle between edges
+        self.edges_on_grid = True
+        self.edge_loads_ = None
+        #: the timing the edges are simulated at when off the grid (None: the centre)
+        self.edge_theta = None
         self._time_edges(self.dt)
         self.n = self.tau.size
         self.sigma_hat = estimate_noise(self.data)
@@ -817,7 +825,10 @@ class OpenLoopTerm(_WaveformSolverError):
         from .edge_timing import edge_timing_for
 
         exp = self._recorded_experiment
-        self.timing = edge_timing_for(exp, self.recording.t, self.recording.u, dt)
+        self.timing = edge_timing_for(exp, self.recording.t, self.recording.u, dt,
+                                      on_grid=self.edges_on_grid)
+        if self.timing is not None and not self.edges_on_grid and self.edge_theta is not None:
+            self.timing.simulate_at(self.edge_theta, dt)
         self.experiment = exp if self.timing is None else self.timing.experiment
 
     def _rate(self, dt):
@@ -827,16 +838,75 @@ class OpenLoopTerm(_WaveformSolverError):
     def setup(self, start_params, warm_start=True):
         """The simulator at the coarsest step whose error the record cannot see
         (:meth:`_refine_step`; a record with 1e-4 rad of noise sampled at 200 Hz keeps the step
-        it was given), edges re-timed on that step's grid."""
+        it was given), edges re-timed on that step's grid, or the centre edges simulated where
+        they are when that is closer to a fine simulation of them (:meth:`edge_loads`)."""
         self.start_params = start_params
+        decided = self.timing is None
 
         def build(dt):
+            nonlocal decided
             self._time_edges(dt)
             self.simulator = BatchSimulator(self.experiment, float(self.tau[-1]), dt,
                                             rate=self._rate(dt))
+            if not decided:
+                decided = True
+                self.edge_loads_ = self.edge_loads(start_params, dt)
+                if self.edge_loads_["centre"] < self.edge_loads_["grid"]:
+                    self.edges_on_grid = False
+                    self._recentre_edges(start_params, dt)
 
         self._refine_step(start_params, warm_start, build)
         return self
+
+    def refine_at(self, params):
+        """Edges simulated off the grid move to the most probable timing at ``params`` (the
+        maximum a posteriori), then the step check (:meth:`_WaveformSolverError.refine_at`)."""
+        if not self.edges_on_grid and self.timing is not None:
+            self._recentre_edges(params, self.simulator.dt)
+        return super().refine_at(params)
+
+    def _recentre_edges(self, params, dt):
+        """Simulate the edges where the record puts them at ``params`` (two passes: the
+        optimum's shift from the centre is itself read off a shifted copy)."""
+        for _ in range(2):
+            self._time_edges(dt)
+            self.simulator = BatchSimulator(self.experiment, float(self.tau[-1]), dt,
+                                            rate=self._rate(dt))
+            delta, ok = self.simulator.run([params])
+            if not ok[0] or not np.all(np.isfinite(delta[0])):
+                return
+            var = np.full(self.n, self.sigma_hat**2)
+            _, _, theta = self.timing.marginal(self.tau, self.data, self.simulator.t, delta[0], var)
+            self.edge_theta = np.asarray(theta, dtype=float)
+        self._time_edges(dt)
+        self.simulator = BatchSimulator(self.experiment, float(self.tau[-1]), dt,
+                                        rate=self._rate(dt))
+
+    def edge_loads(self, params, dt) -> dict:
+        """Chi-square each way of simulating the centre edges at step ``dt`` adds against a
+        simulation of them at ``dt / EDGE_CHECK_REFINEMENT`` (record's samples, offset removed,
+        over the noise ``sigma_hat``): ``grid`` (edges rounded to the grid, the response
+        shifted) and ``centre`` (edges off the grid, RK4 first order there). Shifting is exact
+        only for a response that settles between edges; RK4 off the grid costs its order."""
+        from .edge_timing import EdgeTiming
+
+        end = float(self.tau[-1])
+        zero = np.zeros(self.timing.dim)
+        outputs = {}
+        for name, step, on_grid in (("grid", dt, True), ("centre", dt, False),
+                                    ("fine", dt / EDGE_CHECK_REFINEMENT, False)):
+            timing = EdgeTiming(self.recording.t, self.recording.u, step, on_grid=on_grid)
+            sim = BatchSimulator(timing.experiment, end, step)
+            delta, ok = sim.run([params])
+            if not ok[0] or not np.all(np.isfinite(delta[0])):
+                return {"grid": 0.0, "centre": math.inf}
+            outputs[name] = timing.shifted(zero, self.tau, sim.t, delta[0])[0]
+        loads = {}
+        for name in ("grid", "centre"):
+            d = outputs[name] - outputs["fine"]
+            d = d - np.mean(d)
+            loads[name] = float(np.sum(d * d)) / self.sigma_hat**2
+        return loads
 
     def _solver_outputs(self, param_sets):
         return self._at_samples(param_sets)
