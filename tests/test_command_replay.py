@@ -191,8 +191,8 @@ def test_closed_loop_waveform_keeps_the_coarse_step_once_the_friction_jump_is_lo
 def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path, monkeypatch):
     """The load moves with the parameters: on coverage draw 10's 1 kHz square (1e-4 rad noise,
     the command known as samples) the
-    step-doubling change at 5e-4 s adds 20.1 to the chi-square at the truth and 21.9 with the
-    backlash 30 % short. With the limit put between the two, the term set up at the truth keeps
+    solver's load at 5e-4 s (the larger of the step-doubling change and the edges' placement
+    against a fine simulation) is 53.9 at the truth and 56.0 with the backlash 30 % short. With the limit put between the two, the term set up at the truth keeps
     5e-4 s, ``refine_at`` (what Calibration runs at the maximum a posteriori) halves the step at
     the other point, and a later check where the load is small keeps the finer step."""
     from discovery.calibration import likelihood
@@ -212,7 +212,7 @@ def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path, mon
     monkeypatch.setattr(likelihood, "MAX_STEP_REFINEMENT", 1)
     load = {k: make_term(rec, "waveform", None, 0.0, 5e-4).setup(p).solver_load
             for k, p in (("truth", truth), ("other", other))}
-    assert load["other"] > 1.05 * load["truth"], load
+    assert load["other"] > 1.02 * load["truth"], load
     monkeypatch.setattr(likelihood, "MAX_STEP_REFINEMENT", 8)
     monkeypatch.setattr(likelihood, "SOLVER_LOAD_LIMIT", float(np.sqrt(load["truth"] * load["other"])))
     term = make_term(rec, "waveform", None, 0.0, 5e-4).setup(truth)
