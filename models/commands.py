@@ -13,8 +13,11 @@ the edge by about half a sample, at 200 Hz by 2.5 ms, the size of the delay bein
   (phase, half period) values consistent with every interval. Where the intervals leave no sub-sample information (edges on a grid commensurate
   with the sampling) the latest feasible time is used, the zero-order hold, which is exact for the
   usual generator started on a sample. Irregular edges are held at their samples.
-* anything else is interpolated linearly between samples (the error of a 3 Hz sine sampled at
-  200 Hz is about 1e-3 of its amplitude).
+* anything else is a smooth command, read between samples by a cubic spline (not-a-knot). Linear
+  interpolation lowers a sine by its chords: ``(2 pi f h)^2 / 12`` of the amplitude on average,
+  5.5e-4 for a 2.6 Hz sine sampled at 200 Hz, which at 23 mrad added a chi-square of 90 to a
+  noise of 4e-5 rad at the truth and put coverage draw 17's delay outside its 90 % interval; the
+  spline's error is of order ``(2 pi f h)^4`` (chi-square 1e-6 there).
 """
 from __future__ import annotations
 
@@ -104,7 +107,7 @@ def command_from_samples(t, u) -> OpenLoop:
     u = np.asarray(u, dtype=float)
     t = t - t[0]
     if not is_piecewise_constant(u):
-        return OpenLoop.from_samples(t, u)
+        return OpenLoop.from_samples(t, u, interpolation="cubic" if u.size >= 4 else "linear")
     k = np.flatnonzero(np.diff(u)) + 1
     if k.size == 0:
         return OpenLoop.piecewise(np.zeros(0), np.array([u[0]]))

@@ -138,6 +138,8 @@ CONTROLLER_A = ClosedLoop(kp=5.84, kd=0.062, mu=12.3)
 CONTROLLER_B = ClosedLoop(kp=9.8, kd=0.06, mu=4.5)
 
 OPEN_LOOP_WAVEFORMS = ("step", "square", "sine", "samples", "piecewise")
+#: How a ``samples`` command is read between its samples.
+SAMPLE_INTERPOLATIONS = ("linear", "cubic")
 #: Points averaged per stage by :meth:`OpenLoop.solver_command` (an edge resolved to 1/32 of a
 #: stage's share).
 SOLVER_SUBSAMPLES = 32
@@ -162,12 +164,18 @@ class OpenLoop:
     offset : float
         Constant added to the command (rad).
     t_samples, u_samples : numpy.ndarray
-        A sampled command for ``waveform='samples'``, linearly interpolated and held after its end.
-        For ``waveform='piecewise'``: the edge times (n) and the levels (n + 1) before, between
-        and after them.
+        A sampled command for ``waveform='samples'``, interpolated (``interpolation``) and held
+        before its first and after its last sample. For ``waveform='piecewise'``: the edge times
+        (n) and the levels (n + 1) before, between and after them.
     from_rest : bool
         Start the actuator at rest (``y = y' = x = 0``), as a bench test does, whatever initial
         conditions the hypothesis carries for its closed-loop runs. Default True.
+    interpolation : str
+        ``linear`` (default) or ``cubic`` (a not-a-knot cubic spline) between the samples of a
+        ``samples`` command. A smooth command known only as samples wants ``cubic``: linearly
+        interpolated, a sine's chords lower its fundamental by ``(2 pi f h)^2 / 12`` (5.5e-4 of a
+        2.6 Hz sine sampled at 200 Hz, about 1.2e-5 rad at 23 mrad, comparable to the sensor
+        noise), where the spline's error is of order ``(2 pi f h)^4``.
     """
 
     waveform: str
@@ -178,6 +186,7 @@ class OpenLoop:
     t_samples: np.ndarray | None = field(default=None, repr=False)
     u_samples: np.ndarray | None = field(default=None, repr=False)
     from_rest: bool = True
+    interpolation: str = "linear"
 
     kind = "open"
 
@@ -187,6 +196,9 @@ class OpenLoop:
                 f"unknown open-loop waveform {self.waveform!r}; choose one of "
                 f"{', '.join(OPEN_LOOP_WAVEFORMS)}"
             )
+        if self.interpolation not in SAMPLE_INTERPOLATIONS:
+            raise ValueError(f"unknown interpolation {self.interpolation!r} of a sampled command; "
+                             f"choose one of {', '.join(SAMPLE_INTERPOLATIONS)}")
         for name in ("amplitude", "frequency", "start", "offset"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
         if self.waveform in ("square", "sine") and self.frequency <= 0:
@@ -207,6 +219,8 @@ class OpenLoop:
             u = np.asarray(self.u_samples, dtype=float)
             if t.ndim != 1 or t.shape != u.shape or t.size < 2:
                 raise ValueError("t_samples and u_samples must be 1-D of equal length >= 2")
+            if self.interpolation == "cubic" and t.size < 4:
+                raise ValueError("a cubic interpolation of a sampled command needs >= 4 samples")
             if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
                 raise ValueError("the sampled command holds NaN or infinite values")
             if np.any(np.diff(t) <= 0):
@@ -230,9 +244,10 @@ class OpenLoop:
         return cls("sine", amplitude=amplitude, frequency=frequency, offset=offset)
 
     @classmethod
-    def from_samples(cls, t, u):
-        """Any sampled command, linearly interpolated (held constant after the last sample)."""
-        return cls("samples", t_samples=t, u_samples=u)
+    def from_samples(cls, t, u, interpolation="linear"):
+        """Any sampled command, interpolated between its samples (``linear`` or ``cubic``) and
+        held constant before the first and after the last."""
+        return cls("samples", t_samples=t, u_samples=u, interpolation=interpolation)
 
     @classmethod
     def piecewise(cls, edges, levels):
@@ -257,6 +272,12 @@ class OpenLoop:
             return self.amplitude * np.sin(2 * np.pi * self.frequency * t) + self.offset
         if self.waveform == "piecewise":
             return self.u_samples[np.searchsorted(self.t_samples, t, side="right")]
+        if self.interpolation == "cubic":
+            from scipy.interpolate import CubicSpline
+
+            ts, us = self.t_samples, self.u_samples
+            inside = CubicSpline(ts, us)(np.clip(t, ts[0], ts[-1]))
+            return np.where(t < ts[0], us[0], np.where(t > ts[-1], us[-1], inside))
         return np.interp(t, self.t_samples, self.u_samples)
 
     def solver_command(self, t, dt):

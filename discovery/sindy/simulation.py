@@ -47,7 +47,8 @@ def replay_experiment(recording, t_end=None):
     ``OpenLoop.from_samples`` interpolates linearly between samples, which would smear a square
     command's edge over one sample and shift it by half a sample; across a jump
     (:func:`discovery.sindy.library.command_jumps`) the previous value is held up to the next
-    sample instead, as :func:`discovery.sindy.library.delayed_command` reconstructs it.
+    sample instead, as :func:`discovery.sindy.library.delayed_command` reconstructs it. A
+    command without jumps is read by a cubic spline (:func:`models.commands.command_from_samples`).
     """
     from models.experiments import OpenLoop
 
@@ -60,6 +61,8 @@ def replay_experiment(recording, t_end=None):
         keep = t <= t_end + 1e-12
         t, u = t[keep], u[keep]
     jumps = np.flatnonzero(command_jumps(u))
+    if not jumps.size and u.size >= 4:  # smooth: a spline, not chords (models.commands)
+        return OpenLoop.from_samples(t, u, interpolation="cubic")
     if jumps.size:
         eps = 1e-7 * (t[1] - t[0])
         t = np.insert(t, jumps + 1, t[jumps + 1] - eps)
