@@ -1,6 +1,7 @@
 """Is a coverage miss the data's own noise, or the method? An exact-edge oracle on a draw's open-loop records.
 
 ``python -m studies.coverage_oracle INDEX [--renoise K] [--out DIR]``  (5-15 minutes a draw)
+``python -m studies.coverage_oracle INDEX [INDEX ...] --replay-only``
 
 Hypothesis: when the coverage benchmark (:mod:`studies.bench_coverage`) puts a truth outside its
 90 % interval because an open-loop record prefers another point, either the likelihood term is
@@ -18,7 +19,12 @@ per open-loop record of draw ``INDEX``:
   command (acquisition as the generator's: noise, offset, quantisation), and the share of them at
   least as large as the record's own (a small share: the record's noise is a tail one);
 * ``reference_vs_kernel``: the largest difference between the plain-Python reference path (which
-  made the data) and the kernel on the noise-free response.
+  made the data) and the kernel on the noise-free response;
+* ``replay_chi_square``: what replaying the command from its samples adds to the chi-square at
+  the truth, noise-free at the oracle's step, against the analytic command: read by its chords
+  (``chords``) and as :meth:`models.recording.Recording.experiment` replays it (``replayed``).
+  ``--replay-only`` prints just this for several draws (seconds each): a sine's chords lower its
+  fundamental, which at 200 Hz and 2.6 Hz added 90 (draw 17).
 
 Per closed-loop record (the features likelihood), the step ladder: the model's features at the
 truth at the benchmark's step and at 1/2, 1/4 and 1/8 of it, each as the features term builds it
@@ -122,12 +128,55 @@ def oracle_check(index, renoise=6, workdir=Path("results/bench_coverage/data")):
             if renoised else None,
             "chi2_half_mean": len(names) / 2,
             "reference_vs_kernel": float(np.max(np.abs(clean.delta - kernel.delta))),
+            "replay_chi_square": replay_chi_square(truth, design, rec, sigma),
         })
     ladders = [step_ladder(truth, names, path, config) for design, path in
                zip(scenario.recordings, paths) if design.kind == "closed"]
     return {"index": index, "seed": scenario.seed, "structure": Structure.of_params(truth).name,
             "truth": {n: float(getattr(truth, n)) for n in names}, "noise_sd": acq.noise_sd,
             "records": rows, "closed_loop": ladders}
+
+
+def replay_chi_square(truth, design, recording, sigma) -> dict:
+    """Chi-square at the truth that the command's replay adds (module docstring), noise-free."""
+    from models import OpenLoop, simulate
+
+    t = recording.t - recording.t[0]
+    end = float(t[-1])
+
+    def response(exp):
+        tr = simulate(truth, exp, end, dt=ORACLE_DT)
+        return np.interp(t, tr.t, tr.delta)
+
+    exact = response(design.experiment())
+    out = {}
+    for name, exp in (("chords", OpenLoop.from_samples(t, recording.u)),
+                      ("replayed", recording.experiment())):
+        r = response(exp) - exact
+        r = r - r.mean()
+        out[name] = float(np.sum(r * r)) / sigma**2
+    return out
+
+
+def replay_table(indices, workdir=Path("results/bench_coverage/data")):
+    """``replay_chi_square`` of every open-loop record of the draws ``indices``."""
+    from models.recording import load_recording
+
+    from .bench_coverage import Config, coverage_scenario
+    from .scenarios import write_recordings
+
+    rows = []
+    for index in indices:
+        scenario = coverage_scenario(index, Config())
+        paths = write_recordings(scenario, Path(workdir) / f"draw{index:03d}", reuse=True)
+        for design, path in zip(scenario.recordings, paths):
+            if design.kind == "open":
+                rows.append({"index": index, "recording": path.name, "waveform": design.waveform,
+                             "frequency": design.frequency, "amplitude": design.amplitude,
+                             "rate": design.rate, "noise_sd": scenario.acquisition.noise_sd,
+                             **replay_chi_square(scenario.truth, design, load_recording(path),
+                                                 scenario.acquisition.noise_sd)})
+    return rows
 
 
 def step_ladder(truth, names, path, config, levels=4):
@@ -157,12 +206,24 @@ def step_ladder(truth, names, path, config, levels=4):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("index", type=int, help="the coverage benchmark's draw index")
+    parser.add_argument("index", type=int, nargs="+", help="the coverage benchmark's draw index "
+                        "(several with --replay-only)")
+    parser.add_argument("--replay-only", action="store_true",
+                        help="only the chi-square the command's replay adds at the truth")
     parser.add_argument("--renoise", type=int, default=6, help="fresh noise realisations (default 6)")
     parser.add_argument("--out", default="results/coverage_oracle", help="output directory")
     args = parser.parse_args(argv)
-    if args.index < 0 or args.renoise < 0:
+    if min(args.index) < 0 or args.renoise < 0:
         parser.error("INDEX and --renoise must be non-negative")
+    if len(args.index) > 1 and not args.replay_only:
+        parser.error("several draws only with --replay-only")
+    if args.replay_only:
+        for r in replay_table(args.index):
+            print(f"draw {r['index']} {r['recording']} {r['waveform']} {r['frequency']:.2f} Hz "
+                  f"{1e3 * r['amplitude']:.1f} mrad at {r['rate']:.0f} Hz, noise {r['noise_sd']:.1e}: "
+                  f"chi-square at the truth, chords {r['chords']:.3g}, replayed {r['replayed']:.2g}")
+        return 0
+    args.index = args.index[0]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     result = oracle_check(args.index, args.renoise)
@@ -173,7 +234,7 @@ def main(argv=None) -> int:
               f"(moves {', '.join(f'{n} {v:+.3f}' for n, v in r['oracle_move_relative'].items())}); "
               f"re-noised {', '.join(f'{g:.2f}' for g in r['renoised_gains'])} "
               f"(chi-square/2 mean {r['chi2_half_mean']:.1f}); reference vs kernel "
-              f"{r['reference_vs_kernel']:.2g} rad")
+              f"{r['reference_vs_kernel']:.2g} rad; replay chi-square {r['replay_chi_square']}")
     for c in result["closed_loop"]:
         steps = "; ".join(f"{r['dt']:.3g} s: " + " ".join(f"{v:+.2f}" for v in r["whitened_at_truth"])
                           for r in c["ladder"])

@@ -54,3 +54,26 @@ def test_oracle_gain_of_a_known_quadratic_and_bad_arguments(capsys):
     with pytest.raises(SystemExit):
         oracle_main(["-1"])
     assert "non-negative" in capsys.readouterr().err
+
+
+def test_oracle_replay_chi_square_sees_a_sines_chords(capsys):
+    """A 2.6 Hz, 23 mrad sine sampled at 200 Hz (coverage draw 17's design) on M002, noise 4e-5
+    rad: read by its chords the replay adds a chi-square of several noise units at the truth over
+    4 s, as replayed (a spline) none; several draws need ``--replay-only``."""
+    from models import OpenLoop, hypothesis, simulate
+    from models.recording import Recording
+    from studies.coverage_oracle import main as oracle_main
+    from studies.coverage_oracle import replay_chi_square
+    from studies.scenarios import RecordingDesign
+
+    design = RecordingDesign(kind="open", duration=4.0, rate=200.0, waveform="sine",
+                             amplitude=0.0227, frequency=2.58)
+    truth = hypothesis("M002")
+    tr = simulate(truth, design.experiment(), 4.0, dt=5e-4, rate=200.0)
+    u = OpenLoop.sine(0.0227, 2.58).command(tr.t)
+    rec = Recording({"t": tr.t, "u": u, "delta": tr.delta}, {"kind": "open"})
+    loads = replay_chi_square(truth, design, rec, 4e-5)
+    assert loads["chords"] > 5.0 and loads["replayed"] < 1e-3, loads
+    with pytest.raises(SystemExit):
+        oracle_main(["3", "4"])
+    assert "--replay-only" in capsys.readouterr().err
