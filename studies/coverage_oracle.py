@@ -24,7 +24,9 @@ per open-loop record of draw ``INDEX``:
   the truth, noise-free at the oracle's step, against the analytic command: read by its chords
   (``chords``) and as :meth:`models.recording.Recording.experiment` replays it (``replayed``).
   ``--replay-only`` prints just this for several draws (seconds each): a sine's chords lower its
-  fundamental, which at 200 Hz and 2.6 Hz added 90 (draw 17).
+  fundamental, which at 200 Hz and 2.6 Hz added 90 (draw 17). For a square it is the replayed
+  edges' chi-square before the term integrates their timing out (thousands at 200 Hz; compare
+  ``term_gain`` with ``oracle_gain`` there instead).
 
 Per closed-loop record (the features likelihood), the step ladder: the model's features at the
 truth at the benchmark's step and at 1/2, 1/4 and 1/8 of it, each as the features term builds it
