@@ -294,6 +294,14 @@ class Calibration:
         self._refine_steps_at(self.map_start_)
         if self.discrepancy:
             self._set_inflation(lp, z0)
+            for _ in range(SCOUT_ROUNDS):  # each round from the last one's better point
+                better = self._scout(lp, z0, rng) if max(self.inflation_) > 1.0 else None
+                if better is None:
+                    break
+                z0 = better
+                self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
+                self._refine_steps_at(self.map_start_)
+                self._set_inflation(lp, z0)
         scale = _axis_scales(lp, z0)
         ndim = len(z0)
         axes = np.diag(0.5 * scale)
@@ -393,6 +401,58 @@ class Calibration:
             z0 = _profile_sigma(lp, res.x, self.names_)
             factors = self._inflations_at(lp, z0)
         return z0, factors
+
+    def _scout(self, lp, z0, rng):
+        """A better maximum than ``z0`` found by a short ensemble run, or None.
+
+        A discrepancy factor over 1 is measured at the optimum the searches returned; when they
+        stopped short of the maximum, a right model reads as a wrong one (coverage draw 23, one
+        limit cycle: factor 30 at that point, 1.0 at the truth, intervals widened to 108-400 %).
+        ``SCOUT_STEPS`` steps of DE moves under the inflated likelihood (wide, so the walkers
+        roam) from around ``z0``; their best points are compared with ``z0`` without the
+        inflation, and the best, polished, is returned if it gains over ``POLISH_GAIN`` nats.
+        """
+        import emcee
+
+        ndim = len(z0)
+        scale = _axis_scales(lp, z0)
+        axes = _principal_axes(lp, z0, scale, _hessian(lp, z0, scale))
+        start = []
+        for _ in range(100):
+            trial = z0 + rng.standard_normal((self.n_walkers, ndim)) @ axes.T
+            start.extend(trial[np.isfinite(lp(trial))])
+            if len(start) >= self.n_walkers:
+                break
+        if len(start) < self.n_walkers:
+            return None
+        sampler = emcee.EnsembleSampler(self.n_walkers, ndim, lp, vectorize=True,
+                                        moves=[(emcee.moves.DEMove(), 0.8),
+                                               (emcee.moves.DESnookerMove(), 0.2)])
+        sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()
+        sampler.run_mcmc(np.asarray(start[: self.n_walkers]), SCOUT_STEPS, progress=False)
+        flat, logp = sampler.get_chain(flat=True), sampler.get_log_prob(flat=True)
+        candidates = flat[np.argsort(logp)[::-1][:SCOUT_CANDIDATES]]
+        kept = [t.inflation for t in self.terms_]
+        for t in self.terms_:  # compared on the searches' own objective
+            t.inflation = 1.0
+        try:
+            values = np.asarray(lp(candidates), dtype=float)
+            before = float(np.ravel(lp(z0))[0])
+            if not np.nanmax(values) > before + POLISH_GAIN:
+                return None
+            from scipy.optimize import minimize
+
+            z = candidates[int(np.nanargmax(values))]
+            ref = minimize(_cost(lp), z, method="Nelder-Mead",
+                           options={"maxfev": 100 * ndim, "xatol": 1e-6, "fatol": 0.05,
+                                    "initial_simplex": _simplex(z, lp)})
+            if np.isfinite(lp(ref.x)) and float(np.ravel(lp(ref.x))[0]) > float(np.ravel(lp(z))[0]):
+                z = ref.x
+            z, _ = self._polish(lp, _profile_sigma(lp, z, self.names_))
+            return z if float(np.ravel(lp(z))[0]) > before + POLISH_GAIN else None
+        finally:
+            for t, v in zip(self.terms_, kept):
+                t.inflation = v
 
     def _inflations_at(self, lp, z0) -> list:
         """Each term's discrepancy inflation at ``z0`` (inf everywhere if ``z0`` is invalid)."""
@@ -599,6 +659,14 @@ def _iteration(backend) -> int:
 POLISH_RESTARTS = 3
 #: ... each kept only if it gains more than this (nats).
 POLISH_GAIN = 0.1
+#: Steps of the short ensemble run that looks for a better maximum where the one found leaves a
+#: discrepancy factor over 1 (:meth:`Calibration._scout`) ...
+SCOUT_STEPS = 60
+#: ... and how many of its most probable points are compared with that maximum; at most
+#: ``SCOUT_ROUNDS`` runs, each from the last one's better point (draw 23: one round took the
+#: factor from 30 to 3.2).
+SCOUT_CANDIDATES = 24
+SCOUT_ROUNDS = 3
 #: Misfit (as a discrepancy inflation) beyond which the local optimum is checked globally.
 SUSPECT_INFLATION = 10.0
 #: Steps between checks of the move's realised acceptance ...
