@@ -303,7 +303,6 @@ class Calibration:
                 self._refine_steps_at(self.map_start_)
                 self._set_inflation(lp, z0)
         scale = _axis_scales(lp, z0)
-        ndim = len(z0)
         axes = np.diag(0.5 * scale)
         hess = _hessian(lp, z0, scale) if (self.spread == "hessian" or self.laplace_move) else None
         if self.spread == "hessian":
@@ -319,19 +318,23 @@ class Calibration:
                 # 710-750 steps instead of 90-130); a ridge cut by the prior never gets it
                 self.laplace_ = {"mean": z0.tolist(), "cov": (axes @ axes.T).tolist(), "share": 0.0}
         self.initial_axes_ = axes
-        out = np.empty((self.n_walkers, ndim))
-        filled = 0
+        out = self._walkers_around(lp, z0, axes, rng)
+        if out is None:
+            raise RuntimeError("could not place the walkers where the posterior is finite")
+        if self._set_transient_variance(lp, out) and self.discrepancy:
+            self._set_inflation(lp, z0)  # measured against the widened covariance
+        return out
+
+    def _walkers_around(self, lp, z0, axes, rng):
+        """``n_walkers`` points ``z0 + axes @ N(0, 1)`` where the posterior is finite (the first
+        ones drawn, in at most 100 batches), or None."""
+        found = []
         for _ in range(100):
-            trial = z0 + rng.standard_normal((self.n_walkers, ndim)) @ axes.T
-            ok = np.isfinite(lp(trial))
-            take = trial[ok][: self.n_walkers - filled]
-            out[filled: filled + len(take)] = take
-            filled += len(take)
-            if filled == self.n_walkers:
-                if self._set_transient_variance(lp, out) and self.discrepancy:
-                    self._set_inflation(lp, z0)  # measured against the widened covariance
-                return out
-        raise RuntimeError("could not place the walkers where the posterior is finite")
+            trial = z0 + rng.standard_normal((self.n_walkers, len(z0))) @ axes.T
+            found.extend(trial[np.isfinite(lp(trial))])
+            if len(found) >= self.n_walkers:
+                return np.asarray(found[: self.n_walkers])
+        return None
 
     def _refine_steps_at(self, point, save=True):
         """Each output-error term's simulation step checked again at ``point`` (natural
@@ -414,22 +417,19 @@ class Calibration:
         """
         import emcee
 
+        from scipy.optimize import minimize
+
         ndim = len(z0)
         scale = _axis_scales(lp, z0)
-        axes = _principal_axes(lp, z0, scale, _hessian(lp, z0, scale))
-        start = []
-        for _ in range(100):
-            trial = z0 + rng.standard_normal((self.n_walkers, ndim)) @ axes.T
-            start.extend(trial[np.isfinite(lp(trial))])
-            if len(start) >= self.n_walkers:
-                break
-        if len(start) < self.n_walkers:
+        start = self._walkers_around(lp, z0, _principal_axes(lp, z0, scale, _hessian(lp, z0, scale)),
+                                     rng)
+        if start is None:
             return None
         sampler = emcee.EnsembleSampler(self.n_walkers, ndim, lp, vectorize=True,
                                         moves=[(emcee.moves.DEMove(), 0.8),
                                                (emcee.moves.DESnookerMove(), 0.2)])
         sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()
-        sampler.run_mcmc(np.asarray(start[: self.n_walkers]), SCOUT_STEPS, progress=False)
+        sampler.run_mcmc(start, SCOUT_STEPS, progress=False)
         flat, logp = sampler.get_chain(flat=True), sampler.get_log_prob(flat=True)
         candidates = flat[np.argsort(logp)[::-1][:SCOUT_CANDIDATES]]
         kept = [t.inflation for t in self.terms_]
@@ -440,8 +440,6 @@ class Calibration:
             before = float(np.ravel(lp(z0))[0])
             if not np.nanmax(values) > before + POLISH_GAIN:
                 return None
-            from scipy.optimize import minimize
-
             z = candidates[int(np.nanargmax(values))]
             ref = minimize(_cost(lp), z, method="Nelder-Mead",
                            options={"maxfev": 100 * ndim, "xatol": 1e-6, "fatol": 0.05,
