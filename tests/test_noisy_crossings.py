@@ -46,3 +46,28 @@ def test_noise_free_simulation_keeps_the_amplitude_hysteresis():
     assert crossing_hysteresis(clean, amp) == pytest.approx(CROSSING_HYSTERESIS * amp)
     omega, _, _ = cycle_of(t, clean)
     assert omega == pytest.approx(W, rel=1e-3)
+
+
+def test_simulated_cycle_is_measured_at_the_records_multiple():
+    """A cycle whose lobes alternate is read at the record's crossings per period, not decided
+    afresh per simulated run: across the subharmonic threshold the free decision halves the
+    frequency (a jump of the features for a small change of a parameter), the record's does not."""
+    from discovery.structure.targets import (SUBHARMONIC_FRACTION, _sizes, crossing_multiple,
+                                             fundamental_crossings)
+
+    w = 2 * np.pi * 3.0
+    t = np.arange(0.0, 3.0, 2e-3)
+    omegas = {}
+    for a in (0.7 * SUBHARMONIC_FRACTION, 1.5 * SUBHARMONIC_FRACTION):
+        x = np.sin(w * t) + a * np.sin(0.5 * w * t + 0.3)
+        omegas[a] = (cycle_of(t, x)[0], cycle_of(t, x, multiple=1)[0])
+    (free_lo, fixed_lo), (free_hi, fixed_hi) = omegas.values()
+    assert free_lo == pytest.approx(w, rel=0.02) and free_hi == pytest.approx(0.5 * w, rel=0.02)
+    assert fixed_lo == pytest.approx(w, rel=0.02) and fixed_hi == pytest.approx(w, rel=0.02)
+    x = np.sin(w * t) + 1.5 * SUBHARMONIC_FRACTION * np.sin(0.5 * w * t + 0.3)
+    from models.features import crossing_hysteresis, upward_mean_crossings
+
+    every = upward_mean_crossings(t, x, float(np.mean(x)), crossing_hysteresis(x, 0.5 * np.ptp(x)))
+    ups = fundamental_crossings(every, _sizes(t, x, every), signal=(t, x))
+    assert crossing_multiple(t, x, ups) == 2
+    assert crossing_multiple(t, x, every) == 1

@@ -19,6 +19,7 @@ to the papers). Any field may be fixed (``fixed``); fixed fields leave the box.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -134,6 +135,15 @@ class SearchSpace:
 
     def bounds(self):
         return list(zip(self.low, self.high))
+
+    def narrowed(self, centre, half_width) -> "SearchSpace":
+        """The same space with its box cut to ``centre +- half_width`` (``inf``: the whole axis)."""
+        out = copy.copy(self)
+        half = np.asarray(half_width, dtype=float)
+        finite = np.isfinite(half)
+        out.low = np.where(finite, np.maximum(self.low, centre - np.where(finite, half, 0.0)), self.low)
+        out.high = np.where(finite, np.minimum(self.high, centre + np.where(finite, half, 0.0)), self.high)
+        return out
 
     # -- maps -----------------------------------------------------------------------------------
     def natural(self, theta) -> dict:

@@ -54,6 +54,10 @@ TEMPLATE = dict(gain=305500.0, damping=202.1, stiffness=14520.0, dead_zone=1e-3,
                 delay_position=DelayPosition.OUTPUT, x0=KICK_X0)
 #: Distinct members of a global search's final population refined locally (the best among them).
 N_STARTS = 3
+#: Open-loop stage of a search (:meth:`StructureDiscovery._fit_global`): independent searches, and
+#: the half-width of the box kept around its fit, in local spreads of each coordinate.
+OPEN_LOOP_RESTARTS = 3
+OPEN_LOOP_BOX = 6.0
 #: Floor of the margin within which a score is indistinguishable from the best, per recording
 #: (:func:`indistinguishable_margin`).
 TOL_ABS = 0.1
@@ -247,17 +251,54 @@ class StructureDiscovery:
         return estimate_noise(rec.delta)
 
     def _fit_global(self, space, objective, rng, seeds):
+        """Global search of one structure on all recordings, then least squares.
+
+        With open-loop and closed-loop recordings together the search is staged: the open-loop
+        output error, smooth in the parameters, is fitted first (:meth:`_fit_open_loop`); the
+        search on all recordings then keeps, for every coordinate the open-loop tests pin, only
+        ``OPEN_LOOP_BOX`` local spreads around that fit. The limit cycles' features jump where the
+        cycle changes shape, and a cycle at the scale of the dead zone does so within a fraction
+        of a percent of the linear block (benchmark draw 1002: costs 100-50,000 within 1 % of the
+        true static gain), so an unstaged search of the whole box found no basin (costs >= 9,180
+        against 2.09 at the truth). Least squares then runs in the whole box.
+        """
         pop, gens = (5, 15) if self.quick else (8, 45)
+        nfev = 15 if self.quick else 30
         starts = [space.coordinates(p) for p in seeds]
-        de = global_search(space, objective, rng, seeds=starts, popsize=pop, maxiter=gens)
-        best = refine(space, objective, de.theta, max_nfev=15 if self.quick else 30)
-        # runners-up of the population in other basins, and the best SINDy seed, are refined too:
+        box = space
+        open_targets = [t for t in objective.targets if t.kind == "open"]
+        if open_targets and len(open_targets) < len(objective.targets):
+            first = self._fit_open_loop(space, objective, rng, open_targets, starts)
+            sd = local_sd(space, objective, first.theta, targets=open_targets)
+            box = space.narrowed(first.theta, OPEN_LOOP_BOX * sd)
+            starts = [first.theta] + starts
+        de = global_search(box, objective, rng, seeds=starts, popsize=pop, maxiter=gens)
+        best = refine(space, objective, de.theta, max_nfev=nfev)
+        # runners-up of the population in other basins, and the best seed, are refined too:
         # a short search often ends before one basin has won
-        others = distinct_members(de.population, de.population_costs, space, N_STARTS)[1:]
+        others = distinct_members(de.population, de.population_costs, box, N_STARTS)[1:]
         for s in others + starts[:1]:
-            alt = refine(space, objective, s, max_nfev=15 if self.quick else 30)
+            alt = refine(space, objective, s, max_nfev=nfev)
             if alt.cost < best.cost:
                 best = alt
+        return best
+
+    def _fit_open_loop(self, space, objective, rng, open_targets, starts):
+        """The best of ``OPEN_LOOP_RESTARTS`` short searches on the open-loop recordings alone.
+
+        Independent short searches with their best distinct members refined reach the open-loop
+        optimum more often than one longer search (12 benchmark draws: 9 of 12 with one search of
+        8 x 30 generations, every one but draw 1002's with three of 5 x 15 or 6 x 25).
+        """
+        pop, gens = (5, 15) if self.quick else (6, 25)
+        best = None
+        for _ in range(OPEN_LOOP_RESTARTS):
+            de = global_search(space, objective, rng, seeds=starts, popsize=pop, maxiter=gens,
+                               targets=open_targets)
+            for s in distinct_members(de.population, de.population_costs, space, N_STARTS):
+                fr = refine(space, objective, s, max_nfev=30, targets=open_targets)
+                if best is None or fr.cost < best.cost:
+                    best = fr
         return best
 
     def fit(self, recordings):
