@@ -126,6 +126,8 @@ def run_draw(seed, out_dir, quick):
         "winner_score": disc.best_.score,
         "seconds_data": t_data,
         "seconds_discovery": t_disc,
+        "seconds_by_stage": {k: round(float(v), 1) for k, v in disc.timings_.items()},
+        "simulated_sets": disc.n_simulations_,
     }
     return undecided_marked(row)
 

@@ -269,7 +269,9 @@ class StructureDiscovery:
         box = space
         open_targets = [t for t in objective.targets if t.kind == "open"]
         if open_targets and len(open_targets) < len(objective.targets):
+            t0 = time.perf_counter()
             first = self._fit_open_loop(space, objective, rng, open_targets, starts)
+            self._open_loop_seconds += time.perf_counter() - t0
             sd = local_sd(space, objective, first.theta, targets=open_targets)
             box = space.narrowed(first.theta, OPEN_LOOP_BOX * sd)
             starts = [first.theta] + starts
@@ -333,6 +335,7 @@ class StructureDiscovery:
                        "error": sindy_error}
         timings["sindy"] = time.perf_counter() - t0
 
+        self._open_loop_seconds = 0.0
         spaces = {s: SearchSpace(s, base, _fixed_for(s, fixed), self.dt) for s in kept}
         fits = {}
         t0 = time.perf_counter()
@@ -363,6 +366,7 @@ class StructureDiscovery:
                                        "then least squares)", sindy.get(s.name, []))
         self._cross_seed(fits, spaces, objective)
         timings["global"] = time.perf_counter() - t0
+        timings["global_open_loop_stage"] = self._open_loop_seconds
 
         t0 = time.perf_counter()
         rest = [s for s in kept if s not in fits]
