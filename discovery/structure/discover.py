@@ -275,12 +275,8 @@ class StructureDiscovery:
             sd = local_sd(space, objective, first.theta, targets=open_targets)
             box = space.narrowed(first.theta, OPEN_LOOP_BOX * sd)
             starts = [first.theta] + starts
-        de = global_search(box, objective, rng, seeds=starts, popsize=pop, maxiter=gens)
-        best = refine(space, objective, de.theta, max_nfev=nfev)
-        # runners-up of the population in other basins, and the best seed, are refined too:
-        # a short search often ends before one basin has won
-        others = distinct_members(de.population, de.population_costs, box, N_STARTS)[1:]
-        for s in others + starts[:1]:
+        best = _searched(box, space, objective, rng, starts, pop, gens, nfev)
+        for s in starts[:1]:  # the best seed, refined too
             alt = refine(space, objective, s, max_nfev=nfev)
             if alt.cost < best.cost:
                 best = alt
@@ -296,15 +292,9 @@ class StructureDiscovery:
         draw 1002 needed a box of 8 spreads (hence ``OPEN_LOOP_BOX`` = 6).
         """
         pop, gens = (5, 15) if self.quick else (6, 25)
-        best = None
-        for _ in range(OPEN_LOOP_RESTARTS):
-            de = global_search(space, objective, rng, seeds=starts, popsize=pop, maxiter=gens,
-                               targets=open_targets)
-            for s in distinct_members(de.population, de.population_costs, space, N_STARTS):
-                fr = refine(space, objective, s, max_nfev=30, targets=open_targets)
-                if best is None or fr.cost < best.cost:
-                    best = fr
-        return best
+        fits = [_searched(space, space, objective, rng, starts, pop, gens, 30, open_targets)
+                for _ in range(OPEN_LOOP_RESTARTS)]
+        return min(fits, key=lambda f: f.cost)
 
     def fit(self, recordings):
         t_start = time.perf_counter()
@@ -542,6 +532,16 @@ class StructureDiscovery:
         fits[s] = self._fit_record(s, spaces[s], fr, origin, [])
         fits[s].sindy_seeds = seeds
         return True
+
+
+def _searched(box, space, objective, rng, starts, pop, gens, nfev, targets=None):
+    """Differential evolution in ``box``, then least squares (in the whole ``space``) from the best
+    member and from the runners-up in other basins (a short search often ends before one basin has
+    won); the best refined fit."""
+    de = global_search(box, objective, rng, seeds=starts, popsize=pop, maxiter=gens, targets=targets)
+    fits = [refine(space, objective, s, max_nfev=nfev, targets=targets)
+            for s in distinct_members(de.population, de.population_costs, box, N_STARTS)]
+    return min(fits, key=lambda f: f.cost)
 
 
 def in_sample_screen(best_cost, n_recordings):
