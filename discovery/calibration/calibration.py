@@ -417,8 +417,6 @@ class Calibration:
         """
         import emcee
 
-        from scipy.optimize import minimize
-
         ndim = len(z0)
         scale = _axis_scales(lp, z0)
         start = self._walkers_around(lp, z0, _principal_axes(lp, z0, scale, _hessian(lp, z0, scale)),
@@ -440,12 +438,7 @@ class Calibration:
             before = float(np.ravel(lp(z0))[0])
             if not np.nanmax(values) > before + POLISH_GAIN:
                 return None
-            z = candidates[int(np.nanargmax(values))]
-            ref = minimize(_cost(lp), z, method="Nelder-Mead",
-                           options={"maxfev": 100 * ndim, "xatol": 1e-6, "fatol": 0.05,
-                                    "initial_simplex": _simplex(z, lp)})
-            if np.isfinite(lp(ref.x)) and float(np.ravel(lp(ref.x))[0]) > float(np.ravel(lp(z))[0]):
-                z = ref.x
+            z = _nelder_mead_from(lp, candidates[int(np.nanargmax(values))])
             z, _ = self._polish(lp, _profile_sigma(lp, z, self.names_))
             return z if float(np.ravel(lp(z))[0]) > before + POLISH_GAIN else None
         finally:
@@ -692,7 +685,7 @@ LAPLACE_GOOD_ACCEPTANCE = 0.6
 def _global_start(lp, z0, seed, names):
     """The better of ``z0`` and a differential evolution over the prior box (vectorised: each
     generation one batch of simulations), refined by Nelder-Mead."""
-    from scipy.optimize import differential_evolution, minimize
+    from scipy.optimize import differential_evolution
 
     bounds = [p.internal_bounds for p in lp.priors]
 
@@ -702,14 +695,20 @@ def _global_start(lp, z0, seed, names):
 
     res = differential_evolution(cost, bounds, vectorized=True, popsize=12, maxiter=40, tol=1e-3,
                                  seed=seed, polish=False, init="sobol", updating="deferred")
-    z = res.x
+    z = _profile_sigma(lp, _nelder_mead_from(lp, res.x), names)
+    return z if lp(z) > lp(z0) else z0
+
+
+def _nelder_mead_from(lp, z):
+    """Nelder-Mead from ``z`` (100 evaluations per coordinate); its end if more probable than ``z``."""
+    from scipy.optimize import minimize
+
     ref = minimize(_cost(lp), z, method="Nelder-Mead",
                    options={"maxfev": 100 * len(z), "xatol": 1e-6, "fatol": 0.05,
                             "initial_simplex": _simplex(z, lp)})
     if np.isfinite(lp(ref.x)) and lp(ref.x) > lp(z):
-        z = ref.x
-    z = _profile_sigma(lp, z, names)
-    return z if lp(z) > lp(z0) else z0
+        return ref.x
+    return z
 
 
 def _profile_sigma(lp, z0, names):

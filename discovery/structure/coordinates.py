@@ -139,10 +139,9 @@ class SearchSpace:
     def narrowed(self, centre, half_width) -> "SearchSpace":
         """The same space with its box cut to ``centre +- half_width`` (``inf``: the whole axis)."""
         out = copy.copy(self)
-        half = np.asarray(half_width, dtype=float)
-        finite = np.isfinite(half)
-        out.low = np.where(finite, np.maximum(self.low, centre - np.where(finite, half, 0.0)), self.low)
-        out.high = np.where(finite, np.minimum(self.high, centre + np.where(finite, half, 0.0)), self.high)
+        half = np.nan_to_num(np.asarray(half_width, dtype=float), nan=np.inf)
+        out.low = np.maximum(self.low, centre - half)
+        out.high = np.minimum(self.high, centre + half)
         return out
 
     # -- maps -----------------------------------------------------------------------------------
