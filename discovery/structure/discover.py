@@ -289,7 +289,10 @@ class StructureDiscovery:
         (the true structure), one search of 5 x 15 generations reached the open-loop optimum in 8,
         one of 8 x 30 in 9. Short searches from independent starts fail independently; with three
         of them the staged search (box of 4 spreads) reached the truth's cost in 14 of 15 draws;
-        draw 1002 needed a box of 8 spreads (hence ``OPEN_LOOP_BOX`` = 6).
+        draw 1002 needed a box of 8 spreads (hence ``OPEN_LOOP_BOX`` = 6). These counts come from
+        session scripts, not from a command in the repository; what a command reproduces is
+        ``tests/test_discover.py::test_open_loop_stage_reaches_the_open_loop_optimum`` and the
+        benchmark.
         """
         pop, gens = (5, 15) if self.quick else (6, 25)
         fits = [_searched(space, space, objective, rng, starts, pop, gens, 30, open_targets)
