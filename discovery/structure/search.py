@@ -39,10 +39,9 @@ class Objective:
         self.n_evaluations = 0
 
     def _sets_for(self, target, param_sets):
-        ic = target.initial_conditions()
-        if ic is None:
+        if target.initial_conditions() is None:
             return param_sets
-        return [None if p is None else p.replace(**ic) for p in param_sets]
+        return [None if p is None else p.replace(**target.initial_conditions(p)) for p in param_sets]
 
     def blocks(self, param_sets, targets=None):
         """Residual blocks ``[(n, m_i)]``, one per target; invalid sets get penalty rows."""

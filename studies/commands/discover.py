@@ -182,7 +182,7 @@ def _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixe
 
     t0 = time.perf_counter()
     # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
-    p = best_params.replace(**closed[0].initial_conditions()) if closed else best_params
+    p = best_params.replace(**closed[0].initial_conditions(best_params)) if closed else best_params
     names = [n for n in CALIBRATED
              if n in best_structure.parameter_names() and n not in (fixed or {})]
     c = p.dead_zone - p.friction_offset
