@@ -19,6 +19,8 @@ def register(sub):
     p.add_argument("--quick", action="store_true", help="short runs (CI)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     p.add_argument("--results", default="results", help="results directory")
+    p.add_argument("--skip", action="append", default=[], metavar="NAME",
+                   help="with 'all': leave study NAME out (repeatable)")
     p.add_argument("--jobs", type=int, default=1,
                    help="studies run at once, one process each (default 1; the longest start first)")
     p.set_defaults(func=run)
@@ -34,12 +36,15 @@ def _run_one(name, quick, seed, results):
 
 
 def run(args) -> int:
-    if args.name == "all":
-        names = list(STUDIES)
-    elif args.name in STUDIES:
-        names = [args.name]
-    else:
+    if args.name not in STUDIES and args.name != "all":
         raise ValueError(f"unknown study {args.name!r}; choose 'all' or one of {', '.join(STUDIES)}")
+    skip = list(getattr(args, "skip", []) or [])
+    unknown = [n for n in skip if n not in STUDIES]
+    if unknown:
+        raise ValueError(f"--skip {unknown[0]!r}: not a study; choose from {', '.join(STUDIES)}")
+    if skip and args.name != "all":
+        raise ValueError("--skip goes with 'all' (name one study, or all but some)")
+    names = [n for n in STUDIES if n not in skip] if args.name == "all" else [args.name]
     if args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs}: need at least 1")
     if args.jobs > 1 and len(names) > 1:
