@@ -43,6 +43,8 @@ __all__ = [
     "UnknownStructureError",
     "COMPONENT_FIELDS",
     "STRUCTURE_FIELDS",
+    "CHOICES",
+    "shared_choices",
 ]
 
 #: The parameter fields each optional component owns (zeroed when the component is absent).
@@ -197,6 +199,28 @@ class Structure:
         return {"name": self.name, "dead_zone_position": self.dead_zone_position.value,
                 "delay_position": self.delay_position.value, "friction": self.friction,
                 "backlash": self.backlash, "bandpass": self.bandpass}
+
+
+#: The five structural choices, as :meth:`Structure.to_dict` names them.
+CHOICES = ("dead_zone_position", "delay_position", "friction", "backlash", "bandpass")
+
+
+def shared_choices(structures) -> dict:
+    """What a set of structures agrees on: choice -> its common value, or ``None`` where they differ.
+
+    Given the structures recordings cannot tell apart, this is what the recordings decide (e.g.
+    the dead zone on the velocity signal and a band-pass loop) and what they leave open (e.g.
+    the delay before the first integrator or before the integrator).
+
+    Raises
+    ------
+    ValueError
+        For an empty set (it decides nothing and agrees on everything).
+    """
+    dicts = [Structure.parse(s).to_dict() if isinstance(s, str) else s.to_dict() for s in structures]
+    if not dicts:
+        raise ValueError("shared_choices needs at least one structure")
+    return {c: dicts[0][c] if all(d[c] == dicts[0][c] for d in dicts) else None for c in CHOICES}
 
 
 #: Why a combination is pruned (see the module docstring).

@@ -19,6 +19,10 @@ Printed per structure class and overall, and written to ``DIR/bench.json``:
   as the truth moves it by over 5 % (draw 1000: two band-pass cycles, the delay sharp at the
   truth, yet a fit 46 % away costs 0.12 against the truth's 0.78); its error is then checked
   against 5 %;
+* per structural choice (dead-zone and delay position, friction, backlash, band-pass loop):
+  decided right, decided wrong, or left open by the reported set (what the recordings decide,
+  :func:`models.structures.shared_choices`), as the fraction of all the draws' choices decided
+  right and the count decided wrong;
 * timings.
 
 Goals (issue 11): right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
@@ -43,6 +47,8 @@ import numpy as np
 from discovery.structure import StructureDiscovery
 from discovery.structure.coordinates import SearchSpace
 from discovery.structure.search import local_sd
+
+from models.structures import CHOICES, Structure, shared_choices
 
 from .scenarios import draw_scenario, write_recordings
 
@@ -168,6 +174,17 @@ def guarded_draw(seed, out_dir, quick):
         return failed_draw(seed, exc)
 
 
+def choice_verdicts(row):
+    """Per structural choice: ``right`` or ``wrong`` where the reported set decides it (every
+    member shares one value, :func:`models.structures.shared_choices`), ``open`` where it does not."""
+    if not row.get("set"):
+        return {c: "open" for c in CHOICES}
+    decided = shared_choices(row["set"])
+    truth = Structure.parse(row["structure"]).to_dict()
+    return {c: "open" if v is None else ("right" if v == truth[c] else "wrong")
+            for c, v in decided.items()}
+
+
 def structure_class(row):
     """Dead-zone and delay positions of the truth's structure."""
     return "+".join(row["structure"].split("+")[:2])
@@ -190,6 +207,11 @@ def summarise(rows, key=structure_class):
             "right_winner": float(np.mean([r["right_winner"] for r in rs])),
             "right_or_in_set_le3": float(np.mean([r["right_or_in_small_set"] for r in rs])),
             "identifiable_within_5pc": float(np.mean([r["identifiable_within"] for r in rs])),
+            # of the draws' structural choices (5 each): decided and right; decided and wrong
+            "choices_decided_right": float(np.mean([v == "right" for r in rs
+                                                    for v in choice_verdicts(r).values()])),
+            "choices_decided_wrong": int(sum(v == "wrong" for r in rs
+                                             for v in choice_verdicts(r).values())),
             "median_seconds": float(np.nanmedian([r["seconds_discovery"] for r in rs])),
             "failed": int(sum("error" in r for r in rs)),
         }
@@ -242,10 +264,11 @@ def main(argv=None) -> int:
         for seed in seeds:
             record(seed, guarded_draw(seed, out, args.quick))
     table = summarise(rows)
-    print(f"\n{'class':42s} draws  winner  right|set<=3  ident<=5%  median s")
+    print(f"\n{'class':42s} draws  winner  right|set<=3  ident<=5%  choices right  wrong  median s")
     for key, t in list(table.items()) + list(summarise(rows, key=design_class).items())[:-1]:
         print(f"{key:42s} {t['draws']:5d}  {t['right_winner']:6.2f}  {t['right_or_in_set_le3']:11.2f}  "
-              f"{t['identifiable_within_5pc']:9.2f}  {t['median_seconds']:8.0f}")
+              f"{t['identifiable_within_5pc']:9.2f}  {t['choices_decided_right']:13.2f}  "
+              f"{t['choices_decided_wrong']:5d}  {t['median_seconds']:8.0f}")
     overall = table["overall"]
     goal = 0.5 if args.quick else 0.9
     ok = overall["right_or_in_set_le3"] >= goal and overall["identifiable_within_5pc"] >= goal

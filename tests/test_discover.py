@@ -6,6 +6,7 @@ import pytest
 
 from discovery.structure import StructureDiscovery
 from models.recording import save_recording
+from models.structures import Structure, shared_choices
 from studies.bench_discovery import coordinate_errors
 from studies.cli import main
 from studies.scenarios import draw_scenario, shortened, write_recordings
@@ -126,6 +127,12 @@ def test_killed_discover_resumes_ranking_and_chain(tmp_path, sig):
     straight = json.loads((tmp_path / "straight" / "discovery.json").read_text())
     assert resumed["resumed_ranking"] and not straight["resumed_ranking"]
     assert resumed["structures"][0]["params"] == straight["structures"][0]["params"]
+    # one structure given: the set is that structure, and every choice is decided
+    only = Structure.parse(straight["structures"][0]["structure"])
+    assert straight["decided"] == resumed["decided"] == shared_choices([only])
+    assert only.bandpass and None not in straight["decided"].values()
+    report = (tmp_path / "straight" / "report.md").read_text()
+    assert "## What the recordings decide" in report and "- band-pass loop: decided, on" in report
     (chain,) = killed.glob("chain-*.h5")
     a = emcee.backends.HDFBackend(str(chain), read_only=True)
     b = emcee.backends.HDFBackend(str(tmp_path / "straight" / chain.name), read_only=True)
@@ -224,6 +231,21 @@ def test_benchmark_counts_a_coordinate_moved_by_an_equally_good_fit_as_undecided
     assert as_good["identifiable_within"] and not as_good["coordinates"]["delay"]["identifiable"]
     assert as_good["coordinates"]["log_K"]["identifiable"]
     assert not undecided_marked(row(1.5))["identifiable_within"]
+
+
+def test_benchmark_scores_each_structural_choice_the_reported_set_decides():
+    """A set that shares the truth's dead-zone position and band-pass loop but holds two delay
+    positions and disagrees on the backlash decides two choices right, leaves two open, and
+    decides the friction offset (absent in every member, present in the truth) wrong; a failed
+    draw decides nothing."""
+    from studies.bench_discovery import choice_verdicts
+
+    row = {"structure": "dz_velocity+delay_output+friction+bandpass",
+           "set": ["dz_velocity+delay_output+bandpass", "dz_velocity+delay_before_integrator+bandpass",
+                   "dz_velocity+delay_output+backlash+bandpass"]}
+    assert choice_verdicts(row) == {"dead_zone_position": "right", "delay_position": "open",
+                                    "friction": "wrong", "backlash": "open", "bandpass": "right"}
+    assert set(choice_verdicts({"structure": row["structure"], "set": []}).values()) == {"open"}
 
 
 @pytest.mark.slow

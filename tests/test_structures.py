@@ -99,3 +99,20 @@ def test_unknown_interpolation_and_too_few_samples_for_a_spline_are_errors():
         OpenLoop.from_samples([0.0, 1.0], [0.0, 1.0], interpolation="quadratic")
     with pytest.raises(ValueError, match="needs >= 4 samples"):
         OpenLoop.from_samples([0.0, 1.0, 2.0], [0.0, 1.0, 0.0], interpolation="cubic")
+
+
+def test_shared_choices_decide_what_every_indistinguishable_structure_shares():
+    """M000's quick discovery set: the dead zone's position, the backlash and the band-pass loop
+    are decided; the delay's position and the friction offset (merged into the threshold) are not."""
+    from models.structures import shared_choices
+
+    decided = shared_choices(["dz_velocity+delay_before_first_integrator+backlash+bandpass",
+                              "dz_velocity+delay_before_first_integrator+friction+backlash+bandpass",
+                              "dz_velocity+delay_before_integrator+backlash+bandpass"])
+    assert decided == {"dead_zone_position": "velocity", "delay_position": None, "friction": None,
+                       "backlash": True, "bandpass": True}
+    one = Structure.parse("dz_error+delay_output")
+    assert shared_choices([one]) == {"dead_zone_position": "error", "delay_position": "output",
+                                     "friction": False, "backlash": False, "bandpass": False}
+    with pytest.raises(ValueError, match="at least one structure"):
+        shared_choices([])

@@ -39,7 +39,7 @@ from scipy.optimize import brentq
 
 from models.hypotheses import KICK_X0, ActuatorParams, DeadZonePosition, DelayPosition
 from models.recording import Recording, load_recording
-from models.structures import Structure, structure_space
+from models.structures import Structure, shared_choices, structure_space
 
 from .coordinates import SearchSpace, UnknownParameterError
 from .search import Objective, distinct_members, global_search, local_sd, refine
@@ -202,6 +202,9 @@ class StructureDiscovery:
     best_ : StructureFit
     indistinguishable_ : list of StructureFit
         The best and every structure the data cannot tell from it (merged ones included).
+    decided_ : dict
+        Structural choice -> the value every structure of ``indistinguishable_`` shares, ``None``
+        where they differ (the recordings leave it open; :func:`models.structures.shared_choices`).
     pruned_ : dict
         Structure name -> why it was not fitted.
     offsets_ : dict
@@ -396,6 +399,7 @@ class StructureDiscovery:
         self.ranking_ = ranked
         self.best_ = best
         self.indistinguishable_ = [f for f in ranked if f.indistinguishable_from_best]
+        self.decided_ = shared_choices([f.structure for f in self.indistinguishable_])
         self.pruned_ = {s.name: why for s, why in pruned.items()}
         self.offsets_ = objective.offsets(best.params)
         self.noise_ = {t.name: (t.noise(best.params) if t.kind == "open" else self._noise_of(t.recording))

@@ -91,7 +91,7 @@ def discover(files, out: Path, fixed=None, seed=0, quick=False, max_steps=None, 
     from discovery.structure import validate_recordings
     from discovery.structure.targets import make_target
     from models import params_from_dict
-    from models.structures import Structure
+    from models.structures import Structure, shared_choices
 
     recs = validate_recordings(files)
     out.mkdir(parents=True, exist_ok=True)
@@ -105,6 +105,7 @@ def discover(files, out: Path, fixed=None, seed=0, quick=False, max_steps=None, 
         closed = [make_target(r, 5e-4) for r in recs if r.kind == "closed"][:1]
         offsets = summary["sensor_offset"]
         t_disc = summary["timings"].get("discovery", 0.0)
+        summary.setdefault("decided", shared_choices(summary["indistinguishable"]))
     else:
         summary, best_params, best_structure, closed, offsets, t_disc = _rank_structures(
             recs, fixed, seed, quick, progress, inputs)
@@ -154,6 +155,7 @@ def _rank_structures(recs, fixed, seed, quick, progress, inputs):
         "fixed": {k: (v if not hasattr(v, "value") else v.value) for k, v in (fixed or {}).items()},
         "structures": [f.to_dict() for f in disc.ranking_],
         "indistinguishable": [f.structure.name for f in disc.indistinguishable_],
+        "decided": disc.decided_,
         "pruned": disc.pruned_,
         "sindy": disc.sindy_,
         "sensor_offset": disc.offsets_,
@@ -229,6 +231,14 @@ def _json_default(v):
     return str(v)
 
 
+CHOICE_LABELS = {"dead_zone_position": "dead zone on", "delay_position": "delay position",
+                 "friction": "friction offset", "backlash": "backlash", "bandpass": "band-pass loop"}
+
+
+def _shown(value):
+    return value if isinstance(value, str) else ("on" if value else "off")
+
+
 def report(summary) -> str:
     """``report.md``: ranking table, what was fixed or estimated, posterior and figures."""
     lines = ["# tvcid discover", "", "Recordings: " + ", ".join(summary["recordings"]), ""]
@@ -242,6 +252,20 @@ def report(summary) -> str:
     for i, s in enumerate(summary["structures"], 1):
         lines.append(f"| {i} | `{s['structure']}` | {s['score']:.4g} | {s['cost']:.4g} | "
                      f"{'yes' if s['indistinguishable_from_best'] else ''} | {s['merged_into'] or ''} |")
+    lines += ["", "## What the recordings decide", "",
+              "Each structural choice, over the structures the recordings cannot tell apart "
+              "(the indistinguishable ones, merged ones included):", ""]
+    members = [s for s in summary["structures"] if s["indistinguishable_from_best"]]
+    for choice, value in summary["decided"].items():
+        label = CHOICE_LABELS[choice]
+        if value is None:
+            seen = sorted({_shown(m["components"][choice]) for m in members})
+            lines.append(f"- {label}: **not decided** ({' or '.join(seen)})")
+        else:
+            lines.append(f"- {label}: decided, {_shown(value)}")
+    if all(v is None for v in summary["decided"].values()):
+        lines += ["", "The recordings decide no structural choice: a test that separates them "
+                  "(an open-loop square wave, another controller setting; `tvcid design`) would."]
     best = summary["structures"][0]
     lines += ["", "## Best structure's parameters", "", "| parameter | value | local spread (coordinate) |",
               "|---|---|---|"]
