@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .common import code_commit
 from .scenarios import (BACKLASH_CENTRE, DEAD_ZONE_CENTRE, DELAY_RANGE, RANGE_FACTOR, draw_scenario,
                         shortened, write_recordings)
 
@@ -156,19 +157,8 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
     return row
 
 
-def _commit():
-    """The checkout's git commit (rows of a resumed benchmark may come from several)."""
-    import subprocess
-
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True, cwd=Path(__file__).parent).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
-
-
 #: The commit of the code this process imported (a row's, not the checkout's when it ends).
-CODE_COMMIT = _commit()
+CODE_COMMIT = code_commit()
 
 
 def summarise(rows) -> dict:

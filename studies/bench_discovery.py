@@ -50,7 +50,11 @@ from discovery.structure.search import local_sd
 
 from models.structures import CHOICES, Structure, shared_choices
 
+from .common import code_commit
 from .scenarios import draw_scenario, write_recordings
+
+#: The commit of the code this process imported (a row's, not the checkout's when it ends).
+CODE_COMMIT = code_commit()
 
 #: Identifiable: local spread below these (internal units) at the truth; error within ``ERROR``.
 SPREAD_LOG = 0.02
@@ -134,6 +138,7 @@ def run_draw(seed, out_dir, quick):
         "seconds_discovery": t_disc,
         "seconds_by_stage": {k: round(float(v), 1) for k, v in disc.timings_.items()},
         "simulated_sets": disc.n_simulations_,
+        "commit": CODE_COMMIT,
     }
     return undecided_marked(row)
 

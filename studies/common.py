@@ -64,3 +64,15 @@ def study_main(module, argv=None):
         module.describe(summary)
     print(f"wrote {args.out}")
     return summary
+
+
+def code_commit():
+    """The checkout's git commit, short (``None`` outside git); benchmark rows record the commit
+    of the code their process imported (rows of a resumed benchmark may come from several)."""
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True, cwd=Path(__file__).parent).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
