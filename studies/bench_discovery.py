@@ -138,6 +138,8 @@ def run_draw(seed, out_dir, quick):
         "seconds_discovery": t_disc,
         "seconds_by_stage": {k: round(float(v), 1) for k, v in disc.timings_.items()},
         "simulated_sets": disc.n_simulations_,
+        # closed-loop runs simulated again from the second start (targets.CycleTarget.residuals)
+        "second_starts": int(sum(getattr(t, "second_starts", 0) for t in disc.targets_)),
         "commit": CODE_COMMIT,
     }
     return undecided_marked(row)
@@ -207,16 +209,15 @@ def summarise(rows, key=structure_class):
         by.setdefault(key(r), []).append(r)
     table = {}
     for key, rs in sorted(by.items()) + [("overall", rows)]:
+        # the draws' structural choices (5 each): decided and right, decided and wrong, open
+        verdicts = [v for r in rs for v in choice_verdicts(r).values()]
         table[key] = {
             "draws": len(rs),
             "right_winner": float(np.mean([r["right_winner"] for r in rs])),
             "right_or_in_set_le3": float(np.mean([r["right_or_in_small_set"] for r in rs])),
             "identifiable_within_5pc": float(np.mean([r["identifiable_within"] for r in rs])),
-            # of the draws' structural choices (5 each): decided and right; decided and wrong
-            "choices_decided_right": float(np.mean([v == "right" for r in rs
-                                                    for v in choice_verdicts(r).values()])),
-            "choices_decided_wrong": int(sum(v == "wrong" for r in rs
-                                             for v in choice_verdicts(r).values())),
+            "choices_decided_right": float(np.mean([v == "right" for v in verdicts])),
+            "choices_decided_wrong": int(sum(v == "wrong" for v in verdicts)),
             "median_seconds": float(np.nanmedian([r["seconds_discovery"] for r in rs])),
             "failed": int(sum("error" in r for r in rs)),
         }
