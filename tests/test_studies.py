@@ -190,9 +190,8 @@ def test_discover_reports_the_generating_structure_and_its_threshold(discover_qu
     within 10 %, the backlash within 30 % and the delay within 0.5 ms (issue 11's tolerances, the
     study's ``meets_goal``); the winner has the band-pass loop and the dead zone on the velocity
     signal and its threshold is within 10 % too."""
-    quick_results = discover_quick
-    assert _summary(quick_results, "discover")["study"] == "discover"
-    summary = _summary(quick_results, "discover")
+    summary = _summary(discover_quick, "discover")
+    assert summary["study"] == "discover"
     assert summary["generating_structure_in_set"] and len(summary["distinct_in_set"]) <= 3
     own = summary["errors_of_generating_structure"]
     assert abs(own["threshold_relative"]) <= 0.10
@@ -203,7 +202,7 @@ def test_discover_reports_the_generating_structure_and_its_threshold(discover_qu
     assert abs(summary["errors_of_best"]["threshold_relative"]) < 0.10
     assert summary["posterior"]["parameters"]  # the winner was calibrated
     for name in ("report.md", "discovery.json", "corner.png", "predictive.png"):
-        assert (quick_results / "discover" / name).exists()
+        assert (discover_quick / "discover" / name).exists()
 
 
 def test_h6_controller_design_predicts_filters_boundary_and_next_test(quick_results):
