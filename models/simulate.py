@@ -257,12 +257,30 @@ def _pack_experiment(experiment, dt, n_steps, bound):
             ctrl = _pack_compensator(ctrl, experiment)
         u_cmd = np.zeros(1)
     elif isinstance(experiment, OpenLoop):
-        u_cmd = experiment.solver_command(0.5 * dt * np.arange(2 * n_steps + 1), dt)
+        u_cmd = _stage_command(experiment, dt, n_steps)
     else:
         raise TypeError(
             f"experiment must be a ClosedLoop or an OpenLoop, got {type(experiment).__name__}"
         )
     return ctrl, u_cmd
+
+
+def _stage_command(experiment, dt, n_steps):
+    """The open-loop command at the RK4 stage times, memoised on the (frozen) experiment.
+
+    A square's stage averages (:meth:`OpenLoop.solver_command`) cost several times the run itself,
+    and a search simulates the same test thousands of times (SINDy's simulation stage spent 48 of
+    its 102 s rebuilding them on the M000 records). The cache lives in the instance's
+    ``__dict__``, outside the dataclass fields (``repr`` does not show it; equality is identity).
+    """
+    cache = experiment.__dict__.setdefault("_stage_commands", {})
+    key = (float(dt), int(n_steps))
+    if key not in cache:
+        u = np.asarray(experiment.solver_command(0.5 * dt * np.arange(2 * n_steps + 1), dt),
+                       dtype=float)
+        u.setflags(write=False)
+        cache[key] = u
+    return cache[key]
 
 
 def _pack_compensator(ctrl, experiment):

@@ -75,7 +75,7 @@ def test_recovers_a_drawn_truth_with_known_positions(tmp_path):
         side = json.loads(p.with_suffix(".json").read_text())
         assert "parameters" not in side and "hypothesis" not in side and "waveform" not in side
     fixed = {"dead_zone_position": "error", "delay_position": "output", "bandpass_gain": 0.0}
-    disc = StructureDiscovery(fixed=fixed, seed=0, quick=True, use_sindy=False).fit(paths)
+    disc = StructureDiscovery(fixed=fixed, seed=0, use_sindy=False).fit(paths)
     assert {f.structure for f in disc.ranking_} == {s, s.without("backlash")}
     fit = next(f for f in disc.ranking_ if f.structure == s)
     assert fit.indistinguishable_from_best
@@ -127,6 +127,9 @@ def test_killed_discover_resumes_ranking_and_chain(tmp_path, sig):
     straight = json.loads((tmp_path / "straight" / "discovery.json").read_text())
     assert resumed["resumed_ranking"] and not straight["resumed_ranking"]
     assert resumed["structures"][0]["params"] == straight["structures"][0]["params"]
+    # the chain samples the physical parameters; the noise sd stays at the records' estimate
+    assert "sigma" not in straight["posterior"]["parameters"]
+    assert {"dead_zone", "delay"} <= set(straight["posterior"]["parameters"])
     # one structure given: the set is that structure, and every choice is decided
     only = Structure.parse(straight["structures"][0]["structure"])
     assert straight["decided"] == resumed["decided"] == shared_choices([only])
@@ -267,7 +270,7 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
 
     scenario = shortened(draw_scenario(1002), closed=12.0, open_=6.0)
     paths = write_recordings(scenario, tmp_path)
-    disc = StructureDiscovery(seed=0, quick=True, use_sindy=False)
+    disc = StructureDiscovery(seed=0, use_sindy=False)
     targets = [make_target(load, disc.dt) for load in _loaded(paths)]
     open_targets = [t for t in targets if t.kind == "open"]
     objective = Objective(targets)

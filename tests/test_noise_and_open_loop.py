@@ -61,3 +61,26 @@ def test_benchmark_script_runs_and_reports(tmp_path):
     assert {r["hypothesis"] for r in saved["kernel_vs_reference"]} == {"M002", "M001i", "M001f", "M000"}
     assert all(r["speedup"] > 1 for r in result["kernel_vs_reference"])
     assert set(saved["measured"]) == set(saved["goals"])
+
+
+def test_square_stage_command_is_built_once_and_changes_no_run():
+    """The stage-averaged command of an open-loop test is memoised on the experiment (a search
+    simulates the same test thousands of times); the runs are those of a fresh experiment, and a
+    longer run of the same experiment gets its own, longer command."""
+    from models import simulate_batch
+
+    p = hypothesis("M002")
+    sets = [p, p.replace(backlash=p.backlash * 1.5)]
+    shared = OpenLoop.square(0.01, 1.3)
+    first = simulate_batch(sets, shared, 3.0, dt=5e-4, rate=None).signal("delta")
+    cached = shared.__dict__["_stage_commands"][(5e-4, 6000)]
+    again = simulate_batch(sets, shared, 3.0, dt=5e-4, rate=None).signal("delta")
+    assert shared.__dict__["_stage_commands"][(5e-4, 6000)] is cached
+    assert not cached.flags.writeable
+    fresh = simulate_batch(sets, OpenLoop.square(0.01, 1.3), 3.0, dt=5e-4,
+                           rate=None).signal("delta")
+    np.testing.assert_array_equal(first, again)
+    np.testing.assert_array_equal(first, fresh)
+    longer = simulate_batch(sets, shared, 4.0, dt=5e-4, rate=None).signal("delta")
+    np.testing.assert_array_equal(longer[:, : first.shape[1]], first)
+    assert len(shared.__dict__["_stage_commands"]) == 2

@@ -7,6 +7,7 @@ command open loop; :func:`models.simulate_batch` runs many parameter sets at onc
 from __future__ import annotations
 
 import math
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +69,22 @@ def replay_experiment(recording, t_end=None):
         t = np.insert(t, jumps + 1, t[jumps + 1] - eps)
         u = np.insert(u, jumps + 1, u[jumps])
     return OpenLoop.from_samples(t, u)
+
+
+#: Replays of open-loop recordings by recording and length: the same experiment object is
+#: simulated again and again in the simulation stage, so its stage command is built once
+#: (:func:`models.simulate._stage_command` memoises it on the experiment).
+_REPLAYS = weakref.WeakKeyDictionary()
+
+
+def _replayed(rec, t_end, keep):
+    """``(experiment, view)`` of an open-loop recording cut at ``t_end``, cached per recording."""
+    by_end = _REPLAYS.setdefault(rec, {})
+    key = round(float(t_end), 9)
+    if key not in by_end:
+        view = Recording({k: v[keep] for k, v in rec.columns.items()}, rec.meta, rec.path)
+        by_end[key] = (replay_experiment(rec, t_end), view)
+    return by_end[key]
 
 
 def waveform_distance(recorded, simulated, period_samples=None):
@@ -181,8 +198,7 @@ def score_on_recordings(param_sets, recordings, max_time=MAX_SIMULATED):
         if rec.kind == "closed":
             experiment, view = rec.experiment(), rec
         else:
-            experiment = replay_experiment(rec, t_end)
-            view = Recording({k: v[sl] for k, v in rec.columns.items()}, rec.meta, rec.path)
+            experiment, view = _replayed(rec, t_end, sl)
         batch = simulate_batch(param_sets, experiment, t_end, rate=None)
         delta = batch.signal("delta")
         for i in range(len(param_sets)):
