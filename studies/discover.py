@@ -13,7 +13,7 @@ into the one without); the MCMC calibration of the winner shows what the data le
 What was found (README, Numbers): the delay before the first integrator (inside the second-order
 block's own loop) and before the integrator (after the block) differ only by how the block's
 effective K1, K2, K3 read; with the linear block free both fit these four recordings about equally
-(the full search scores them 1.8 and 2.2, inside one margin), so the study reports both.
+(the default search scores them 1.65 and 1.67, inside one margin), so the study reports both.
 
 This is the same function as ``tvcid discover`` (:func:`studies.commands.discover.discover`); the
 sidecars' ``hypothesis``/``parameters`` keys are ignored by it and used here only to score.

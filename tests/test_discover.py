@@ -45,6 +45,31 @@ def test_bad_input_is_one_line_error(tmp_path, capsys, case, expected):
     assert "Traceback" not in err and (case == "none" or len(err.splitlines()) == 1)
 
 
+def test_unknown_search_size_names_the_choices():
+    """An unknown search size is refused before any work, naming the sizes there are; the sizes
+    are ordered (``thorough`` searches more than ``standard`` at every stage)."""
+    from dataclasses import astuple
+
+    from discovery.structure.discover import SEARCHES, StructureDiscovery
+
+    with pytest.raises(ValueError, match="unknown search size 'huge'.*standard, thorough"):
+        StructureDiscovery(search="huge").fit([DATA])
+    assert all(a < b for a, b in zip(astuple(SEARCHES["standard"]), astuple(SEARCHES["thorough"]))
+               if a != b)
+    assert SEARCHES["thorough"].gens > SEARCHES["standard"].gens
+
+
+def test_a_thorough_run_never_reuses_a_standard_ranking():
+    """The ranking's reuse key holds the search size (and not ``--quick``, which only shortens
+    the chain): ``--thorough`` on a directory of a default run searches again."""
+    from models.recording import load_recording
+    from studies.commands.discover import inputs_hash
+
+    recs = [load_recording(DATA)]
+    assert inputs_hash(recs, {}, 0, "standard") != inputs_hash(recs, {}, 0, "thorough")
+    assert inputs_hash(recs, {}, 0, "standard") == inputs_hash(recs, {}, 0, "standard")
+
+
 def test_sidecar_hypothesis_and_parameters_are_ignored(tmp_path):
     """A sidecar's truth keys must not leak into discovery: the same data with and without them
     give the same targets."""
