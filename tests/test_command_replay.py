@@ -248,3 +248,19 @@ def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunt
     assert (loads["grid"] > 10 * loads["centre"]) is hunts
     res = term.residuals([truth], [noise])[0]
     assert np.sqrt(np.mean(res**2)) < 0.1 * noise
+
+
+def test_uniform_interp_is_numpy_interp_on_the_solver_grid():
+    """The edge timing reads the simulated response by index arithmetic on its uniform grid; it
+    must equal ``numpy.interp`` inside the grid, on its nodes and beyond both ends (to the
+    rounding of a point's position on the grid, 1e-16 s, times slopes up to 1e4 per s here)."""
+    from discovery.calibration.edge_timing import uniform_interp
+
+    rng = np.random.default_rng(3)
+    h, x0 = 5e-4, 0.25
+    y = rng.standard_normal(2001)
+    grid = x0 + h * np.arange(y.size)
+    x = np.concatenate([[x0 - 1.0, x0 - 1e-9, x0, grid[-1], grid[-1] + 1e-9, grid[-1] + 3.0],
+                        grid[::97], rng.uniform(x0 - 0.1, grid[-1] + 0.1, 5000)])
+    np.testing.assert_allclose(uniform_interp(x, x0, h, y), np.interp(x, grid, y),
+                               rtol=0, atol=1e-10)

@@ -38,7 +38,7 @@ import numpy as np
 from models.commands import _edge_polygon, is_piecewise_constant, regular_edge_times
 from models.experiments import OpenLoop
 
-__all__ = ["EdgeTiming"]
+__all__ = ["EdgeTiming", "uniform_interp"]
 
 #: Gauss-Newton iterations of the timing per parameter set (the needle sits within a sample of
 #: the previous iterate after two; a third settles the segment boundaries).
@@ -172,8 +172,14 @@ class EdgeTiming:
 
     # -- the response at a timing ------------------------------------------------------------
     def shifted(self, theta, tau, t_sim, y_sim):
-        """The simulated response (at ``t_sim``) for edges at ``theta``, read at ``tau``, and
-        its derivative with respect to ``theta`` (``(n, dim)``)."""
+        """The simulated response (at ``t_sim``, a uniform grid) for edges at ``theta``, read at
+        ``tau``, and its derivative with respect to ``theta`` (``(n, dim)``)."""
+        h = float(t_sim[1] - t_sim[0])
+        return self._shifted(theta, tau, float(t_sim[0]), h, y_sim, np.diff(y_sim) / h)
+
+    def _shifted(self, theta, tau, t0, h, y_sim, slope_sim):
+        """:meth:`shifted` with the response's slopes between grid points given (a marginal
+        evaluates several timings of one response)."""
         off = theta[0] + (self.index * theta[1] if self.dim == 2 else 0.0)
         edges = self.centre + off
         seg = np.searchsorted(edges, tau, side="right")  # edges passed at each sample
@@ -181,9 +187,8 @@ class EdgeTiming:
         j = np.maximum(seg - 1, 0)
         shift = np.where(before, edges[j] - self.grid[j], 0.0)
         x = tau - shift
-        y = np.interp(x, t_sim, y_sim)
-        h = t_sim[1] - t_sim[0]
-        slope = np.interp(x, 0.5 * (t_sim[1:] + t_sim[:-1]), np.diff(y_sim) / h)
+        y = uniform_interp(x, t0, h, y_sim)
+        slope = uniform_interp(x, t0 + 0.5 * h, h, slope_sim)
         # d y(tau - shift) / d theta = -y' * d shift / d theta
         jac = np.zeros((tau.size, self.dim))
         jac[:, 0] = np.where(before, -slope, 0.0)
@@ -215,11 +220,13 @@ class EdgeTiming:
         theta : ndarray
         """
         w = 1.0 / var
+        t0, h = float(t_sim[0]), float(t_sim[1] - t_sim[0])
+        slope_sim = np.diff(y_sim) / h
 
         def linearised(theta):
             """Residuals at ``theta``, and the weighted normal matrix and gradient there
             (``r(theta + d) ~ r - jac d``)."""
-            y, jac = self.shifted(theta, tau, t_sim, y_sim)
+            y, jac = self._shifted(theta, tau, t0, h, y_sim, slope_sim)
             r = data - y
             if demean:
                 r = r - r.mean()
@@ -246,6 +253,18 @@ class EdgeTiming:
             return r, 0.0, theta
         log_volume = 0.5 * self.dim * math.log(2 * math.pi) - 0.5 * logdet - self.log_area
         return r, min(0.0, float(log_volume)), theta
+
+
+def uniform_interp(x, x0, h, y):
+    """``numpy.interp(x, x0 + h * arange(y.size), y)`` without its binary search.
+
+    The simulated response lies on the solver's uniform grid, so the interval of each point is
+    an index computed directly; outside the grid the end values hold, as in ``numpy.interp``.
+    """
+    u = (np.asarray(x, dtype=float) - x0) / h
+    i = np.clip(np.floor(u), 0, y.size - 2).astype(np.intp)
+    f = np.clip(u - i, 0.0, 1.0)
+    return y[i] + f * (y[i + 1] - y[i])
 
 
 def edge_timing_for(experiment, t, u, dt, on_grid=True):
