@@ -67,12 +67,17 @@ def study_main(module, argv=None):
 
 
 def code_commit():
-    """The checkout's git commit, short (``None`` outside git); benchmark rows record the commit
-    of the code their process imported (rows of a resumed benchmark may come from several)."""
+    """The checkout's git commit, short, with ``+dirty`` when tracked files differ from it
+    (``None`` outside git); benchmark rows record the commit of the code their process imported
+    (rows of a resumed benchmark may come from several)."""
     import subprocess
 
+    def git(*args):
+        return subprocess.run(["git", *args], capture_output=True, text=True, check=True,
+                              cwd=Path(__file__).parent).stdout.strip()
+
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True, cwd=Path(__file__).parent).stdout.strip()
+        commit = git("rev-parse", "--short", "HEAD")
+        return commit + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
     except (OSError, subprocess.CalledProcessError):
         return None
