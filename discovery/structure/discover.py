@@ -45,7 +45,8 @@ from .coordinates import SearchSpace, UnknownParameterError
 from .search import Objective, distinct_members, global_search, local_sd, refine
 from .targets import make_target
 
-__all__ = ["StructureDiscovery", "StructureFit", "SearchSizes", "SEARCHES", "validate_recordings", "DiscoveryInputError",
+__all__ = ["StructureDiscovery", "StructureFit", "SearchSizes", "SEARCHES", "validate_recordings",
+           "DiscoveryInputError",
            "delay_moved", "transferred", "indistinguishable_margin", "in_sample_screen"]
 
 #: Template of the fields a search does not set (paper 001's linear block, only a placeholder; the
