@@ -23,6 +23,7 @@ import sys
 import time
 from pathlib import Path
 
+from discovery.structure.discover import SEARCHES
 from models import CONTROLLER_A, CONTROLLER_B, OpenLoop, hypothesis, simulate, simulate_batch
 from models.recording import recording_from_trajectory, save_recording
 
@@ -74,7 +75,7 @@ def main(argv=None) -> int:
     from .commands.discover import discover
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--search", default="standard", choices=("standard", "thorough"))
+    parser.add_argument("--search", default="standard", choices=tuple(SEARCHES))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=str(OUT))
     args = parser.parse_args(argv)
