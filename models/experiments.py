@@ -140,9 +140,6 @@ CONTROLLER_B = ClosedLoop(kp=9.8, kd=0.06, mu=4.5)
 OPEN_LOOP_WAVEFORMS = ("step", "square", "sine", "samples", "piecewise")
 #: How a ``samples`` command is read between its samples.
 SAMPLE_INTERPOLATIONS = ("linear", "cubic")
-#: Points averaged per stage by :meth:`OpenLoop.solver_command` (an edge resolved to 1/32 of a
-#: stage's share).
-SOLVER_SUBSAMPLES = 32
 
 
 @dataclass(frozen=True, eq=False)
@@ -289,18 +286,45 @@ class OpenLoop:
         stages, an edge between them would move to the next stage (up to half a step late: 0.25 ms
         at 5e-4 s, several noise units of a square-wave response); averaged, the input's
         integral is exact and the edge's effect lands within a small fraction of a step of its
-        time. Both the kernel (:mod:`models.simulate`) and the reference path use this.
+        time. The average is the command's integral over the share, exact (it was a mean of 32
+        points per stage, 18 s of the ``discover`` calibration's set-up in fine-step checks).
+        Both the kernel (:mod:`models.simulate`) and the reference path use this.
         """
         t = np.asarray(t, dtype=float)
         if self.waveform not in ("step", "square", "piecewise"):
             return self.command(t)
         on_node = np.mod(np.rint(2.0 * t / dt), 2) == 0
         half_width = np.where(on_node, dt / 6.0, dt / 3.0)
-        offsets = (np.arange(SOLVER_SUBSAMPLES) + 0.5) / SOLVER_SUBSAMPLES * 2.0 - 1.0
-        # the run starts at t = 0: the first node stands for [0, dt/6] only (a square's periodic
+        edges, levels = self._jumps(float(np.max(t, initial=0.0)) + dt)
+        # the run starts at t = 0: before it the command holds u(0) (a square's periodic
         # extension before 0 averaged its first node to 0, the start's step dt/6 late)
-        pts = np.maximum(t[..., None] + half_width[..., None] * offsets, 0.0)
-        return self.command(pts).mean(axis=-1)
+        start = np.concatenate([[0.0], edges])  # where each level begins (the first at 0)
+        at_start = np.concatenate([[0.0], np.cumsum(levels[:-1] * np.diff(start))])
+
+        def integral(x):  # of u(max(s, 0)) from 0 to x
+            k = np.searchsorted(edges, x, side="right")
+            return at_start[k] + levels[k] * (x - start[k]), k
+
+        lo, k_lo = integral(t - half_width)
+        hi, k_hi = integral(t + half_width)
+        # within one level the level itself (no rounding from the difference of integrals)
+        return np.where(k_lo == k_hi, levels[k_lo], (hi - lo) / (2.0 * half_width))
+
+    def _jumps(self, t_max):
+        """Edges after ``t = 0`` (s) up to past ``t_max``, and the levels (rad) between them:
+        ``levels[0]`` = ``u(0)``, ``levels[j]`` after edge ``j - 1`` (step, square, piecewise)."""
+        if self.waveform == "step":
+            if self.start > 0:
+                return np.array([self.start]), np.array([0.0, self.amplitude])
+            return np.empty(0), np.array([self.amplitude])
+        if self.waveform == "square":
+            n = int(np.ceil(2.0 * self.frequency * max(t_max, 0.0))) + 1
+            edges = np.arange(1, n + 1) / (2.0 * self.frequency)
+            signs = np.where(np.arange(n + 1) % 2 == 0, 1.0, -1.0)
+            return edges, self.amplitude * signs + self.offset
+        after = self.t_samples > 0
+        levels = np.concatenate([[float(self.command(0.0))], self.u_samples[1:][after]])
+        return self.t_samples[after], levels
 
     def to_dict(self) -> dict:
         out = {

@@ -119,7 +119,8 @@ def simulate_kernel(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decima
         Output noise held over samples of rate ``p[P_NOISE_RATE]`` (ignored when that is 0).
     dt : float
     n_steps, decimation : int
-    out : float64[N_SIGNALS, :]
+    out : float64[N_SIGNALS, :] or float64[1, :]
+        Every signal of ``SIGNALS``, or (one row) ``delta`` alone.
 
     Returns
     -------
@@ -336,14 +337,17 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
                     kk[stage, ib + 1] = bend_gw2 * delta - bend_2zw * ss[ib + 1] - bend_w2 * ss[ib]
             if stage == 0 and k % decimation == 0:
                 col = k // decimation
-                out[0, col] = k * dt
-                out[1, col] = u
-                out[2, col] = delta
-                out[3, col] = ss[0]
-                out[4, col] = xs
-                out[5, col] = ss[2]
-                out[6, col] = w
-                out[7, col] = b
+                if out.shape[0] == 1:  # a caller that reads delta alone (the fitting batches)
+                    out[0, col] = delta
+                else:
+                    out[0, col] = k * dt
+                    out[1, col] = u
+                    out[2, col] = delta
+                    out[3, col] = ss[0]
+                    out[4, col] = xs
+                    out[5, col] = ss[2]
+                    out[6, col] = w
+                    out[7, col] = b
         if k == n_steps:
             break
         total = 0.0

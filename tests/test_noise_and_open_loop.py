@@ -84,3 +84,31 @@ def test_square_stage_command_is_built_once_and_changes_no_run():
     longer = simulate_batch(sets, shared, 4.0, dt=5e-4, rate=None).signal("delta")
     np.testing.assert_array_equal(longer[:, : first.shape[1]], first)
     assert len(shared.__dict__["_stage_commands"]) == 2
+
+
+@pytest.mark.parametrize("experiment", [
+    OpenLoop.square(0.012, 1.37, offset=3e-4),
+    OpenLoop.step(0.01, start=0.20013),
+    OpenLoop.step(-0.02),
+    OpenLoop.piecewise([-0.1, 0.0, 0.10037, 0.3, 0.30012], [0.1, 0.2, -0.01, 0.015, -0.007, 0.0]),
+])
+def test_stage_average_is_the_commands_mean_over_the_stage(experiment):
+    """A piecewise-constant command is averaged over each RK4 stage's share (dt/6 around a node,
+    dt/3 around a midpoint) by its exact integral; it must equal the mean of a dense midpoint
+    sampling of the same interval (to that sampling's error, half a level jump over 4096 points),
+    hold u(0) before t = 0, and return the level itself, bit for bit, where no edge falls inside
+    the share."""
+    dt = 5e-4
+    t = 0.5 * dt * np.arange(2 * 900 + 1)
+    got = experiment.solver_command(t, dt)
+    on_node = np.mod(np.rint(2.0 * t / dt), 2) == 0
+    half = np.where(on_node, dt / 6.0, dt / 3.0)
+    n = 4096
+    offsets = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    dense = experiment.command(np.maximum(t[:, None] + half[:, None] * offsets, 0.0)).mean(axis=1)
+    jump = np.ptp(experiment.command(np.linspace(0, t[-1], 20001)))
+    np.testing.assert_allclose(got, dense, rtol=0, atol=jump / n)
+    inside = np.all(experiment.command(np.maximum(t[:, None] + half[:, None] * offsets, 0.0))
+                    == experiment.command(t)[:, None], axis=1)
+    assert inside.sum() > 0.9 * t.size
+    np.testing.assert_array_equal(got[inside], experiment.command(t)[inside])

@@ -34,11 +34,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from models.commands import _edge_polygon, is_piecewise_constant, regular_edge_times
 from models.experiments import OpenLoop
 
-__all__ = ["EdgeTiming", "uniform_interp"]
+__all__ = ["EdgeTiming", "edge_timing_for"]
 
 #: Gauss-Newton iterations of the timing per parameter set (the needle sits within a sample of
 #: the previous iterate after two; a third settles the segment boundaries).
@@ -174,27 +175,17 @@ class EdgeTiming:
     def shifted(self, theta, tau, t_sim, y_sim):
         """The simulated response (at ``t_sim``, a uniform grid) for edges at ``theta``, read at
         ``tau``, and its derivative with respect to ``theta`` (``(n, dim)``)."""
-        h = float(t_sim[1] - t_sim[0])
-        return self._shifted(theta, tau, float(t_sim[0]), h, y_sim, np.diff(y_sim) / h)
+        theta = np.asarray(theta, dtype=float)
+        tau = np.asarray(tau, dtype=float)
+        y = np.empty(tau.size)
+        jac = np.empty((self.dim, tau.size))
+        _shift_read(self._edges(theta), self.grid, self.index, tau, float(t_sim[0]),
+                    float(t_sim[1] - t_sim[0]), np.asarray(y_sim, dtype=float), y, jac[0],
+                    jac[-1], self.dim == 2)
+        return y, jac.T
 
-    def _shifted(self, theta, tau, t0, h, y_sim, slope_sim):
-        """:meth:`shifted` with the response's slopes between grid points given (a marginal
-        evaluates several timings of one response)."""
-        off = theta[0] + (self.index * theta[1] if self.dim == 2 else 0.0)
-        edges = self.centre + off
-        seg = np.searchsorted(edges, tau, side="right")  # edges passed at each sample
-        before = seg > 0
-        j = np.maximum(seg - 1, 0)
-        shift = np.where(before, edges[j] - self.grid[j], 0.0)
-        x = tau - shift
-        y = uniform_interp(x, t0, h, y_sim)
-        slope = uniform_interp(x, t0 + 0.5 * h, h, slope_sim)
-        # d y(tau - shift) / d theta = -y' * d shift / d theta
-        jac = np.zeros((tau.size, self.dim))
-        jac[:, 0] = np.where(before, -slope, 0.0)
-        if self.dim == 2:
-            jac[:, 1] = np.where(before, -slope * self.index[j], 0.0)
-        return y, jac
+    def _edges(self, theta):
+        return self.centre + theta[0] + (self.index * theta[1] if self.dim == 2 else 0.0)
 
     def marginal(self, tau, data, t_sim, y_sim, var, demean=True):
         """Residuals at the most probable timing and the log of the timing's integral.
@@ -219,52 +210,150 @@ class EdgeTiming:
             the timing (<= 0).
         theta : ndarray
         """
-        w = 1.0 / var
+        tau = np.asarray(tau, dtype=float)
+        data = np.asarray(data, dtype=float)
+        w = 1.0 / np.asarray(var, dtype=float)
         t0, h = float(t_sim[0]), float(t_sim[1] - t_sim[0])
-        slope_sim = np.diff(y_sim) / h
+        y_sim = np.asarray(y_sim, dtype=float)
+        r = np.empty(tau.size)
+        scratch = np.empty((3, tau.size))
+        hess = np.empty((self.dim, self.dim))
+        grad = np.empty(self.dim)
 
         def linearised(theta):
-            """Residuals at ``theta``, and the weighted normal matrix and gradient there
-            (``r(theta + d) ~ r - jac d``)."""
-            y, jac = self._shifted(theta, tau, t0, h, y_sim, slope_sim)
-            r = data - y
-            if demean:
-                r = r - r.mean()
-                jac = jac - jac.mean(axis=0)
-            return r, jac.T @ (jac * w[:, None]), jac.T @ (w * r)
+            """Residuals at ``theta`` (into ``r``), the weighted normal matrix and gradient
+            there (``r(theta + d) ~ r - jac d``), in one compiled pass over the samples."""
+            _normal_equations(self._edges(theta), self.grid, self.index, tau, data, w, t0, h,
+                              y_sim, bool(demean), r, scratch, hess, grad)
+            return hess.copy(), grad.copy()
 
         theta = np.zeros(self.dim)
         if not self.feasible(theta):
             theta = self._vertices.mean(axis=0)
         for _ in range(GN_ITERATIONS):
-            _, hess, grad = linearised(theta)
+            h_mat, g_vec = linearised(theta)
             try:
-                step = np.linalg.lstsq(hess, grad, rcond=1e-12)[0]
+                step = np.linalg.lstsq(h_mat, g_vec, rcond=1e-12)[0]
             except np.linalg.LinAlgError:
                 break
-            new = self._project(theta + step, hess)
+            new = self._project(theta + step, h_mat)
             done = np.all(np.abs(new - theta) < 1e-8)
             theta = new
             if done:
                 break
-        r, hess, _ = linearised(theta)
-        sign, logdet = np.linalg.slogdet(hess)
+        h_mat, _ = linearised(theta)
+        sign, logdet = np.linalg.slogdet(h_mat)
         if sign <= 0 or not np.isfinite(logdet):
             return r, 0.0, theta
         log_volume = 0.5 * self.dim * math.log(2 * math.pi) - 0.5 * logdet - self.log_area
         return r, min(0.0, float(log_volume)), theta
 
 
-def uniform_interp(x, x0, h, y):
-    """``numpy.interp(x, x0 + h * arange(y.size), y)`` without its binary search.
+@njit(cache=True, error_model="numpy")
+def _shift_read(edges, grid, index, tau, t0, h, y_sim, y_out, j0_out, j1_out, two):
+    """The response to edges at ``edges``, read at ``tau`` (into ``y_out``), and its derivative
+    with respect to the timing's phase (``j0_out``) and, when ``two``, half period (``j1_out``).
 
-    The simulated response lies on the solver's uniform grid, so the interval of each point is
-    an index computed directly; outside the grid the end values hold, as in ``numpy.interp``.
+    Each sample after edge ``j`` reads the simulated response (edges at ``grid``) at
+    ``tau - (edges[j] - grid[j])``, linearly interpolated on its uniform grid ``t0 + h k``; the
+    derivative is minus the response's slope there (interpolated between the midpoints of the
+    grid's intervals) times ``d shift / d theta`` = ``(1, j)``.
     """
-    u = (np.asarray(x, dtype=float) - x0) / h
-    i = np.clip(np.floor(u), 0, y.size - 2).astype(np.intp)
-    f = np.clip(u - i, 0.0, 1.0)
-    return y[i] + f * (y[i + 1] - y[i])
+    n_sim = y_sim.size
+    n_edges = edges.size
+    inv_h = 1.0 / h
+    lo = 0
+    for i in range(tau.size):
+        # number of edges at or before tau[i] (numpy.searchsorted, side="right"): walked
+        # forward from the previous sample's count while the times increase, else searched
+        if i == 0 or tau[i] < tau[i - 1]:
+            lo, hi = 0, n_edges
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if edges[mid] <= tau[i]:
+                    lo = mid + 1
+                else:
+                    hi = mid
+        while lo < n_edges and edges[lo] <= tau[i]:
+            lo += 1
+        x = tau[i] if lo == 0 else tau[i] - (edges[lo - 1] - grid[lo - 1])
+        # numpy.interp on the uniform grid: the interval by index arithmetic, ends held
+        u = (x - t0) * inv_h
+        if u <= 0.0:
+            k, f = 0, 0.0
+        elif u >= n_sim - 1:
+            k, f = n_sim - 2, 1.0
+        else:
+            k = int(u)
+            f = u - k
+        y_out[i] = y_sim[k] + f * (y_sim[k + 1] - y_sim[k])
+        if lo == 0:
+            j0_out[i] = 0.0
+            if two:
+                j1_out[i] = 0.0
+            continue
+        # the slope between grid points m and m + 1 sits at the interval's midpoint
+        u -= 0.5
+        if u <= 0.0:
+            m, f = 0, 0.0
+        elif u >= n_sim - 2:
+            m, f = n_sim - 3, 1.0
+        else:
+            m = int(u)
+            f = u - m
+        s0 = y_sim[m + 1] - y_sim[m]
+        s1 = y_sim[m + 2] - y_sim[m + 1]
+        slope = (s0 + f * (s1 - s0)) * inv_h
+        j0_out[i] = -slope
+        if two:
+            j1_out[i] = -slope * index[lo - 1]
+
+
+@njit(cache=True, error_model="numpy")
+def _normal_equations(edges, grid, index, tau, data, w, t0, h, y_sim, demean, r_out, scratch,
+                      hess_out, grad_out):
+    """Residuals ``data - y`` at the timing ``edges`` (into ``r_out``), and ``jac' W jac`` and
+    ``jac' W r`` (into ``hess_out``, ``grad_out``, ``dim`` = 1 or 2); with ``demean`` the
+    residuals and the Jacobian's columns have their plain means removed first (the profiled
+    sensor offset). ``scratch``: ``(3, n)`` work space."""
+    n = tau.size
+    two = hess_out.shape[0] == 2
+    y, j0, j1 = scratch[0], scratch[1], scratch[2]
+    _shift_read(edges, grid, index, tau, t0, h, y_sim, y, j0, j1, two)
+    rm, m0, m1 = 0.0, 0.0, 0.0
+    for i in range(n):
+        r_out[i] = data[i] - y[i]
+        rm += r_out[i]
+        m0 += j0[i]
+    if two:
+        for i in range(n):
+            m1 += j1[i]
+    if demean:
+        rm, m0, m1 = rm / n, m0 / n, m1 / n
+    else:
+        rm, m0, m1 = 0.0, 0.0, 0.0
+    h00, h01, h11, g0, g1 = 0.0, 0.0, 0.0, 0.0, 0.0
+    for i in range(n):
+        r = r_out[i] - rm
+        r_out[i] = r
+        a = j0[i] - m0
+        wa = w[i] * a
+        h00 += wa * a
+        g0 += wa * r
+    if two:
+        for i in range(n):
+            a = j0[i] - m0
+            b = j1[i] - m1
+            wb = w[i] * b
+            h01 += wb * a
+            h11 += wb * b
+            g1 += wb * r_out[i]
+        hess_out[0, 1] = h01
+        hess_out[1, 0] = h01
+        hess_out[1, 1] = h11
+        grad_out[1] = g1
+    hess_out[0, 0] = h00
+    grad_out[0] = g0
 
 
 def edge_timing_for(experiment, t, u, dt, on_grid=True):

@@ -220,7 +220,7 @@ class BatchSimulator:
         bp_a = np.array([r[2] for r in rows])
         bp_b = np.array([r[3] for r in rows])
         bp_c = np.array([r[4] for r in rows])
-        out = np.full((m, K.N_SIGNALS, self.n_out), np.nan)
+        out = np.empty((m, 1, self.n_out))  # delta alone: 1/8 of the memory to fill
         status = np.zeros((m, 2), dtype=np.int64)
         K.simulate_batch_kernel(
             p, ctrl, bp_a, bp_b, bp_c, self._u_cmd, np.zeros(m, dtype=np.int64),
@@ -228,7 +228,7 @@ class BatchSimulator:
         )
         idx = np.asarray(keep)
         good = status[:, 0] == K.OK
-        delta[idx[good]] = out[good, K.SIGNALS.index("delta"), :]
+        delta[idx[good]] = out[good, 0, :]
         ok[idx[good]] = True
         return delta, ok
 

@@ -159,24 +159,19 @@ def refine(space, objective, theta0, max_nfev=40, targets=None):
     theta0 = np.clip(np.asarray(theta0, dtype=float), lo, hi)
     cache = {}
 
-    def points_around(th):
-        steps = np.where(th + FD_STEP <= hi, FD_STEP, -FD_STEP)
-        return np.vstack([th, th + np.diag(steps)]), steps
-
-    def evaluate(th):
+    def fun(th):
         key = th.tobytes()
         if key not in cache:
-            pts, steps = points_around(th)
-            r = objective.residuals([space.params(p) for p in pts], targets)
             cache.clear()
-            cache[key] = (r[0], (r[1:] - r[0]).T / steps)
+            cache[key] = objective.residuals([space.params(th)], targets)[0]
         return cache[key]
 
-    def fun(th):
-        return evaluate(th)[0]
-
     def jac(th):
-        return evaluate(th)[1]
+        # asked only at accepted points: a rejected trial step costs one simulation, not ndim + 1
+        r0 = fun(th)
+        steps = np.where(th + FD_STEP <= hi, FD_STEP, -FD_STEP)
+        r = objective.residuals([space.params(p) for p in th + np.diag(steps)], targets)
+        return (r - r0).T / steps
 
     res = least_squares(fun, theta0, jac=jac, bounds=(lo, hi), method="trf", x_scale=1.0,
                         max_nfev=max_nfev, xtol=1e-6, ftol=1e-6)

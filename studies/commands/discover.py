@@ -216,7 +216,7 @@ def _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixe
         cal = Calibration(p, params=sampled, priors=priors, start=start,
                           likelihood="features", window=10.0, n_walkers=max(16, 4 * len(names) + 4),
                           max_steps=steps, seed=seed, backend=out / f"chain-{tag}.h5",
-                          progress=progress).fit(_corrected(recs, offsets))
+                          progress=progress, global_search=False).fit(_corrected(recs, offsets))
     post = cal.posterior_
     s = post.summary()
     summary["posterior"] = {k: s[k] for k in ("parameters", "converged", "tau", "correlation",
