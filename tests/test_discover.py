@@ -317,3 +317,30 @@ def _loaded(paths):
     from models.recording import load_recording
 
     return [load_recording(p) for p in paths]
+
+
+@pytest.mark.parametrize("bad", [dict(damping=0.0), dict(damping=-5.0), dict(stiffness=-100.0),
+                                 dict(stiffness=0.0, damping=0.0)])
+def test_a_seed_with_an_unphysical_linear_block_starts_at_the_box_edge(bad):
+    """SINDy can return K2 = 0 or a negative K3 (issue 11: 'the right form returned K2 = 0');
+    such a seed must not stop discovery (it raised 'math domain error' in the log coordinates on
+    paper 002's two limit cycles). Its coordinates are finite, inside the box, and those that do
+    not involve the bad value are the valid seed's."""
+    from discovery.structure.coordinates import SearchSpace
+    from discovery.structure.discover import TEMPLATE, _fixed_for
+    from models import hypothesis
+    from models.hypotheses import ActuatorParams
+    from models.structures import structure_space
+
+    kept, _ = structure_space()
+    for s in kept:
+        good = s.to_params(hypothesis("M000"))
+        space = SearchSpace(s, ActuatorParams(**TEMPLATE), _fixed_for(s, {}), 5e-4)
+        ref = space.coordinates(good)
+        theta = space.coordinates(good.replace(**bad))
+        assert np.all(np.isfinite(theta)), s.name
+        assert np.all((theta >= space.low) & (theta <= space.high)), s.name
+        for j, name in enumerate(space.names):
+            if name in ("log_K", "log_z", "log_r", "delay", "log_G", "log_off", "lam"):
+                assert theta[j] == ref[j], (s.name, name)
+        assert space.params(theta) is not None

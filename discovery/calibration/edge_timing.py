@@ -250,6 +250,19 @@ class EdgeTiming:
 
 
 @njit(cache=True, error_model="numpy")
+def _grid_interval(u, n_intervals):
+    """Interval ``k`` (of ``n_intervals`` on a uniform grid) holding position ``u`` (in steps from
+    the first node) and the fraction ``f`` across it; beyond either end the end node (numpy.interp
+    holds the end values)."""
+    if u <= 0.0:
+        return 0, 0.0
+    if u >= n_intervals:
+        return n_intervals - 1, 1.0
+    k = int(u)
+    return k, u - k
+
+
+@njit(cache=True, error_model="numpy")
 def _shift_read(edges, grid, index, tau, t0, h, y_sim, y_out, j0_out, j1_out, two):
     """The response to edges at ``edges``, read at ``tau`` (into ``y_out``), and its derivative
     with respect to the timing's phase (``j0_out``) and, when ``two``, half period (``j1_out``).
@@ -279,13 +292,7 @@ def _shift_read(edges, grid, index, tau, t0, h, y_sim, y_out, j0_out, j1_out, tw
         x = tau[i] if lo == 0 else tau[i] - (edges[lo - 1] - grid[lo - 1])
         # numpy.interp on the uniform grid: the interval by index arithmetic, ends held
         u = (x - t0) * inv_h
-        if u <= 0.0:
-            k, f = 0, 0.0
-        elif u >= n_sim - 1:
-            k, f = n_sim - 2, 1.0
-        else:
-            k = int(u)
-            f = u - k
+        k, f = _grid_interval(u, n_sim - 1)
         y_out[i] = y_sim[k] + f * (y_sim[k + 1] - y_sim[k])
         if lo == 0:
             j0_out[i] = 0.0
@@ -293,14 +300,7 @@ def _shift_read(edges, grid, index, tau, t0, h, y_sim, y_out, j0_out, j1_out, tw
                 j1_out[i] = 0.0
             continue
         # the slope between grid points m and m + 1 sits at the interval's midpoint
-        u -= 0.5
-        if u <= 0.0:
-            m, f = 0, 0.0
-        elif u >= n_sim - 2:
-            m, f = n_sim - 3, 1.0
-        else:
-            m = int(u)
-            f = u - m
+        m, f = _grid_interval(u - 0.5, n_sim - 2)
         s0 = y_sim[m + 1] - y_sim[m]
         s1 = y_sim[m + 2] - y_sim[m + 1]
         slope = (s0 + f * (s1 - s0)) * inv_h

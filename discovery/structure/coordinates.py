@@ -31,6 +31,8 @@ from models.structures import Structure
 __all__ = ["Coordinate", "SearchSpace", "UnknownParameterError", "LINEAR_FIELDS"]
 
 LINEAR_FIELDS = ("gain", "damping", "stiffness")
+#: Floor of a value before its log in :meth:`SearchSpace.coordinates` (the box clips it).
+TINY = 1e-300
 
 
 class UnknownParameterError(ValueError):
@@ -194,25 +196,31 @@ class SearchSpace:
             return None
 
     def coordinates(self, params: ActuatorParams) -> np.ndarray:
-        """Coordinates of a parameter object (clipped into the box); the inverse of :meth:`params`."""
+        """Coordinates of a parameter object (clipped into the box); the inverse of :meth:`params`.
+
+        A value a log coordinate cannot hold (a SINDy seed with ``K2 = 0`` or a negative
+        stiffness, issue 11) goes to the box's edge on its side instead of raising.
+        """
         p = params
-        g0 = p.gain / p.stiffness
+        k1, k2, k3 = (max(v, TINY) for v in (p.gain, p.damping, p.stiffness))
+        g0 = k1 / k3
         c = p.dead_zone - p.friction_offset
         value = {
-            "log_wn": 0.5 * math.log(p.stiffness),
-            "log_zeta": math.log(p.damping / (2.0 * math.sqrt(p.stiffness))),
+            "log_wn": 0.5 * math.log(k3),
+            "log_zeta": math.log(k2 / (2.0 * math.sqrt(k3))),
             "log_g0": math.log(g0),
-            "log_K1": math.log(p.gain), "log_K2": math.log(p.damping),
-            "log_K3": math.log(p.stiffness),
-            "log_K": math.log(p.feedback_gain),
-            "log_z": math.log(max(p.dead_zone, 1e-300)),
-            "log_c_e": math.log(max(c, 1e-300) / g0),
+            "log_K1": math.log(k1), "log_K2": math.log(k2),
+            "log_K3": math.log(k3),
+            "log_K": math.log(max(p.feedback_gain, TINY)),
+            "log_z": math.log(max(p.dead_zone, TINY)),
+            "log_c_e": math.log(max(c / g0, TINY)),
             "lam": p.dead_zone / c if c > 0 else 1.0,
-            "log_off": math.log(max(-p.friction_offset, 1e-300)),
-            "log_r": math.log(max(p.backlash, 1e-300)),
+            "log_off": math.log(max(-p.friction_offset, TINY)),
+            "log_r": math.log(max(p.backlash, TINY)),
             "delay": p.delay,
-            "log_G": math.log(max(p.bandpass_gain, 1e-300)),
-            "log_s_e": math.log(max(min(p.bandpass_saturation, 1e300), 1e-300) / g0),
+            "log_G": math.log(max(p.bandpass_gain, TINY)),
+            "log_s_e": math.log(max(min(p.bandpass_saturation, 1e300) / g0, TINY)),
         }
         theta = np.array([value[n] for n in self.names])
         return np.clip(theta, self.low, self.high)
+
