@@ -142,6 +142,12 @@ def run_draw(seed, out_dir, quick):
         "simulated_sets": disc.n_simulations_,
         # closed-loop runs simulated again from the second start (targets.CycleTarget.residuals)
         "second_starts": int(sum(getattr(t, "second_starts", 0) for t in disc.targets_)),
+        # every ranked structure's held-out costs, so that a rule for the indistinguishable set
+        # can be weighed on finished draws without their searches
+        "ranking": [{"structure": f.structure.name, "cost": f.cost, "score": f.score,
+                     "fold_costs": None if f.fold_costs is None
+                     else np.asarray(f.fold_costs).tolist(), "merged_into": f.merged_into}
+                    for f in disc.ranking_ if math.isfinite(f.score)],
         "commit": CODE_COMMIT,
     }
     return undecided_marked(row)

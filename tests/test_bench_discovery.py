@@ -10,6 +10,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from studies.bench_discovery import main as bench_main
@@ -41,6 +42,10 @@ def test_quick_benchmark_on_its_first_draw_meets_the_scaled_down_goal(tmp_path, 
     assert row["structure"] == draw_scenario(1000).structure.name
     assert row["right_or_in_small_set"], (row["winner"], row["set"])
     assert row["identifiable_within"], row["coordinates"]
+    # the ranking kept for weighing set rules later: the winner first, two folds per recording
+    assert row["ranking"][0]["structure"] == row["winner"]
+    assert all(np.shape(r["fold_costs"]) == (2, 2) for r in row["ranking"])
+    assert {r["structure"] for r in row["ranking"]} >= set(row["set"])
     assert status == 0
     overall = bench["table"]["overall"]
     assert overall["draws"] == 1 and overall["right_or_in_set_le3"] == 1.0

@@ -107,3 +107,29 @@ def test_the_data_step_keeps_the_solver_error_under_the_smallest_noise():
 
     assert rms_error(2e-4) > 1e-5  # the old step: the error was the noise's size
     assert rms_error(DATA_DT) < 0.3e-5
+
+
+def test_issue11_cases_are_the_reported_placements_and_oscillate():
+    """``studies.issue11_cases``: the three recordings sets issue 11 reported, each truth a
+    paper's placement that oscillates at every closed-loop setting of its design (else the
+    script would fail after minutes of the reference path), and the comparison of a fit with
+    the truth reads 0 on the truth itself."""
+    from studies.issue11_cases import cases, compared
+
+    expected = {
+        "m001f_no_bandpass": "dz_velocity+delay_before_integrator+friction+backlash",
+        "m000_hwil": "dz_velocity+delay_before_first_integrator+friction+backlash+bandpass",
+        "m002_cycles": "dz_error+delay_output+backlash",
+    }
+    found = cases()
+    assert {k: v.structure.name for k, v in found.items()} == expected
+    assert all(r.controller_rate == 200.0 and r.rate == 200.0
+               for r in found["m000_hwil"].recordings)
+    assert found["m000_hwil"].acquisition.offset == 1.5e-4
+    assert [r.waveform for r in found["m001f_no_bandpass"].recordings if r.kind == "open"] == [
+        "square", "sine"]
+    for name, scenario in found.items():
+        assert all(oscillates(scenario.truth, r.experiment())
+                   for r in scenario.recordings if r.kind == "closed"), name
+        errors = compared(scenario.truth.to_dict(), scenario.truth)
+        assert errors and all(v == 0.0 for v in errors.values()), name

@@ -390,7 +390,7 @@ class StructureDiscovery:
             for other, plist in sindy.items():  # nested proposals seed their parents too
                 o = Structure.parse(other)
                 if (o.dead_zone_position, o.delay_position) == (s.dead_zone_position, s.delay_position):
-                    seeds += [s.to_params(p, **_widen(p, s)) for p in plist if p not in seeds]
+                    seeds += [p for p in plist if p not in seeds]
             if s.bandpass:
                 parent = fits.get(s.without("bandpass"))
                 if parent is not None:
@@ -711,10 +711,12 @@ def _widen(p, s):
 
 
 def _valid(seeds, s):
+    """The seeds as starts of ``s`` (its absent parts widened, :func:`_widen`); a seed ``s`` cannot
+    take (a value its parameters refuse) is dropped, never raised."""
     out = []
     for p in seeds:
         try:
-            out.append(s.to_params(p))
+            out.append(s.to_params(p, **_widen(p, s)))
         except ValueError:
             continue
     return out
