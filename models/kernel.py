@@ -191,6 +191,14 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
     # time is t_{k+shift} + frac*dt with a constant shift and fraction.
     hist_len = int(math.ceil(delay_steps)) + 3
     hist = np.zeros(hist_len)
+    # a held command jumps at nodes; before the first integrator the line keeps each node's value
+    # just before the jump too, jumps at the node's delayed time and averages the jump over the
+    # stage's share of the step (models.delay.DelayLine)
+    jumps = closed and hold > 0 and where == DELAY_BEFORE_FIRST_INTEGRATOR
+    hist_left = np.zeros(hist_len)
+    share = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 6.0)  # of a step, by half-step index
+    u_before = 0.0
+    edge = False
     shift = np.zeros(3, dtype=np.int64)
     frac = np.zeros(3)
     for ci in range(3):
@@ -207,7 +215,10 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
     n_noise = noise.shape[0]
     stage_c = (0, 1, 1, 2)  # half-step index of each RK4 stage
     for k in range(n_steps + 1):
+        edge = False
         if closed and hold > 0 and k % hold == 0:
+            u_before = u_held
+            edge = k > 0
             if extended is None:
                 u_held = -kp * (s[0] + kd * s[1])
             else:
@@ -269,13 +280,29 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
                         hist[k % hist_len] = v
                     else:
                         hist[k % hist_len] = ydd
+                        if jumps:
+                            left = ydd
+                            if edge:
+                                e_left = u_before - kfb * b
+                                g_left = e_left if dz_vel else _dead_zone(e_left, z)
+                                left = k1g * g_left - k2 * ss[3] - k3 * ss[2]
+                            hist_left[k % hist_len] = left
                 j = k + shift[ci]
                 fr = frac[ci]
                 delayed = 0.0
                 if j >= 0:
                     delayed = (1.0 - fr) * hist[j % hist_len]
                     if fr > 0.0:
-                        delayed += fr * hist[(j + 1) % hist_len]
+                        delayed += fr * (hist_left[(j + 1) % hist_len] if jumps
+                                         else hist[(j + 1) % hist_len])
+                    if jumps:
+                        wsh = share[ci]
+                        if fr < wsh:
+                            jj = j % hist_len
+                            delayed -= (hist[jj] - hist_left[jj]) * (wsh - fr) / (2.0 * wsh)
+                        if fr > 0.0 and fr + wsh > 1.0:
+                            jj = (j + 1) % hist_len
+                            delayed += (hist[jj] - hist_left[jj]) * (fr + wsh - 1.0) / (2.0 * wsh)
                 elif j == -1 and not hist_on:
                     # from the line's 0 before t = 0 to the first sample: continuous in Td
                     delayed = fr * hist[0]

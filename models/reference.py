@@ -169,20 +169,29 @@ def simulate_reference(
     switch = [None] * 4  # the friction offset's switching signal and sign at each RK4 stage
     z_switch = params.dead_zone if params.dead_zone_position is DeadZonePosition.VELOCITY else 0.0
 
-    def evaluate(t, st, store, stage):
-        """Derivatives and the recorded signals at time ``t`` and state ``st``."""
-        u = command(t, st)
-        b = play_step(memory, st["x"], r)
+    def acceleration(u, b, st):
         e = u - params.feedback_gain * b
         if params.dead_zone_position is DeadZonePosition.ERROR:
             e = _scalar(dead_zone, e, params.dead_zone)
-        accel = params.gain * e - params.damping * st["yd"] - params.stiffness * st["y"]
+        return params.gain * e - params.damping * st["yd"] - params.stiffness * st["y"]
+
+    def evaluate(t, st, store, stage, u_before=None):
+        """Derivatives and the recorded signals at time ``t`` and state ``st``; ``u_before``: the
+        held command just before it changed at this node (the delay line's left value)."""
+        u = command(t, st)
+        b = play_step(memory, st["x"], r)
+        accel = acceleration(u, b, st)
         if store and line is not None:
+            left = None
+            if where is DelayPosition.BEFORE_FIRST_INTEGRATOR and u_before is not None:
+                left = acceleration(u_before, b, st)
             line.write({DelayPosition.OUTPUT: st["x"], DelayPosition.BEFORE_INTEGRATOR: st["y"],
-                        DelayPosition.BEFORE_FIRST_INTEGRATOR: accel}[where])
+                        DelayPosition.BEFORE_FIRST_INTEGRATOR: accel}[where], left)
         v, out = st["y"], st["x"]
         if where is DelayPosition.BEFORE_FIRST_INTEGRATOR:
-            accel = line.read(t)
+            # a held command's jumps averaged over the stage's share of the step
+            share = 0.0 if hold is None else (dt / 3.0 if stage in (1, 2) else dt / 6.0)
+            accel = line.read(t, share)
         elif where is DelayPosition.BEFORE_INTEGRATOR:
             v = line.read(t)
         elif where is DelayPosition.OUTPUT:
@@ -223,10 +232,12 @@ def simulate_reference(
     for k in range(n_steps + 1):
         # stage times as the kernel forms them (command edges land on the same side)
         t, t_half, t_full = 0.5 * dt * (2 * k), 0.5 * dt * (2 * k + 1), 0.5 * dt * (2 * k + 2)
+        u_before = None
         if hold is not None and k % hold == 0:
+            u_before = u_held if k > 0 else None
             v = pd_output(state)
             u_held = -(held_filter.step(v) if held_filter is not None else v)
-        k1, record = evaluate(t, state, store=True, stage=0)
+        k1, record = evaluate(t, state, store=True, stage=0, u_before=u_before)
         if k % decimation == 0:
             rows.append(record)
         if k == n_steps:
