@@ -149,12 +149,15 @@ def test_start_imprint_of_a_slowly_settling_cycle_is_counted(tmp_path):
     assert np.all(sd < 0.1)
 
 
-def test_solver_error_of_the_features_is_corrected_not_only_counted(tmp_path):
-    """Coverage draw 16's truth (dead zone on the velocity signal, friction offset, band-pass loop)
-    at its second setting, controller held at 200 Hz and sampled at 200 Hz, noise 1.9e-5 rad:
-    simulated at 5e-4 s, H1 sits over 2 sd (of the data's covariance) below a 5e-5 s simulation's
-    (measured 3.2); with the Richardson correction every feature is within 0.6 sd (measured
-    0.35 at most). The remaining variance is the change itself, not twice it."""
+def test_solver_error_of_the_features_is_gone_at_its_source_and_the_correction_keeps_it_so(tmp_path):
+    """Coverage draw 16's truth (dead zone on the velocity signal, friction offset, band-pass loop,
+    delay before the first integrator) at its second setting, controller held at 200 Hz and
+    sampled at 200 Hz, noise 1.9e-5 rad. Simulated at 5e-4 s, H1 sat 3.2 sd (of the data's
+    covariance) below a 5e-5 s simulation's, the delay line spreading each held jump over the
+    step before its node, and the Richardson correction brought every feature within 0.35 sd.
+    Since the line delivers the jumps at their own times (b8ce59e) the raw features at 5e-4 s are
+    within 0.1 sd of the fine ones (measured 0.053 at most); corrected, still within 0.6 sd. The
+    remaining variance is the change itself, not twice it."""
     from studies.bench_coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(16, Config())
@@ -167,7 +170,6 @@ def test_solver_error_of_the_features_is_corrected_not_only_counted(tmp_path):
     sd = np.sqrt(np.diag(term._data_cov))
     exact = fine.model_features([truth])[0] + fine.solver_bias
     raw = term.model_features([truth])[0]
-    h1 = term.features.index("H1")
-    assert abs(raw[h1] - exact[h1]) > 2.0 * sd[h1], (raw - exact) / sd
+    assert np.all(np.abs(raw - exact) < 0.1 * sd), (raw - exact) / sd
     assert np.all(np.abs(raw + term.solver_bias - exact) < 0.6 * sd), (raw + term.solver_bias - exact) / sd
     assert np.allclose(term.solver_var, (term.solver_bias / 2.0) ** 2)
