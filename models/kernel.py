@@ -198,7 +198,6 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
     hist_left = np.zeros(hist_len)
     share = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 6.0)  # of a step, by half-step index
     u_before = 0.0
-    edge = False
     shift = np.zeros(3, dtype=np.int64)
     frac = np.zeros(3)
     for ci in range(3):

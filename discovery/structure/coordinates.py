@@ -223,4 +223,3 @@ class SearchSpace:
         }
         theta = np.array([value[n] for n in self.names])
         return np.clip(theta, self.low, self.high)
-
