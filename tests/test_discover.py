@@ -344,3 +344,34 @@ def test_a_seed_with_an_unphysical_linear_block_starts_at_the_box_edge(bad):
             if name in ("log_K", "log_z", "log_r", "delay", "log_G", "log_off", "lam"):
                 assert theta[j] == ref[j], (s.name, name)
         assert space.params(theta) is not None
+
+
+def test_a_superset_of_a_member_joins_the_set_merged_whatever_its_own_fit_scored():
+    """The set rule (:func:`discovery.structure.discover.indistinguishable_set`): the best and a
+    structure within the floor's margin are members; the best's backlash superset, whose fit
+    scored far worse (a search failure: at zero backlash it is the best), is merged into it and
+    so is an unranked friction superset; a structure with another delay position that scored
+    worse than the margin stays out, and the winner is the best unmerged structure."""
+    from discovery.structure.discover import StructureFit, indistinguishable_set
+
+    def fit(name, score):
+        folds = np.full((2, 2), score / 2.0)
+        return StructureFit(structure=Structure.parse(name), params=None, theta=np.zeros(1),
+                            cost=score, cost_by_recording={}, origin="test", score=score,
+                            fold_costs=folds)
+
+    best = fit("dz_velocity+delay_output", 0.50)
+    near = fit("dz_error+delay_output", 0.62)       # within 2 x TOL_ABS = 0.2
+    superset = fit("dz_velocity+delay_output+backlash", 3.0)
+    unranked = fit("dz_velocity+delay_output+friction+backlash", float("inf"))
+    other = fit("dz_velocity+delay_before_integrator", 0.95)
+    ranked = indistinguishable_set([best, near, other, superset, unranked], n_recordings=2)
+    assert ranked[0] is best
+    inside = {f.structure.name: f.merged_into for f in ranked if f.indistinguishable_from_best}
+    assert inside == {"dz_velocity+delay_output": None, "dz_error+delay_output": None,
+                      "dz_velocity+delay_output+backlash": "dz_velocity+delay_output",
+                      "dz_velocity+delay_output+friction+backlash": "dz_velocity+delay_output"}
+    assert not other.indistinguishable_from_best
+    # the truth's structure is a superset of a member: the benchmark counts it inside the set
+    assert shared_choices([f.structure for f in ranked if f.indistinguishable_from_best])[
+        "backlash"] is None
