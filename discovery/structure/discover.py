@@ -715,9 +715,7 @@ def _fixed_for(structure, fixed):
 
 def _is_nested(s, parent):
     """``s`` is ``parent`` with components removed (same positions, same band-pass flag)."""
-    return (s.dead_zone_position == parent.dead_zone_position
-            and s.delay_position == parent.delay_position and s.bandpass == parent.bandpass
-            and set(s.components) < set(parent.components))
+    return s.bandpass == parent.bandpass and _contains(parent, s)
 
 
 def _contains(parent, s):
