@@ -86,6 +86,14 @@ def _dead_zone(q, z):
 
 
 @njit(cache=True)
+def _acceleration(u, b, kfb, dz_vel, z, k1g, k2, k3, y, yd):
+    """``y''`` of the second-order block for command ``u`` and play output ``b`` (MODELS.md)."""
+    e = u - kfb * b
+    g = e if dz_vel else _dead_zone(e, z)
+    return k1g * g - k2 * yd - k3 * y
+
+
+@njit(cache=True)
 def _fraction_above(a, b, c):
     if a > c and b > c:
         return 1.0
@@ -266,9 +274,7 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
                 u = u_cmd[2 * k + ci]
             xs = ss[4]
             b = min(max(memory, xs - r), xs + r)
-            e = u - kfb * b
-            g = e if dz_vel else _dead_zone(e, z)
-            ydd = k1g * g - k2 * ss[3] - k3 * ss[2]
+            ydd = _acceleration(u, b, kfb, dz_vel, z, k1g, k2, k3, ss[2], ss[3])
             v = ss[2]
             xd = xs
             if where != DELAY_NONE:
@@ -280,12 +286,9 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
                     else:
                         hist[k % hist_len] = ydd
                         if jumps:
-                            left = ydd
-                            if edge:
-                                e_left = u_before - kfb * b
-                                g_left = e_left if dz_vel else _dead_zone(e_left, z)
-                                left = k1g * g_left - k2 * ss[3] - k3 * ss[2]
-                            hist_left[k % hist_len] = left
+                            hist_left[k % hist_len] = (
+                                _acceleration(u_before, b, kfb, dz_vel, z, k1g, k2, k3, ss[2], ss[3])
+                                if edge else ydd)
                 j = k + shift[ci]
                 fr = frac[ci]
                 delayed = 0.0
