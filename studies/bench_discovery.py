@@ -140,6 +140,7 @@ def run_draw(seed, out_dir, quick):
         "seconds_discovery": t_disc,
         "seconds_by_stage": {k: round(float(v), 1) for k, v in disc.timings_.items()},
         "simulated_sets": disc.n_simulations_,
+        "searches": dict(disc.searches_),
         # closed-loop runs simulated again from the second start (targets.CycleTarget.residuals)
         "second_starts": int(sum(getattr(t, "second_starts", 0) for t in disc.targets_)),
         # every ranked structure's held-out costs, so that a rule for the indistinguishable set

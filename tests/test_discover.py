@@ -288,7 +288,7 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
     import math
 
     from discovery.structure.coordinates import SearchSpace
-    from discovery.structure.discover import TEMPLATE, _fixed_for
+    from discovery.structure.discover import SEARCHES, TEMPLATE, _fixed_for
     from discovery.structure.search import Objective, local_sd
     from discovery.structure.targets import make_target
     from models.hypotheses import ActuatorParams
@@ -296,6 +296,7 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
     scenario = shortened(draw_scenario(1002), closed=12.0, open_=6.0)
     paths = write_recordings(scenario, tmp_path)
     disc = StructureDiscovery(seed=0, use_sindy=False)
+    disc.sizes_ = SEARCHES["standard"]
     targets = [make_target(load, disc.dt) for load in _loaded(paths)]
     open_targets = [t for t in targets if t.kind == "open"]
     objective = Objective(targets)
@@ -421,3 +422,41 @@ def test_a_wandering_cycle_is_compared_over_enough_periods(tmp_path, monkeypatch
     assert targets.WINDOW_PERIODS == 12
     assert costs(12).max() < 0.2
     assert costs(6)[:, 0].min() > 0.25
+
+
+class _ScriptedSearch:
+    """A search whose successive results have the given costs."""
+
+    def __init__(self, costs):
+        self.costs = list(costs)
+        self.calls = 0
+
+    def __call__(self):
+        from types import SimpleNamespace
+
+        self.calls += 1
+        return SimpleNamespace(cost=self.costs[self.calls - 1])
+
+
+@pytest.mark.parametrize("costs, n_recordings, least, most, calls, best", [
+    ([5.0, 5.1, 0.1], 1, 2, 8, 2, 5.0),                # the first two agree: no third search
+    ([5.0, 5.1, 0.1, 0.15], 1, 3, 8, 4, 0.1),          # ... unless three are required
+    ([40.0, 27.0, 26.5, 1.2, 1.1], 2, 3, 8, 5, 1.1),   # draw 1019's pattern: on until two agree
+    ([3.0, 9.0, 2.0, 7.0], 1, 2, 4, 4, 2.0),           # never agree: every allowed search runs
+    ([3.0, 9.0], 1, 1, 1, 1, 3.0),                     # one allowed: one run
+])
+def test_restarted_searches_stop_when_the_best_two_agree(costs, n_recordings, least, most, calls,
+                                                          best):
+    from discovery.structure.discover import best_of_restarts
+
+    search = _ScriptedSearch(costs)
+    fit = best_of_restarts(search, n_recordings, least, most)
+    assert search.calls == calls
+    assert fit.cost == best and fit.restarts == calls
+
+
+def test_restarts_out_of_order_are_an_error():
+    from discovery.structure.discover import best_of_restarts
+
+    with pytest.raises(ValueError, match="min"):
+        best_of_restarts(_ScriptedSearch([1.0]), 1, 3, 2)

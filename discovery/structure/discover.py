@@ -58,9 +58,13 @@ TEMPLATE = dict(gain=305500.0, damping=202.1, stiffness=14520.0, dead_zone=1e-3,
                 delay_position=DelayPosition.OUTPUT, x0=KICK_X0)
 #: Distinct members of a global search's final population refined locally (the best among them).
 N_STARTS = 3
-#: Open-loop stage of a search (:meth:`StructureDiscovery._fit_global`): independent searches, and
-#: the half-width of the box kept around its fit, in local spreads of each coordinate.
-OPEN_LOOP_RESTARTS = 3
+#: Independent short searches of one stage (:func:`best_of_restarts`): at least the first number,
+#: then more until the best two agree, up to the second; the open-loop stage, and a search of the
+#: whole box (recordings of one kind). With open-loop tests the limit cycles are searched once,
+#: in the box the open-loop fit narrowed.
+OPEN_LOOP_RESTARTS = (3, 8)
+CLOSED_LOOP_RESTARTS = (2, 6)
+#: Half-width of the box kept around the open-loop stage's fit, in local spreads of each coordinate.
 OPEN_LOOP_BOX = 6.0
 #: Floor of the margin within which a score is indistinguishable from the best, per recording
 #: (:func:`indistinguishable_margin`).
@@ -88,7 +92,7 @@ class SearchSizes:
     pop, gens : int
         Differential evolution on all recordings: population per coordinate, generations.
     open_pop, open_gens : int
-        The same for each of the ``OPEN_LOOP_RESTARTS`` open-loop searches.
+        The same for each of the open-loop stage's searches (:func:`best_of_restarts`).
     nfev : int
         Least-squares evaluations of a refinement (global searches, nested structures, repairs).
     rank_nfev : int
@@ -256,6 +260,8 @@ class StructureDiscovery:
         SINDy's proposals by structure, or the reason it gave none.
     timings_ : dict
         Wall time per stage (s).
+    searches_ : dict
+        Independent searches run per stage (``open_loop``, ``global``; :func:`best_of_restarts`).
     targets_ : list
     sizes_ : SearchSizes
         The search sizes used.
@@ -307,11 +313,18 @@ class StructureDiscovery:
         of a percent of the linear block (benchmark draw 1002: costs 100-50,000 within 1 % of the
         true static gain), so an unstaged search of the whole box found no basin (costs >= 9,180
         against 2.09 at the truth). Least squares then runs in the whole box.
+
+        On limit cycles alone the whole box is searched, and one short search often ends in
+        another basin (benchmark draw 1023, the true structure: eight searches from independent
+        starts ended at 0.17-113 against the truth's 0.35, three of them below it), so the search
+        is repeated until its best two agree (:func:`best_of_restarts`, at most
+        ``CLOSED_LOOP_RESTARTS``).
         """
         pop, gens, nfev = self.sizes_.pop, self.sizes_.gens, self.sizes_.nfev
         starts = [space.coordinates(p) for p in seeds]
         box = space
         open_targets = [t for t in objective.targets if t.kind == "open"]
+        restarts = CLOSED_LOOP_RESTARTS
         if open_targets and len(open_targets) < len(objective.targets):
             t0 = time.perf_counter()
             first = self._fit_open_loop(space, objective, rng, open_targets, starts)
@@ -319,29 +332,43 @@ class StructureDiscovery:
             sd = local_sd(space, objective, first.theta, targets=open_targets)
             box = space.narrowed(first.theta, OPEN_LOOP_BOX * sd)
             starts = [first.theta] + starts
-        best = _searched(box, space, objective, rng, starts, pop, gens, nfev)
+            restarts = (1, 1)
+        best = best_of_restarts(
+            lambda: _searched(box, space, objective, rng, starts, pop, gens, nfev),
+            len(objective.targets), *restarts)
+        self._count_searches("global", best.restarts)
         for s in starts[:1]:  # the best seed, refined too
             alt = refine(space, objective, s, max_nfev=nfev)
             if alt.cost < best.cost:
                 best = alt
         return best
 
+    def _count_searches(self, stage, n):
+        counts = self.__dict__.setdefault("_searches", {"open_loop": 0, "global": 0})
+        counts[stage] += n
+
     def _fit_open_loop(self, space, objective, rng, open_targets, starts):
-        """The best of ``OPEN_LOOP_RESTARTS`` short searches on the open-loop recordings alone.
+        """Short searches on the open-loop recordings alone, repeated until the best two agree
+        (:func:`best_of_restarts`, at most ``OPEN_LOOP_RESTARTS``).
 
         One search alone often stops in another basin: on 12 benchmark draws with open-loop tests
         (the true structure), one search of 5 x 15 generations reached the open-loop optimum in 8,
         one of 8 x 30 in 9. Short searches from independent starts fail independently; with three
         of them the staged search (box of 4 spreads) reached the truth's cost in 14 of 15 draws;
-        draw 1002 needed a box of 8 spreads (hence ``OPEN_LOOP_BOX`` = 6). These counts come from
-        session scripts, not from a command in the repository; what a command reproduces is
+        draw 1002 needed a box of 8 spreads (hence ``OPEN_LOOP_BOX`` = 6). Draw 1019 (a dead zone
+        with a backlash, two squares at 200 Hz) needs more: of eight searches, six ended at
+        27-42 and two at 0.76 and 1.16 against the truth's 0.72, so a fixed three found it one
+        time in three. These counts come from session scripts, not from a command in the
+        repository; what a command reproduces is
         ``tests/test_discover.py::test_open_loop_stage_reaches_the_open_loop_optimum`` and the
         benchmark.
         """
         pop, gens = self.sizes_.open_pop, self.sizes_.open_gens
-        fits = [_searched(space, space, objective, rng, starts, pop, gens, 30, open_targets)
-                for _ in range(OPEN_LOOP_RESTARTS)]
-        return min(fits, key=lambda f: f.cost)
+        best = best_of_restarts(
+            lambda: _searched(space, space, objective, rng, starts, pop, gens, 30, open_targets),
+            len(open_targets), *OPEN_LOOP_RESTARTS)
+        self._count_searches("open_loop", best.restarts)
+        return best
 
     def fit(self, recordings):
         t_start = time.perf_counter()
@@ -377,6 +404,7 @@ class StructureDiscovery:
         timings["sindy"] = time.perf_counter() - t0
 
         self._open_loop_seconds = 0.0
+        self._searches = {"open_loop": 0, "global": 0}
         spaces = {s: SearchSpace(s, base, _fixed_for(s, fixed), self.dt) for s in kept}
         fits = {}
         t0 = time.perf_counter()
@@ -454,6 +482,7 @@ class StructureDiscovery:
         self.n_simulations_ = objective.n_evaluations
         timings["total"] = time.perf_counter() - t_start
         self.timings_ = timings
+        self.searches_ = dict(self._searches)
         return self
 
     def _fit_record(self, s, space, fr, origin, seeds):
@@ -607,6 +636,27 @@ def indistinguishable_set(ranked, n_recordings):
     ranked.remove(winner)
     ranked.insert(0, winner)
     return ranked
+
+
+def best_of_restarts(search, n_recordings, min_restarts, max_restarts):
+    """The best of repeated independent searches (``search()`` returns a fit with ``cost``).
+
+    At least ``min_restarts`` searches, then more until the best two costs agree within
+    ``TOL_ABS`` per recording (the floor of what the ranking tells apart: two independent
+    searches that reach the same cost make a better basin unlikely) or ``max_restarts`` have run.
+    """
+    if not 1 <= min_restarts <= max_restarts:
+        raise ValueError(f"restarts must satisfy 1 <= min ({min_restarts}) <= max ({max_restarts})")
+    fits = []
+    while len(fits) < max_restarts:
+        fits.append(search())
+        if len(fits) >= min_restarts:
+            a, b = (sorted(f.cost for f in fits) + [math.inf])[:2]
+            if b - a <= TOL_ABS * n_recordings:
+                break
+    best = min(fits, key=lambda f: f.cost)
+    best.restarts = len(fits)
+    return best
 
 
 def _searched(box, space, objective, rng, starts, pop, gens, nfev, targets=None):

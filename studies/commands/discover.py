@@ -172,6 +172,7 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs):
                       "sensor_noise": "open loop: rms output error at the best fit; closed loop: "
                                       "second differences"},
         "simulations": disc.n_simulations_,
+        "searches": dict(disc.searches_),
         "timings": {**disc.timings_},
         "seed": seed,
         "search": search,
