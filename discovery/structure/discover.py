@@ -63,8 +63,9 @@ N_STARTS = 3
 #: then more until the best two agree, up to the second; the open-loop stage, and a search of the
 #: whole box (recordings of one kind). With open-loop tests the limit cycles are searched once,
 #: in the box the open-loop fit narrowed. The band-pass loop's wandering cycles rarely let two
-#: searches agree (benchmark draw 1000: every class ran its maximum), so the whole-box maximum
-#: is 4: with 6 that draw took 2.7x its single-search time.
+#: searches agree (benchmark draw 1000: every class ran its maximum of 6, its discovery 488 s
+#: with three draws sharing 2 cores against 182 s with one search and two sharing), so the
+#: whole-box maximum is 4.
 OPEN_LOOP_RESTARTS = (3, 8)
 CLOSED_LOOP_RESTARTS = (2, 4)
 #: Half-width of the box kept around the open-loop stage's fit, in local spreads of each coordinate.
