@@ -67,7 +67,7 @@ N_STARTS = 3
 #: with three draws sharing 2 cores against 182 s with one search and two sharing), so the
 #: whole-box maximum is 4.
 OPEN_LOOP_RESTARTS = (3, 8)
-CLOSED_LOOP_RESTARTS = (2, 4)
+WHOLE_BOX_RESTARTS = (2, 4)
 #: Half-width of the box kept around the open-loop stage's fit, in local spreads of each coordinate.
 OPEN_LOOP_BOX = 6.0
 #: Floor of the margin within which a score is indistinguishable from the best, per recording
@@ -322,13 +322,13 @@ class StructureDiscovery:
         another basin (benchmark draw 1023, the true structure: eight searches from independent
         starts ended at 0.17-113 against the truth's 0.35, three of them below it), so the search
         is repeated until its best two agree (:func:`best_of_restarts`, at most
-        ``CLOSED_LOOP_RESTARTS``).
+        ``WHOLE_BOX_RESTARTS``).
         """
         pop, gens, nfev = self.sizes_.pop, self.sizes_.gens, self.sizes_.nfev
         starts = [space.coordinates(p) for p in seeds]
         box = space
         open_targets = [t for t in objective.targets if t.kind == "open"]
-        restarts = CLOSED_LOOP_RESTARTS
+        restarts = WHOLE_BOX_RESTARTS
         if open_targets and len(open_targets) < len(objective.targets):
             t0 = time.perf_counter()
             first = self._fit_open_loop(space, objective, rng, open_targets, starts)
@@ -648,6 +648,7 @@ def best_of_restarts(search, n_recordings, min_restarts, max_restarts):
     At least ``min_restarts`` searches, then more until the best two costs agree within
     ``TOL_ABS`` per recording (the floor of what the ranking tells apart: two independent
     searches that reach the same cost make a better basin unlikely) or ``max_restarts`` have run.
+    Returns the best fit with its ``restarts`` set to the number of searches run.
     """
     if not 1 <= min_restarts <= max_restarts:
         raise ValueError(f"restarts must satisfy 1 <= min ({min_restarts}) <= max ({max_restarts})")

@@ -83,12 +83,15 @@ class FitResult:
     cost_by_target : ndarray
     evaluations : int
         Parameter sets simulated.
+    restarts : int
+        Independent searches this fit is the best of (:func:`.discover.best_of_restarts`).
     """
 
     theta: np.ndarray
     cost: float
     cost_by_target: np.ndarray
     evaluations: int
+    restarts: int = 1
 
 
 def _batch_cost(space, objective, thetas, targets=None):
