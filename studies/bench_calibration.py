@@ -31,8 +31,8 @@ median 38,740 simulated s, 4 of 7 seeds within 40,000; ``--transient 3``: within
 0.87-1.14, median 24,359 s, 7 of 7 within, 28 of 28 truths inside).
 
 Usage: ``python -m studies.bench_calibration [--case m002|ridge|all] [--seeds 1,2,3,4,5,6,7]
-[--ridge-seeds 0] [--walkers 10] [--transient T] [--reference-transient 12]``; writes ``results/bench_calibration/bench.json`` and
-corner/trace plots. Other jobs on the machine inflate the wall time; the load average is recorded.
+[--ridge-seeds 0] [--walkers 10] [--transient T] [--reference-transient 12]``; writes
+``results/bench_calibration/bench.json`` and corner/trace plots. Other jobs on the machine inflate the wall time; the load average is recorded.
 """
 from __future__ import annotations
 
