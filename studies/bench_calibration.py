@@ -31,7 +31,8 @@ median 38,740 simulated s, 4 of 7 seeds within 40,000; ``--transient 3``: within
 0.87-1.14, median 24,359 s, 7 of 7 within, 28 of 28 truths inside).
 
 Usage: ``python -m studies.bench_calibration [--case m002|ridge|all] [--seeds 1,2,3,4,5,6,7]
-[--ridge-seeds 0] [--walkers 10] [--transient T] [--reference-transient 12]``; writes
+[--ridge-seeds 0] [--walkers 10] [--transient T] [--continuation] [--reference-transient 12]``;
+writes
 ``results/bench_calibration/bench.json`` and corner/trace plots. Other jobs on the machine inflate the wall time; the load average is recorded.
 """
 from __future__ import annotations
@@ -70,12 +71,13 @@ def likelihood_errors(rec):
 GOAL_SIMULATED_SECONDS = 40000.0
 
 
-def run_case(seed, walkers, workdir, transient=None):
+def run_case(seed, walkers, workdir, transient=None, continuation=False):
     rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, seed, workdir / f"m002_A_{seed}.csv",
                               keep_last=10.0)
     t0 = time.perf_counter()
     extra = {} if transient is None else {"transient": transient}
-    cal = Calibration("M002", params=NAMES, n_walkers=walkers, max_steps=5000, seed=seed, **extra)
+    cal = Calibration("M002", params=NAMES, n_walkers=walkers, max_steps=5000, seed=seed,
+                      continuation=continuation, **extra)
     cal.fit([rec])
     wall = time.perf_counter() - t0
     post, rep = cal.posterior_, cal.report_
@@ -89,6 +91,9 @@ def run_case(seed, walkers, workdir, transient=None):
     return cal, rec, {
         "seed": seed,
         "transient": cal.transient,
+        "continuation": bool(continuation),
+        # runs started from a stored walker's state / from the shared start (continuation only)
+        "continued_runs": _continued(cal),
         "wall_time_s": wall,
         "sampling_time_s": rep.wall_time,
         "setup_and_start_s": wall - rep.wall_time,
@@ -112,6 +117,11 @@ def run_case(seed, walkers, workdir, transient=None):
         "parameters": rows,
         "correlation": post.summary()["correlation"],
     }
+
+
+def _continued(cal):
+    c = [t.continuation for t in cal.terms_ if getattr(t, "continuation", None) is not None]
+    return {"continued": sum(x.continued for x in c), "fresh": sum(x.fresh for x in c)} if c else None
 
 
 def run_ridge_case(seed, workdir):
@@ -183,6 +193,9 @@ def main(argv=None):
     ap.add_argument("--reference-transient", type=float, default=None,
                     help="also run the M002 seeds at this transient and report how far each "
                          "posterior moved from it (median shift in half-widths, width ratio)")
+    ap.add_argument("--continuation", action="store_true",
+                    help="M002 case: each run continues the nearest stored run's cycle "
+                         "(Calibration(continuation=True))")
     ap.add_argument("--no-plots", action="store_true")
     args = ap.parse_args(argv)
     OUT.mkdir(parents=True, exist_ok=True)
@@ -211,7 +224,7 @@ def _m002(args) -> dict:
     seeds = [int(s) for s in args.seeds.split(",")]
     results = []
     for seed in seeds:
-        cal, rec, res = run_case(seed, args.walkers, OUT, args.transient)
+        cal, rec, res = run_case(seed, args.walkers, OUT, args.transient, args.continuation)
         results.append(res)
         if not args.no_plots:
             import matplotlib
@@ -254,7 +267,8 @@ def _m002(args) -> dict:
     return {
         "case": "M002, controller A, one 10 s record at 1 kHz, sensor noise 1e-4 rad; "
                 "(backlash, dead_zone, delay, sigma), waveform likelihood at its default step, "
-                f"{args.walkers} walkers, transient {results[0]['transient']:g} s",
+                f"{args.walkers} walkers, transient {results[0]['transient']:g} s"
+                + (", runs continued from the nearest walker's state" if args.continuation else ""),
         "against_reference_transient": against,
         "goal_wall_time_s": 60.0,
         "goal_simulated_seconds": GOAL_SIMULATED_SECONDS,

@@ -16,6 +16,12 @@ the delay, settled with a ~5 s time constant, and 20 s later its features still 
 by 1.6 %, which moved the posterior along the dead zone / friction ridge past the truth. In-loop
 output noise is never simulated here: the sensor noise of a calibration is a likelihood parameter
 (``sigma``), not a forcing.
+
+Continuation (issue 12, item 4): :class:`Continuation` keeps the cycle state each run ended on,
+keyed by its parameters; a later run whose parameters are within a small relative distance of a
+stored run's starts from that run's state instead of the shared reference cycle. A sampler's
+proposal lies close to its walker, so it starts near its own cycle and a shorter transient
+settles it.
 """
 from __future__ import annotations
 
@@ -37,7 +43,7 @@ from models.simulate import (
     simulate,
 )
 
-__all__ = ["WarmStart", "warm_start_state", "BatchSimulator"]
+__all__ = ["WarmStart", "warm_start_state", "BatchSimulator", "Continuation", "cycle_state_at_end"]
 
 
 @dataclass(frozen=True)
@@ -112,43 +118,69 @@ def warm_start_state(params: ActuatorParams, experiment, dt, t_ref=20.0, rms_tar
         tr = simulate(clean, experiment, t_ref, dt=dt, rate=None)
     except (SimulationDiverged, ValueError):
         return None
-    n = tr.t.size
-    tail = slice(n // 2, n - 2)
-    x = tr.x
+    fields = _state_at_last_crossing(tr.t, tr.theta, tr.y, tr.x, tr.backlash, params, tr.t.size // 2)
+    if fields is None:
+        return None
+    state, rms_ref = fields
+    return WarmStart(**state, dead_zone_ref=float(params.dead_zone), rms_ref=rms_ref,
+                     rms_target=float(rms_target))
+
+
+def cycle_state_at_end(t, theta, y, x, memory, params):
+    """The state at the last upward mean crossing of ``x`` in a run's second half, as a
+    :class:`WarmStart` of scale 1 (a continuation of that run); ``None`` if it does not oscillate.
+
+    ``t`` and the signals are a run's output rows (any uniform spacing); the velocities come from
+    central differences at that spacing.
+    """
+    fields = _state_at_last_crossing(t, theta, y, x, memory, params, t.size // 2)
+    if fields is None:
+        return None
+    return WarmStart(**fields[0], dead_zone_ref=0.0)
+
+
+def _state_at_last_crossing(t, theta, y, x, memory, params, first):
+    """WarmStart fields at the last upward crossing of the mean of ``x[first:]``, and the rms of
+    ``x`` about that mean; ``None`` without a crossing."""
+    n = t.size
+    if n - first < 8:
+        return None
+    h = float(t[1] - t[0])
+    tail = slice(first, n - 2)
     level = float(np.mean(x[tail]))
     amp = 0.5 * float(np.max(x[tail]) - np.min(x[tail]))
     if not amp > 0:
         return None
     k = np.flatnonzero((x[:-1] < level) & (x[1:] >= level))
-    k = k[(k > n // 2) & (k < n - 3)]
+    k = k[(k > first) & (k < n - 3)]
     if k.size == 0:
         return None
     i = int(k[-1])
-    return WarmStart(
-        theta=float(tr.theta[i]),
-        thetad=float((tr.theta[i + 1] - tr.theta[i - 1]) / (2 * dt)),
-        y=float(tr.y[i]),
-        yd=float((tr.y[i + 1] - tr.y[i - 1]) / (2 * dt)),
+    state = dict(
+        theta=float(theta[i]),
+        thetad=float((theta[i + 1] - theta[i - 1]) / (2 * h)),
+        y=float(y[i]),
+        yd=float((y[i + 1] - y[i - 1]) / (2 * h)),
         x=float(x[i]),
-        dead_zone_ref=float(params.dead_zone),
-        memory=float(tr.backlash[i]),
-        history=_delayed_signal_line(tr, params, i, dt),
-        rms_ref=float(np.sqrt(np.mean((x[tail] - level) ** 2))),
-        rms_target=float(rms_target),
+        memory=float(memory[i]),
+        history=_delayed_signal_line(x, y, params, i, h),
     )
+    return state, float(np.sqrt(np.mean((x[tail] - level) ** 2)))
 
 
-def _delayed_signal_line(tr, params, i, dt):
-    """``(value, slope)`` at sample ``i`` of the signal the delay holds (every-step trace)."""
+def _delayed_signal_line(x, y, params, i, dt):
+    """``(value, slope)`` at sample ``i`` of the signal the delay holds (samples ``dt`` apart)."""
     if params.delay <= 0:
         return None
     where = params.delay_position.value
     if where == "output":
-        sig = tr.x
+        sig = x
     elif where == "before_integrator":
-        sig = tr.y
+        sig = y
     else:  # before the first integrator: the acceleration y''
-        sig = np.gradient(np.gradient(tr.y, dt), dt)
+        lo, hi = max(i - 3, 0), min(i + 4, y.size)
+        sig = np.full(y.size, np.nan)
+        sig[lo:hi] = np.gradient(np.gradient(y[lo:hi], dt), dt)
     return float(sig[i]), float((sig[i + 1] - sig[i - 1]) / (2 * dt))
 
 
@@ -185,16 +217,28 @@ class BatchSimulator:
     def __getstate__(self):  # picklable for process pools
         return self.__dict__.copy()
 
-    def run(self, param_sets):
+    def run(self, param_sets, starts=None, with_states=False):
         """Simulate ``param_sets`` (a list of ActuatorParams; ``None`` entries are skipped).
+
+        Parameters
+        ----------
+        starts : list of WarmStart or None, optional
+            Per set, a state to start from instead of :attr:`warm_start` (``None``: the shared
+            one); closed loop only.
+        with_states : bool
+            Also return each run's end state (:func:`cycle_state_at_end`; all output signals are
+            then recorded, 8 times the memory).
 
         Returns
         -------
         delta : ndarray, shape (n, n_out)
             Output; rows of skipped, invalid or diverged runs are NaN.
         ok : ndarray of bool, shape (n,)
+        states : list of WarmStart or None
+            Only with ``with_states``.
         """
         n = len(param_sets)
+        closed = isinstance(self.experiment, ClosedLoop)
         rows, keep = [], []
         for i, params in enumerate(param_sets):
             if params is None:
@@ -206,21 +250,24 @@ class BatchSimulator:
             p = _initial_conditions(p, self.experiment)
             p[K.P_NOISE_RATE] = 0.0
             ctrl = self._ctrl.copy()
-            if self.warm_start is not None and isinstance(self.experiment, ClosedLoop):
-                self.warm_start.apply(p, ctrl, params)
+            start = starts[i] if starts is not None and starts[i] is not None else self.warm_start
+            if start is not None and closed:
+                start.apply(p, ctrl, params)
             rows.append((p, ctrl, bp_a, bp_b, bp_c))
             keep.append(i)
         delta = np.full((n, self.n_out), np.nan)
         ok = np.zeros(n, dtype=bool)
+        states = [None] * n
         if not rows:
-            return delta, ok
+            return (delta, ok, states) if with_states else (delta, ok)
         m = len(rows)
         p = np.array([r[0] for r in rows])
         ctrl = np.array([r[1] for r in rows])
         bp_a = np.array([r[2] for r in rows])
         bp_b = np.array([r[3] for r in rows])
         bp_c = np.array([r[4] for r in rows])
-        out = np.empty((m, 1, self.n_out))  # delta alone: 1/8 of the memory to fill
+        # delta alone unless states are wanted: 1/8 of the memory to fill
+        out = np.empty((m, K.N_SIGNALS if with_states else 1, self.n_out))
         status = np.zeros((m, 2), dtype=np.int64)
         K.simulate_batch_kernel(
             p, ctrl, bp_a, bp_b, bp_c, self._u_cmd, np.zeros(m, dtype=np.int64),
@@ -228,9 +275,77 @@ class BatchSimulator:
         )
         idx = np.asarray(keep)
         good = status[:, 0] == K.OK
-        delta[idx[good]] = out[good, 0, :]
+        row = K.SIGNALS.index("delta") if with_states else 0
+        delta[idx[good]] = out[good, row, :]
         ok[idx[good]] = True
-        return delta, ok
+        if not with_states:
+            return delta, ok
+        sig = {name: K.SIGNALS.index(name) for name in ("theta", "y", "x", "backlash")}
+        for j in np.flatnonzero(good):
+            if closed:
+                o = out[j]
+                states[idx[j]] = cycle_state_at_end(self.t, o[sig["theta"]], o[sig["y"]],
+                                                    o[sig["x"]], o[sig["backlash"]],
+                                                    param_sets[idx[j]])
+        return delta, ok, states
+
+
+#: Actuator fields compared to find a stored run near a new parameter set (:class:`Continuation`).
+CONTINUATION_FIELDS = ("gain", "damping", "stiffness", "feedback_gain", "dead_zone", "backlash",
+                       "delay", "friction_offset", "bandpass_gain", "bandpass_saturation")
+
+
+class Continuation:
+    """End states of recent runs, looked up by the nearest parameter set.
+
+    Parameters
+    ----------
+    radius : float
+        Largest relative difference of any field (:data:`CONTINUATION_FIELDS`) for a stored run
+        to be continued; beyond it a run starts from the shared reference cycle.
+    capacity : int
+        Runs kept (the most recent).
+    """
+
+    def __init__(self, radius=0.02, capacity=256):
+        self.radius = float(radius)
+        self.capacity = int(capacity)
+        self._keys = []
+        self._states = []
+        #: runs started from a stored state / from the shared start
+        self.continued = 0
+        self.fresh = 0
+
+    @staticmethod
+    def key(params):
+        v = np.array([getattr(params, f) for f in CONTINUATION_FIELDS], dtype=float)
+        return np.where(np.isfinite(v), v, 0.0)
+
+    def nearest(self, params):
+        """The stored state of the run nearest ``params`` within :attr:`radius`, or ``None``."""
+        if params is None:
+            return None
+        if not self._keys:
+            self.fresh += 1
+            return None
+        k = self.key(params)
+        keys = np.asarray(self._keys)
+        scale = np.maximum(np.maximum(np.abs(keys), np.abs(k)), 1e-300)
+        dist = np.max(np.abs(keys - k) / scale, axis=1)
+        j = int(np.argmin(dist))
+        if dist[j] > self.radius:
+            self.fresh += 1
+            return None
+        self.continued += 1
+        return self._states[j]
+
+    def add(self, params, state):
+        if params is None or state is None:
+            return
+        self._keys.append(self.key(params))
+        self._states.append(state)
+        if len(self._keys) > self.capacity:
+            del self._keys[0], self._states[0]
 
 
 def output_rate_for(dt, data_rate):

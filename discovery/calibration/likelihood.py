@@ -30,7 +30,7 @@ from models.features import (
     upward_mean_crossings,
 )
 
-from .fastsim import BatchSimulator, output_rate_for, warm_start_state
+from .fastsim import BatchSimulator, Continuation, output_rate_for, warm_start_state
 
 __all__ = [
     "estimate_noise",
@@ -262,6 +262,9 @@ class _WaveformSolverError:
 
 #: A simulated cycle smaller than this fraction of the recorded one counts as not oscillating.
 MIN_AMPLITUDE_RATIO = 0.2
+#: Largest relative difference (any parameter) at which a run continues a stored run's cycle
+#: (:meth:`_ClosedLoopTerm.continue_runs`).
+CONTINUATION_RADIUS = 0.01
 
 
 def estimate_noise(delta) -> float:
@@ -370,6 +373,8 @@ class _ClosedLoopTerm:
         self.n = self.tau.size
         self.sim_t_end = self.transient + span + 2.5 * self.period + 0.2
         self.simulator = None
+        #: :class:`.fastsim.Continuation` of the runs, or ``None`` (every run from the shared start)
+        self.continuation = None
 
     @property
     def cycle_rms(self) -> float:
@@ -390,8 +395,21 @@ class _ClosedLoopTerm:
             rate=output_rate_for(dt, self.data_rate), warm_start=ws,
         )
 
+    def continue_runs(self, radius=CONTINUATION_RADIUS):
+        """Start each run from the end state of the stored run nearest its parameters, when one
+        is within ``radius`` (relative, every field): a walker's proposal continues its walker's
+        cycle (:class:`.fastsim.Continuation`). Returns ``self``."""
+        self.continuation = Continuation(radius=radius)
+        return self
+
     def simulate(self, param_sets):
-        return self.simulator.run(param_sets)
+        if self.continuation is None:
+            return self.simulator.run(param_sets)
+        starts = [self.continuation.nearest(p) for p in param_sets]
+        delta, ok, states = self.simulator.run(param_sets, starts=starts, with_states=True)
+        for p, state in zip(param_sets, states):
+            self.continuation.add(p, state)
+        return delta, ok
 
     def _halved_simulator(self, params, warm_start):
         """The simulator at half the step (ValueError when it does not fit the output grid)."""
