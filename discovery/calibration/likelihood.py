@@ -395,6 +395,17 @@ class _ClosedLoopTerm:
             rate=output_rate_for(dt, self.data_rate), warm_start=ws,
         )
 
+    def set_transient(self, transient):
+        """Simulate ``transient`` seconds before the compared window from now on (the simulator
+        rebuilt at its present step, with its warm start). Returns ``self``."""
+        self.transient = float(transient)
+        self.sim_t_end = self.transient + float(self.tau[-1]) + 2.5 * self.period + 0.2
+        old = self.simulator
+        if old is not None:
+            self.simulator = BatchSimulator(self.experiment, self.sim_t_end, old.dt,
+                                            rate=old.rate, warm_start=old.warm_start)
+        return self
+
     def continue_runs(self, radius=CONTINUATION_RADIUS):
         """Start each run from the end state of the stored run nearest its parameters, when one
         is within ``radius`` (relative, every field): a walker's proposal continues its walker's

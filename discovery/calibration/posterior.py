@@ -63,22 +63,29 @@ class LogPosterior:
         self._sigma_index = self.names.index(SIGMA) if SIGMA in self.names else None
         #: points evaluated so far (each runs one simulation per recording)
         self.n_points = 0
+        self._seconds = 0.0
+        self._steps = 0.0
 
     @property
     def simulated_seconds(self) -> float:
         """Seconds simulated so far: every evaluated point runs each recording's simulator once
-        (transient and window in closed loop, the whole record in open loop)."""
-        per_point = sum(float(t.simulator.t_end) for t in self.terms
-                        if getattr(t, "simulator", None) is not None)
-        return self.n_points * per_point
+        (transient and window in closed loop, the whole record in open loop), at the length
+        the simulator had then, plus the runs :meth:`account` was told of."""
+        return self._seconds
 
     @property
     def simulated_steps(self) -> float:
         """RK4 steps taken so far (the cost :attr:`simulated_seconds` does not see: a record
         whose step was halved costs twice per simulated second)."""
-        per_point = sum(float(t.simulator.t_end) / float(t.simulator.dt) for t in self.terms
-                        if getattr(t, "simulator", None) is not None)
-        return self.n_points * per_point
+        return self._steps
+
+    def account(self, n_runs, terms=None):
+        """Count ``n_runs`` runs of each of ``terms`` (default all) in the simulated cost."""
+        for t in self.terms if terms is None else terms:
+            sim = getattr(t, "simulator", None)
+            if sim is not None:
+                self._seconds += n_runs * float(sim.t_end)
+                self._steps += n_runs * float(sim.t_end) / float(sim.dt)
 
     def natural(self, z):
         """Internal -> natural coordinates, ``(n, ndim)``."""
@@ -122,6 +129,7 @@ class LogPosterior:
         lp, x, sets = self._prepare(z)
         valid = np.array([s is not None for s in sets])
         self.n_points += int(valid.sum())
+        self.account(int(valid.sum()))
         total = np.where(valid, lp, -np.inf)
         if valid.any():
             idx = np.flatnonzero(valid)

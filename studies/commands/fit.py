@@ -42,7 +42,12 @@ def register(sub):
     p.add_argument("--max-steps", type=int, default=4000, help="step cap of the whole chain")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     p.add_argument("--window", type=float, default=10.0, help="seconds of each closed-loop record used (its end)")
-    p.add_argument("--transient", type=float, default=6.0, help="seconds simulated before the window")
+    p.add_argument("--transient", type=float, default=6.0,
+                   help="seconds simulated before the window (waveform likelihood: a shorter one is "
+                        "used where its log-likelihood at the walkers agrees with a 12 s one within "
+                        "0.5 nats; --keep-transient to always use this one)")
+    p.add_argument("--keep-transient", action="store_true",
+                   help="simulate --transient seconds before the window, never a shorter transient")
     p.add_argument("--dt", type=float, default=None,
                    help="RK4 step of the likelihood simulations, s (default 5e-4; a record whose solver error "
                         "the data would see halves it)")
@@ -73,8 +78,9 @@ def run(args) -> int:
         hypothesis=args.hypothesis, params=names, priors=priors, fixed=fixed,
         likelihood=args.likelihood,
         features=tuple(f.strip() for f in args.features.split(",") if f.strip()),
-        window=args.window, transient=args.transient, dt=args.dt, n_walkers=args.walkers,
-        max_steps=args.max_steps, seed=args.seed, backend=out / "chain.h5",
+        window=args.window, transient=args.transient, choose_transient=not args.keep_transient,
+        dt=args.dt, n_walkers=args.walkers, max_steps=args.max_steps, seed=args.seed,
+        backend=out / "chain.h5",
         progress=not args.no_progress, pool=pool,
     )
     try:
