@@ -11,6 +11,7 @@ seeds the 90 % intervals covered the truth 89 % of the time, so one seed is also
 |z| < 3.
 """
 import json
+import re
 import warnings
 
 import numpy as np
@@ -59,6 +60,8 @@ def test_cli_fit_writes_outputs_and_resumes(tmp_path, limit_cycle, capsys):
         warnings.simplefilter("ignore", ConvergenceWarning)
         assert main(args + ["--max-steps", "40"]) == 0
         first = json.loads((out / "summary.json").read_text())
+        # the transient the record was simulated with, chosen by its accuracy, is printed
+        assert re.search(r"transient \S+: [0-9.]+ s", capsys.readouterr().out)
         assert main(args + ["--max-steps", "80"]) == 0
     second = json.loads((out / "summary.json").read_text())
     for f in ("chain.h5", "summary.json", "corner.png", "traces.png", "predictive.png", "posterior.nc"):
