@@ -289,6 +289,8 @@ class BatchSimulator:
         return delta, ok, states
 
 
+#: Largest relative difference (any field) at which a run continues a stored run's cycle.
+CONTINUATION_RADIUS = 0.01
 #: Actuator fields compared to find a stored run near a new parameter set (:class:`Continuation`).
 CONTINUATION_FIELDS = ("gain", "damping", "stiffness", "feedback_gain", "dead_zone", "backlash",
                        "delay", "friction_offset", "bandpass_gain", "bandpass_saturation")
@@ -306,7 +308,7 @@ class Continuation:
         Runs kept (the most recent).
     """
 
-    def __init__(self, radius=0.02, capacity=256):
+    def __init__(self, radius=CONTINUATION_RADIUS, capacity=256):
         self.radius = float(radius)
         self.capacity = int(capacity)
         self._keys = []

@@ -30,7 +30,13 @@ from models.features import (
     upward_mean_crossings,
 )
 
-from .fastsim import BatchSimulator, Continuation, output_rate_for, warm_start_state
+from .fastsim import (
+    CONTINUATION_RADIUS,
+    BatchSimulator,
+    Continuation,
+    output_rate_for,
+    warm_start_state,
+)
 
 __all__ = [
     "estimate_noise",
@@ -262,9 +268,6 @@ class _WaveformSolverError:
 
 #: A simulated cycle smaller than this fraction of the recorded one counts as not oscillating.
 MIN_AMPLITUDE_RATIO = 0.2
-#: Largest relative difference (any parameter) at which a run continues a stored run's cycle
-#: (:meth:`_ClosedLoopTerm.continue_runs`).
-CONTINUATION_RADIUS = 0.01
 
 
 def estimate_noise(delta) -> float:

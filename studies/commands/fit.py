@@ -106,11 +106,13 @@ def run(args) -> int:
     summary = post.summary()
     print(f"{rep.iterations} steps ({rep.new_steps} new), tau max {max(rep.tau):.1f}, "
           f"N/tau {rep.n_over_tau:.1f}, acceptance {rep.acceptance:.2f}")
-    errors = getattr(cal, "transient_errors_", {})
+    errors = getattr(cal, "transient_errors_", {})  # absent when a resumed run restored them
     for name, seconds in (getattr(cal, "transients_", None) or {}).items():
-        err = errors.get(name, {}).get(seconds)
-        how = ("" if name not in errors else f" (log-likelihood within {err:.2g} nats of a long one)"
-               if err is not None else " (no shorter one as accurate: the reference)")
+        how = ""
+        if name in errors and seconds in errors[name]:
+            how = f" (log-likelihood within {errors[name][seconds]:.2g} nats of a long one)"
+        elif name in errors:
+            how = " (no shorter one as accurate: the reference)"
         print(f"  transient {name}: {seconds:g} s{how}")
     for n, s in summary["parameters"].items():
         truth = "" if s["truth"] is None else f"  truth {s['truth']:.5g}"
