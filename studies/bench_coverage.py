@@ -1,6 +1,7 @@
 """Coverage benchmark of the calibration: do the 90 % intervals hold the truth 90 % of the time?
 
-``python -m studies.bench_coverage [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]``
+``python -m studies.bench_coverage [--quick] [--likelihood features|waveform] [--draws N] [--seed S]
+[--jobs J] [--out DIR]``
 
 Hypothesis: with the right structure, :class:`discovery.calibration.Calibration` returns 90 %
 intervals that contain the truth in 80-97 % of seeded draws per parameter, and the truth's rank
@@ -20,6 +21,12 @@ start perturbed by 30 % (log-normal), under priors that are the generator's own 
 by 1.5x (so the truths are draws from a distribution close to the prior). Closed-loop records
 enter through the limit-cycle features, open-loop ones through the output error (whose noise sd
 is then sampled too); the model-discrepancy inflation is on, as in ``tvcid fit``.
+
+``--likelihood waveform`` measures ``tvcid fit``'s default instead: closed-loop records by their
+phase-aligned output error (the noise sd sampled), the transient chosen by its accuracy from a
+given 6 s, ``tvcid fit``'s 16 walkers and 4000-step cap and its spread of the start. That
+likelihood needs a periodic cycle, so only draws without the band-pass loop (whose cycle wanders)
+are run; the others are listed as skipped. Default output ``results/bench_coverage_waveform``.
 
 Written: ``DIR/bench.json`` (config, one row per draw with truths, quantiles, ranks, convergence,
 wall time and simulated seconds; coverage and rank histograms per parameter) and
@@ -64,9 +71,19 @@ class Config:
     closed_seconds: float | None = None
     open_seconds: float | None = None
     start_scatter: float = 0.3
+    likelihood: str = "features"
 
 
 QUICK = Config(draws=2, walkers=16, max_steps=40, transient=6.0, closed_seconds=16.0, open_seconds=6.0)
+#: ``tvcid fit``'s defaults (:mod:`studies.commands.fit`): walkers, step cap, transient, spread.
+WAVEFORM = Config(walkers=16, max_steps=4000, transient=6.0, spread="axes", likelihood="waveform")
+QUICK_WAVEFORM = Config(**{**asdict(QUICK), "likelihood": "waveform", "spread": "axes"})
+
+
+def runs_with(structure, config: Config) -> bool:
+    """Whether a draw of ``structure`` is calibrated under ``config`` (the waveform likelihood
+    needs a periodic cycle: no band-pass loop)."""
+    return config.likelihood == "features" or not structure.bandpass
 
 
 def priors_for(structure):
@@ -120,14 +137,14 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
     structure = Structure.of_params(truth)
     priors = priors_for(structure)
     names = tuple(n for n in SAMPLED if n in priors)
-    if any(r.kind == "open" for r in scenario.recordings):
+    if config.likelihood == "waveform" or any(r.kind == "open" for r in scenario.recordings):
         names += ("sigma",)  # the output error's noise level, as a user would sample it
     rng = np.random.default_rng([seed, 1])
     start = _start(truth, priors, rng, config.start_scatter)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        cal = Calibration(truth, params=names, priors=priors, start=start, likelihood="features",
+        cal = Calibration(truth, params=names, priors=priors, start=start, likelihood=config.likelihood,
                           window=config.window, transient=config.transient, dt=config.dt,
                           n_walkers=config.walkers, max_steps=config.max_steps, seed=seed,
                           spread=config.spread).fit(paths)
@@ -139,7 +156,10 @@ def run_draw(index, config: Config, workdir: Path) -> dict:
            "wall_s": wall, "iterations": rep.iterations, "converged": bool(rep.converged),
            "tau": [float(t) for t in rep.tau], "acceptance": float(rep.acceptance),
            "simulated_seconds": float(cal.log_posterior_.simulated_seconds),
-           "parameters": {}}
+           "parameters": {}, "likelihood": config.likelihood}
+    if config.likelihood == "waveform":
+        row["transients"] = {k: float(v) for k, v in cal.transients_.items()}
+        row["likelihoods"] = dict(cal.likelihoods_)  # closed-loop records may fall back to features
     row["inflation"] = list(cal.inflation_)
     row["commit"] = CODE_COMMIT
     for j, n in enumerate(names):
@@ -224,6 +244,10 @@ def parse_indices(text: str) -> set:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="two short draws (CI)")
+    parser.add_argument("--likelihood", choices=("features", "waveform"), default="features",
+                        help="closed-loop records by their limit-cycle features (default) or, as "
+                             "tvcid fit does by default, their phase-aligned waveform (draws "
+                             "without the band-pass loop only)")
     parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
     parser.add_argument("--seed", type=int, default=None, help="seed of the first draw (default 2000)")
     parser.add_argument("--max-steps", type=int, default=None, help="MCMC step cap per draw")
@@ -232,13 +256,19 @@ def main(argv=None) -> int:
     parser.add_argument("--indices", default=None,
                         help="run only these draws of the config, e.g. '10,14-29' (to share a "
                              "benchmark between machines or sessions; the table covers the rows done)")
-    parser.add_argument("--out", default="results/bench_coverage", help="output directory")
+    parser.add_argument("--out", default=None,
+                        help="output directory (default results/bench_coverage, or "
+                             "results/bench_coverage_waveform)")
     args = parser.parse_args(argv)
-    config = QUICK if args.quick else Config()
+    if args.likelihood == "waveform":
+        config = QUICK_WAVEFORM if args.quick else WAVEFORM
+    else:
+        config = QUICK if args.quick else Config()
     overrides = {k: v for k, v in (("draws", args.draws), ("seed", args.seed),
                                    ("max_steps", args.max_steps)) if v is not None}
     config = Config(**{**asdict(config), **overrides})
-    out = Path(args.out)
+    out = Path(args.out or ("results/bench_coverage" if config.likelihood == "features"
+                            else "results/bench_coverage_waveform"))
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bench.json"
     rows = []
@@ -256,6 +286,11 @@ def main(argv=None) -> int:
         if not wanted <= set(range(config.draws)):
             parser.error(f"--indices {args.indices}: draws outside 0-{config.draws - 1}")
         todo = [i for i in todo if i in wanted]
+    skipped = [i for i in todo if not runs_with(coverage_scenario(i, config).structure, config)]
+    if skipped:
+        print(f"skipped (band-pass loop: no periodic cycle for the waveform likelihood): draws "
+              f"{', '.join(map(str, skipped))}", flush=True)
+    todo = [i for i in todo if i not in skipped]
 
     def record(row):
         rows.append(row)

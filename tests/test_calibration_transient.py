@@ -54,4 +54,4 @@ def test_no_transient_within_tolerance_falls_back_to_the_reference(record, monke
 def test_the_given_transient_is_kept_when_not_chosen(record):
     cal, _ = _started(record, choose_transient=False)
     assert cal.terms_[0].transient == cal.transient == 6.0
-    assert not hasattr(cal, "transients_")
+    assert cal.transients_ == {}

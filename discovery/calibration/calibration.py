@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,9 @@ from models.hypotheses import hypothesis as get_hypothesis
 from models.recording import Recording, load_recording
 
 from .backend import CheckpointBackend
-from .likelihood import DEFAULT_FEATURES, LIKELIHOODS, make_term
+from .likelihood import (DEFAULT_FEATURES, LIKELIHOODS, PERIOD_MISMATCH_LIMIT,
+                         SETTLING_PERTURBATION, FeatureTerm, IllPosedLikelihoodWarning,
+                         WaveformTerm, make_term)
 from .posterior import LogPosterior, check_parameter_names
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates
 from .results import Posterior
@@ -69,6 +72,11 @@ DEFAULT_DT = {"waveform": 5e-4, "features": 5e-4}
 TRANSIENT_CANDIDATES = (2.0, 3.0, 4.0)
 TRANSIENT_REFERENCE = 12.0
 TRANSIENT_TOLERANCE = 0.5
+#: Nats (at the noise) a waveform record's simulated cycle, started larger than the record's,
+#: may still move between transients of ``max(TRANSIENT_REFERENCE, 2 transient)`` and twice that
+#: at the maximum a posteriori before the record enters through its features
+#: (:meth:`Calibration._fall_back_slow`).
+SETTLING_LOAD_LIMIT = 2.0
 
 
 class Calibration:
@@ -95,6 +103,17 @@ class Calibration:
         Seconds of each closed-loop recording used (its end); ``None`` for all of it.
     transient : float
         Seconds simulated before the compared window (after the warm start).
+    features_fallback : bool
+        With the waveform likelihood, a closed-loop record whose phase-aligned waveform is
+        ill-posed enters through its limit-cycle features instead (said in an
+        :class:`.likelihood.IllPosedLikelihoodWarning`): a simulated cycle that is not periodic
+        (the band-pass loop's; decided at the start), or one that attracts so slowly that its
+        recording may still be settling (decided at the maximum a posteriori, which is then
+        searched again with the features; :meth:`_fall_back_slow`). The features measure a
+        record's settling and a run's start imprint; the waveform reads both as parameters.
+        Learned attributes ``likelihoods_`` (record -> ``"waveform"``, ``"features"`` or
+        ``"open"``) and ``fallbacks_`` (record -> reason), kept in the checkpoint. ``False``
+        keeps the waveform everywhere (and only warns of a cycle that is not periodic).
     choose_transient : bool
         Waveform records: once the walkers are placed, simulate before each record's window the
         shortest of ``TRANSIENT_CANDIDATES`` below ``transient`` whose log-likelihood stays within
@@ -170,8 +189,8 @@ class Calibration:
 
     def __init__(self, hypothesis, params=("backlash", "dead_zone", "delay", SIGMA),
                  priors=None, fixed=None, start=None, likelihood="waveform",
-                 features=DEFAULT_FEATURES, window=10.0, transient=6.0, choose_transient=True,
-                 continuation=False,
+                 features=DEFAULT_FEATURES, window=10.0, transient=6.0, features_fallback=True,
+                 choose_transient=True, continuation=False,
                  dt=None, n_walkers=16,
                  max_steps=4000, check_every=10, tau_factor=50.0, moves=None, pool=None,
                  backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
@@ -186,6 +205,7 @@ class Calibration:
         self.features = features
         self.window = window
         self.transient = transient
+        self.features_fallback = features_fallback
         self.choose_transient = choose_transient
         self.continuation = continuation
         self.dt = dt
@@ -234,6 +254,8 @@ class Calibration:
             # only when on: checkpoints written before the option existed still resume
             **({"continuation": True} if self.continuation else {}),
             **({"choose_transient": True} if self._chooses_transient() else {}),
+            # only when a record fell back: older checkpoints still resume
+            **({"fallbacks": sorted(self.fallbacks_)} if getattr(self, "fallbacks_", None) else {}),
         }
 
     def setup(self, recordings):
@@ -302,40 +324,90 @@ class Calibration:
         self.priors_ = ridge_coordinates(priors, names, base)
         self.start_ = start_values
         start_params = base.replace(**{n: v for n, v in start_values.items() if n != SIGMA})
+        self.fallbacks_ = {}
+        self.transients_, self.transient_errors_ = {}, {}  # set once the walkers are placed
+        periodic = []
+        for i, term in enumerate(self.terms_):
+            if isinstance(term, WaveformTerm) and self.features_fallback:
+                with warnings.catch_warnings():  # said in _fall_back, with what is done
+                    warnings.simplefilter("ignore", IllPosedLikelihoodWarning)
+                    term.setup(start_params, warm_start=self.warm_start)
+                if term.period_mismatch > PERIOD_MISMATCH_LIMIT * term.sigma_hat:
+                    periodic.append((i, term.not_periodic()))
+            else:
+                term.setup(start_params, warm_start=self.warm_start)
+        self.log_posterior_ = LogPosterior(base, names, self.priors_, self.terms_, sigma_fixed)
+        for i, reason in periodic:
+            self._fall_back(i, reason)
         for term in self.terms_:
-            term.setup(start_params, warm_start=self.warm_start)
             if self.continuation and hasattr(term, "continue_runs"):
                 term.continue_runs()
-        self.log_posterior_ = LogPosterior(base, names, self.priors_, self.terms_, sigma_fixed)
         self.inflation_ = [t.inflation for t in self.terms_]
+        self.likelihoods_ = _likelihoods(self.terms_)
         self.truths_ = truths_from_recordings(self.recordings_, names, base.name)
         return self
+
+    def _fall_back(self, i, reason, save=False):
+        """Record ``i`` enters through its limit-cycle features from now on (its waveform is
+        ill-posed: ``reason``), said in an :class:`.likelihood.IllPosedLikelihoodWarning`; kept
+        in the checkpoint when ``save``."""
+        old = self.terms_[i]
+        warnings.warn(IllPosedLikelihoodWarning(
+            f"{reason}; this record enters through its limit-cycle features"), stacklevel=3)
+        start = self.base_.replace(**{n: v for n, v in self.start_.items() if n != SIGMA})
+        term = FeatureTerm(old.recording, self.window,
+                           max(float(self.transient), TRANSIENT_REFERENCE), self.dt_,
+                           name=old.name, features=self.features,
+                           rng=np.random.default_rng([int(self.seed), i]))
+        term.setup(start, warm_start=self.warm_start)
+        term.inflation = old.inflation
+        self.terms_[i] = term
+        self.log_posterior_.terms[i] = term
+        self.fallbacks_[term.name] = reason
+        self.likelihoods_ = _likelihoods(self.terms_)
+        if save and self.backend is not None:
+            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
+                f.require_group(_H5_GROUP).attrs["fallbacks"] = json.dumps(self.fallbacks_)
+
+    def _fall_back_slow(self, lp, z0) -> bool:
+        """Waveform records whose cycle attracts slowly at ``z0`` (the maximum a posteriori) fall
+        back to their features; True if any did.
+
+        Slowly: a run of ``z0`` started ``SETTLING_PERTURBATION`` larger than the record's cycle
+        still moves by over ``SETTLING_LOAD_LIMIT`` nats between transients of
+        ``max(TRANSIENT_REFERENCE, 2 transient)`` s and twice that
+        (:meth:`.likelihood.WaveformTerm.settling_load`). Measured at the maximum, whose own
+        cycle has the record's size, so that a start far off does not count its own distance
+        (coverage draw 22 at its truth: 990 nats; M002 and the ridge case: 0.0-0.11).
+        """
+        params = lp.params_for(lp.natural(z0)[0])
+        if params is None:
+            return False
+        short = max(TRANSIENT_REFERENCE, 2.0 * float(self.transient))
+        fell = False
+        for i, term in enumerate(self.terms_):
+            if not isinstance(term, WaveformTerm):
+                continue
+            load = term.settling_load(params, short, 2.0 * short)
+            lp.account(1, [term])
+            if load > SETTLING_LOAD_LIMIT:
+                self._fall_back(i, (
+                    f"{term.name}: its simulated cycle attracts slowly (at the maximum a posteriori, "
+                    f"started {SETTLING_PERTURBATION:.0%} larger, it still moves by {load:.3g} "
+                    f"nats at the noise between transients of {short:g} and {2 * short:g} s), so "
+                    "the recording may still be settling and runs carry their start, both of "
+                    "which a waveform comparison would read as parameters"), save=True)
+                fell = True
+        return fell
 
     # -- initial positions ----------------------------------------------------------------------
     def _initial(self, rng):
         lp = self.log_posterior_
         z0 = lp.internal(np.array([[self.start_[n] for n in self.names_]]))[0]
         if self.optimize_start:
-            from scipy.optimize import minimize
-
-            z0 = _profile_sigma(lp, z0, self.names_)
-            res = minimize(_cost(lp), z0,
-                           method="Nelder-Mead",
-                           options={"maxfev": 150 * len(z0), "xatol": 1e-6, "fatol": 0.05,
-                                    "initial_simplex": _simplex(z0, lp)})
-            if np.isfinite(lp(res.x)):
-                z0 = _profile_sigma(lp, res.x, self.names_)
-            searched = (self.discrepancy and self.global_search
-                        and self._suspect_optimum(lp, z0))
-            if searched:
-                z0 = _global_start(lp, z0, int(rng.integers(2**31)), self.names_)
-            if self.discrepancy:
-                z0, factors = self._polish(lp, z0)
-                if self.global_search and not searched and max(factors) > 1.0:
-                    # still a misfit: a local optimum (the ridge case: 448 nats under the
-                    # truth) or a wrong model; the global search tells them apart
-                    z0, _ = self._polish(lp, _global_start(lp, z0, int(rng.integers(2**31)),
-                                                           self.names_))
+            z0 = self._maximum(lp, z0, rng)
+        if self.features_fallback and self._fall_back_slow(lp, z0) and self.optimize_start:
+            z0 = self._maximum(lp, z0, rng)  # the features' own maximum, from the waveform's
         self.map_start_ = dict(zip(self.names_, lp.natural(z0)[0].tolist()))
         self._refine_steps_at(self.map_start_)
         if self.discrepancy:
@@ -373,6 +445,31 @@ class Calibration:
         if self._set_transient_variance(lp, out) and self.discrepancy:
             self._set_inflation(lp, z0)  # measured against the widened covariance
         return out
+
+    def _maximum(self, lp, z0, rng):
+        """The maximum a posteriori from ``z0`` (internal coordinates): Nelder-Mead, then, where
+        a recording still shows a misfit, the global search and restarts (:meth:`_polish`)."""
+        from scipy.optimize import minimize
+
+        z0 = _profile_sigma(lp, z0, self.names_)
+        res = minimize(_cost(lp), z0,
+                       method="Nelder-Mead",
+                       options={"maxfev": 150 * len(z0), "xatol": 1e-6, "fatol": 0.05,
+                                "initial_simplex": _simplex(z0, lp)})
+        if np.isfinite(lp(res.x)):
+            z0 = _profile_sigma(lp, res.x, self.names_)
+        searched = (self.discrepancy and self.global_search
+                    and self._suspect_optimum(lp, z0))
+        if searched:
+            z0 = _global_start(lp, z0, int(rng.integers(2**31)), self.names_)
+        if self.discrepancy:
+            z0, factors = self._polish(lp, z0)
+            if self.global_search and not searched and max(factors) > 1.0:
+                # still a misfit: a local optimum (the ridge case: 448 nats under the
+                # truth) or a wrong model; the global search tells them apart
+                z0, _ = self._polish(lp, _global_start(lp, z0, int(rng.integers(2**31)),
+                                                       self.names_))
+        return z0
 
     def _walkers_around(self, lp, z0, axes, rng):
         """``n_walkers`` points ``z0 + axes @ N(0, 1)`` where the posterior is finite (the first
@@ -685,6 +782,12 @@ class Calibration:
                                  if _H5_GROUP in f and "transient_var" in f[_H5_GROUP] else None)
                     step_check = f[_H5_GROUP].attrs.get("step_check_at") if _H5_GROUP in f else None
                     chosen = f[_H5_GROUP].attrs.get("transients") if _H5_GROUP in f else None
+                    fallbacks = f[_H5_GROUP].attrs.get("fallbacks") if _H5_GROUP in f else None
+                if fallbacks is not None and old == config:  # resuming: the records that fell back
+                    names = [t.name for t in self.terms_]
+                    for name, reason in json.loads(fallbacks).items():
+                        if name not in self.fallbacks_:
+                            self._fall_back(names.index(name), reason)
                 if step_check is not None and old == config:  # resuming: the steps of the start
                     self._refine_steps_at(json.loads(step_check), save=False)
                 if chosen is not None and old == config:  # resuming: the transients chosen
@@ -736,6 +839,11 @@ class Calibration:
             self, self.sampler_, self.report_,
             min_burn=int((self.laplace_ or {}).get("adapted_at") or 0))
         return self
+
+
+def _likelihoods(terms) -> dict:
+    """Record -> how it enters: ``"waveform"`` or ``"features"`` (closed loop), ``"open"``."""
+    return {t.name: "open" if t.recording.kind == "open" else t.kind for t in terms}
 
 
 def _move_weights(share):

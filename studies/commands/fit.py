@@ -30,7 +30,9 @@ def register(sub):
                    help="comma-separated parameters to sample: fields of the hypothesis (e.g. "
                    "backlash,dead_zone,delay) and/or sigma (sensor-noise sd)")
     p.add_argument("--likelihood", choices=("waveform", "features"), default="waveform",
-                   help="phase-aligned output error, or limit-cycle features as a Gaussian")
+                   help="phase-aligned output error (a record whose simulated cycle is not "
+                   "periodic or still settling enters through its features instead), or "
+                   "limit-cycle features as a Gaussian")
     p.add_argument("--features", default="frequency,H1,H3,H5,H7",
                    help="features of the features likelihood (frequency, amplitude, Hk)")
     p.add_argument("--prior", action="append", default=[], metavar="NAME=LOW:HIGH[:log]",
@@ -114,6 +116,9 @@ def run(args) -> int:
         elif name in errors:
             how = " (no shorter one as accurate: the reference)"
         print(f"  transient {name}: {seconds:g} s{how}")
+    for name, reason in (getattr(cal, "fallbacks_", None) or {}).items():
+        print(f"  likelihood {name}: its limit-cycle features, not the waveform "
+              f"({reason.split(': ', 1)[-1]})")
     for n, s in summary["parameters"].items():
         truth = "" if s["truth"] is None else f"  truth {s['truth']:.5g}"
         print(f"  {n:<12s} {s['q50']:.5g}  90 % [{s['q05']:.5g}, {s['q95']:.5g}]{truth}")
