@@ -292,6 +292,8 @@ def main(argv=None) -> int:
               f"{', '.join(map(str, skipped))}", flush=True)
     todo = [i for i in todo if i not in skipped]
 
+    failed = []
+
     def record(row):
         rows.append(row)
         rows.sort(key=lambda r: r["index"])
@@ -308,9 +310,13 @@ def main(argv=None) -> int:
         from .common import process_pool
 
         with process_pool(args.jobs) as pool:
-            futures = [pool.submit(run_draw, i, config, out / "data") for i in todo]
+            futures = {pool.submit(run_draw, i, config, out / "data"): i for i in todo}
             for fut in as_completed(futures):
-                record(fut.result())
+                try:
+                    record(fut.result())
+                except Exception as exc:  # noqa: BLE001 - one draw's failure must not stop the rest
+                    failed.append(futures[fut])
+                    print(f"draw {futures[fut]} FAILED: {exc!r}", flush=True)
     else:
         for i in todo:
             record(run_draw(i, config, out / "data"))
@@ -321,6 +327,9 @@ def main(argv=None) -> int:
         if not n.startswith("_"):
             print(f"{n:16s} coverage {s['coverage']:.0%} of {s['draws']}  ranks {s['rank_histogram']}")
     print(f"wrote {path}, {out / 'ranks.png'}")
+    if failed:
+        print(f"FAILED draws (not in the table): {', '.join(map(str, sorted(failed)))}")
+        return 1
     return 0
 
 

@@ -5,7 +5,14 @@ import json
 import pytest
 
 
-def test_bench_coverage_quick_rows_agree_with_their_summary(tmp_path):
+@pytest.fixture(scope="module")
+def quick_dir(tmp_path_factory):
+    """One directory for both likelihoods' quick runs, so that draw 0's recordings (the
+    reference path, most of the time) are made once."""
+    return tmp_path_factory.mktemp("bench_coverage")
+
+
+def test_bench_coverage_quick_rows_agree_with_their_summary(quick_dir):
     """``python -m studies.bench_coverage --quick`` (one draw here): every sampled parameter's row
     holds ordered quantiles, a rank in [0, 1] and an 'inside' flag that matches them; the summary's
     coverage and rank histogram are those of the rows. (The coverage itself needs the full run:
@@ -13,6 +20,7 @@ def test_bench_coverage_quick_rows_agree_with_their_summary(tmp_path):
     from studies.bench_coverage import RANK_BINS
     from studies.bench_coverage import main as bench_main
 
+    tmp_path = quick_dir
     assert bench_main(["--quick", "--draws", "1", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "bench.json").read_text())
     (row,) = report["rows"]
@@ -26,6 +34,29 @@ def test_bench_coverage_quick_rows_agree_with_their_summary(tmp_path):
     infl = report["summary"]["_inflation"]
     assert infl["records"] == len(row["inflation"]) and infl["max"] == max(row["inflation"])
     assert (tmp_path / "ranks.png").stat().st_size > 0
+
+
+def test_bench_coverage_quick_with_tvcid_fits_default_likelihood(quick_dir):
+    """``--likelihood waveform --quick`` (draw 0: no band-pass loop, so it runs): the row says how
+    each record entered (closed-loop records by their waveform or, fallen back, their features;
+    open-loop ones by their output error), samples the noise sd, and its cells are consistent;
+    draws with the band-pass loop are skipped, not run."""
+    from studies.bench_coverage import QUICK_WAVEFORM, coverage_scenario, runs_with
+    from studies.bench_coverage import main as bench_main
+
+    assert bench_main(["--quick", "--likelihood", "waveform", "--draws", "1",
+                       "--out", str(quick_dir)]) == 0
+    report = json.loads((quick_dir / "bench.json").read_text())
+    assert report["config"]["likelihood"] == "waveform"
+    (row,) = report["rows"]
+    kinds = [d["kind"] for d in row["design"]]
+    assert len(row["likelihoods"]) == len(kinds)
+    for how, kind in zip(row["likelihoods"].values(), kinds):
+        assert how == "open" if kind == "open" else how in ("waveform", "features")
+    for cell in row["parameters"].values():
+        assert cell["inside"] == (cell["q05"] <= cell["truth"] <= cell["q95"])
+    banded = next(i for i in range(40) if coverage_scenario(i, QUICK_WAVEFORM).structure.bandpass)
+    assert not runs_with(coverage_scenario(banded, QUICK_WAVEFORM).structure, QUICK_WAVEFORM)
 
 
 def test_bench_coverage_indices_select_draws_and_reject_bad_text():

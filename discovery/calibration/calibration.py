@@ -77,6 +77,10 @@ TRANSIENT_TOLERANCE = 0.5
 #: at the maximum a posteriori before the record enters through its features
 #: (:meth:`Calibration._fall_back_slow`).
 SETTLING_LOAD_LIMIT = 2.0
+#: Transient (s) of a record that fell back to its features (at least the given one): the
+#: coverage benchmark's, whose calibration the features' table measures; a slowly attracting
+#: cycle needs it (coverage draw 0 at 12 s: dead zone and friction offset outside at rank 1.00).
+FALLBACK_TRANSIENT = 20.0
 
 
 class Calibration:
@@ -97,6 +101,9 @@ class Calibration:
     start : dict, optional
         Starting values (default: the hypothesis' values, the estimated noise for sigma).
     likelihood : {"waveform", "features"}
+        How closed-loop records enter: their phase-aligned output error (a record where it is
+        ill-posed falls back to its features, ``features_fallback``), or their limit-cycle
+        features as a Gaussian. Open-loop records always enter through their output error.
     features : sequence of str
         Features of the features likelihood (``frequency``, ``amplitude``, ``Hk``).
     window : float or None
@@ -356,7 +363,7 @@ class Calibration:
             f"{reason}; this record enters through its limit-cycle features"), stacklevel=3)
         start = self.base_.replace(**{n: v for n, v in self.start_.items() if n != SIGMA})
         term = FeatureTerm(old.recording, self.window,
-                           max(float(self.transient), TRANSIENT_REFERENCE), self.dt_,
+                           max(float(self.transient), FALLBACK_TRANSIENT), self.dt_,
                            name=old.name, features=self.features,
                            rng=np.random.default_rng([int(self.seed), i]))
         term.setup(start, warm_start=self.warm_start)
