@@ -77,7 +77,11 @@ def test_a_record_that_may_still_settle_enters_through_its_features(tmp_path):
                       r"slowly .* enters through its limit-cycle features"):
         whole = Calibration(truth, max_steps=30, stop_when_converged=False, **kwargs).fit([rec])
     assert whole.likelihoods_ == {"draw22": "features"} and "settling" in whole.fallbacks_["draw22"]
-    assert whole.terms_[0].kind == "features" and whole.terms_[0].transient == 20.0
+    fell = whole.terms_[0]
+    assert fell.kind == "features" and fell.transient == 20.0
+    # its covariance stays at the record's own noise estimate: a sampled sigma does not move it
+    lls = [float(fell.loglike([truth], np.array([s]))[0]) for s in (1e-5, 1e-4)]
+    assert lls[0] == pytest.approx(lls[1], abs=1e-9)
     chain = tmp_path / "chain.h5"
     with pytest.warns(IllPosedLikelihoodWarning):
         Calibration(truth, max_steps=15, stop_when_converged=False, backend=chain, **kwargs).fit([rec])

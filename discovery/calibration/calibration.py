@@ -366,6 +366,7 @@ class Calibration:
                            max(float(self.transient), FALLBACK_TRANSIENT), self.dt_,
                            name=old.name, features=self.features,
                            rng=np.random.default_rng([int(self.seed), i]))
+        term.noise_from_sigma = False  # the record's own noise estimate, not the sampled sd
         term.setup(start, warm_start=self.warm_start)
         term.inflation = old.inflation
         self.terms_[i] = term

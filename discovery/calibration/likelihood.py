@@ -617,6 +617,11 @@ class FeatureTerm(_ClosedLoopTerm):
     """
 
     kind = "features"
+    #: The covariance follows the sampled noise sd (scaled by ``sigma / sigma_hat``); ``False``
+    #: keeps the record's own noise estimate (a record that fell back from the waveform: its 15
+    #: numbers cannot estimate the noise, and a sigma free to shrink narrowed coverage draw 0's
+    #: dead-zone interval 4x, the truth outside it).
+    noise_from_sigma = True
 
     def __init__(self, recording, window, transient, dt, name=None, features=DEFAULT_FEATURES,
                  n_mc=64, rng=None, floor=0.0, n_segments=4):
@@ -835,15 +840,19 @@ class FeatureTerm(_ClosedLoopTerm):
         """``(n_sets, k)`` feature residuals in units of their sd at noise ``sigma`` (one per
         set), without the discrepancy inflation; NaN rows for invalid runs."""
         r = self.observed[None, :] - (self.model_features(param_sets) + self.solver_bias[None, :])
-        scale = np.asarray(sigma, dtype=float) / self.sigma_hat
+        scale = self._noise_scale(sigma)
         return np.sum(self._whiten[None, :, :] * r[:, None, :], axis=2) / scale[:, None]
+
+    def _noise_scale(self, sigma):
+        sigma = np.asarray(sigma, dtype=float)
+        return sigma / self.sigma_hat if self.noise_from_sigma else np.ones_like(sigma)
 
     def discrepancy(self, params, sigma) -> float:
         """:func:`features_inflation` at ``params``."""
         return features_inflation(self.whitened_residuals([params], np.array([sigma]))[0])
 
     def loglike(self, param_sets, sigma, pointwise=False):
-        scale = np.asarray(sigma, dtype=float) / self.sigma_hat * math.sqrt(self.inflation)
+        scale = self._noise_scale(sigma) * math.sqrt(self.inflation)
         z = self.whitened_residuals(param_sets, sigma) / math.sqrt(self.inflation)
         k = len(self.features)
         ll = -0.5 * z**2 - np.log(scale)[:, None] - 0.5 * _LOG_2PI - 0.5 * self._logdet / k
