@@ -507,10 +507,10 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
         slowly, a recording of it, made some unknown time after its start, may still be settling,
         and runs started on a cycle of the record's size carry their start's imprint: coverage
         draw 22 (dead zone on the velocity signal, controller held at 200 Hz, its record's window
-        21-31 s after the kick; 1.5e3 nats with a 20 % larger start) had a record 4.6e-6 rad rms
-        from the settled cycle over the window's first half and 1.2e-6 over its second (noise
-        2.6e-5), which put the truth 75 nats under a point whose dead zone and delay lay outside
-        their 90 % intervals.
+        21-31 s after the kick; 990 nats at its truth with a 20 % larger start) had a record
+        4.6e-6 rad rms from the settled cycle over the window's first half and 1.2e-6 over its
+        second (noise 2.6e-5), which put the truth 75 nats under a point whose dead zone and delay
+        lay outside their 90 % intervals.
         """
         span = float(self.tau[-1])
         ws = warm_start_state(params, self.experiment, self.simulator.dt,
