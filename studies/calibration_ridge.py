@@ -101,12 +101,13 @@ def run(config, seed, out_dir):
     fig.savefig(out / "ridge.png", dpi=110)
     plt.close(fig)
 
-    # model comparison on controller A
+    # model comparison on controller A, both on the waveform (a record that fell back to its
+    # features in one model only would make the likelihoods incomparable)
     fits = {}
     for name in ("M002", "M001i"):
         fits[name] = Calibration(name, params=PARAMS + ("sigma",), window=config.window,
                                  n_walkers=config.walkers, max_steps=config.compare_steps,
-                                 seed=seed).fit([data["A"]])
+                                 seed=seed, features_fallback=False).fit([data["A"]])
     comp = compare(fits)
     axes = comp.plot()
     axes[0].figure.tight_layout()

@@ -29,10 +29,12 @@ def fits(tmp_path_factory):
         warnings.simplefilter("ignore", ConvergenceWarning)
         for name in ("M002", "M001i"):
             # the models' own likelihoods, uninflated: the comparison and the predictive bands
-            # below are about them (the discrepancy term: tests/test_calibration_mismatch.py)
+            # below are about them (the discrepancy term: tests/test_calibration_mismatch.py);
+            # one likelihood for both (M001i's cycle attracts slowly enough to fall back to its
+            # features, and likelihoods that differ cannot be compared)
             out[name] = Calibration(name, params=("backlash", "dead_zone", "sigma"), window=3.0,
                                     transient=3.0, n_walkers=8, max_steps=40, seed=1,
-                                    discrepancy=False).fit([rec])
+                                    discrepancy=False, features_fallback=False).fit([rec])
     return rec, out
 
 
@@ -75,6 +77,14 @@ def test_compare_prefers_the_true_hypothesis(fits):
     assert comp.predictive["M002"].rms_error("a") < comp.predictive["M001i"].rms_error("a")
     axes = comp.plot()
     assert len(axes) == 2
+    # a record that entered through its features in one model cannot be compared with the other
+    cals["M001i"].likelihoods_ = {"a": "features"}
+    try:
+        with pytest.raises(ValueError, match="entered through different likelihoods .* "
+                                             "features_fallback=False"):
+            compare(cals, n_draws=40)
+    finally:
+        cals["M001i"].likelihoods_ = {"a": "waveform"}
 
 
 def test_ridge_analysis_on_samples_of_known_correlation_and_width(fits):

@@ -374,6 +374,15 @@ def compare(calibrations, n_draws=200, seed=0) -> ModelComparison:
 
     if not isinstance(calibrations, dict):
         calibrations = {c.base_.name: c for c in calibrations}
+    # a record that fell back to its features in one model and not another (Calibration's
+    # features_fallback) makes their likelihoods incomparable
+    entered = {label: getattr(cal, "likelihoods_", None) for label, cal in calibrations.items()}
+    if len({repr(v) for v in entered.values()}) > 1:
+        raise ValueError(
+            "the calibrations' recordings entered through different likelihoods ("
+            + "; ".join(f"{label}: {v}" for label, v in entered.items())
+            + "), which cannot be compared: fit them with features_fallback=False or with "
+            "likelihood='features'")
     rows, pred = [], {}
     for label, cal in calibrations.items():
         post = cal.posterior_
