@@ -80,10 +80,10 @@ WAVEFORM = Config(walkers=16, max_steps=4000, transient=6.0, spread="axes", like
 QUICK_WAVEFORM = Config(**{**asdict(QUICK), "likelihood": "waveform", "spread": "axes"})
 
 
-def runs_with(structure, config: Config) -> bool:
-    """Whether a draw of ``structure`` is calibrated under ``config`` (the waveform likelihood
-    needs a periodic cycle: no band-pass loop)."""
-    return config.likelihood == "features" or not structure.bandpass
+def runs_with(index, config: Config) -> bool:
+    """Whether draw ``index`` is calibrated under ``config`` (the waveform likelihood needs a
+    periodic cycle: no band-pass loop; the scenario is drawn only then)."""
+    return config.likelihood == "features" or not coverage_scenario(index, config).structure.bandpass
 
 
 def priors_for(structure):
@@ -286,7 +286,7 @@ def main(argv=None) -> int:
         if not wanted <= set(range(config.draws)):
             parser.error(f"--indices {args.indices}: draws outside 0-{config.draws - 1}")
         todo = [i for i in todo if i in wanted]
-    skipped = [i for i in todo if not runs_with(coverage_scenario(i, config).structure, config)]
+    skipped = [i for i in todo if not runs_with(i, config)]
     if skipped:
         print(f"skipped (band-pass loop: no periodic cycle for the waveform likelihood): draws "
               f"{', '.join(map(str, skipped))}", flush=True)

@@ -18,9 +18,8 @@ from models.hypotheses import hypothesis as get_hypothesis
 from models.recording import Recording, load_recording
 
 from .backend import CheckpointBackend
-from .likelihood import (DEFAULT_FEATURES, LIKELIHOODS, PERIOD_MISMATCH_LIMIT,
-                         SETTLING_PERTURBATION, FeatureTerm, IllPosedLikelihoodWarning,
-                         WaveformTerm, make_term)
+from .likelihood import (DEFAULT_FEATURES, LIKELIHOODS, SETTLING_PERTURBATION, FeatureTerm,
+                         IllPosedLikelihoodWarning, WaveformTerm, make_term)
 from .posterior import LogPosterior, check_parameter_names
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates
 from .results import Posterior
@@ -333,18 +332,18 @@ class Calibration:
         start_params = base.replace(**{n: v for n, v in start_values.items() if n != SIGMA})
         self.fallbacks_ = {}
         self.transients_, self.transient_errors_ = {}, {}  # set once the walkers are placed
-        periodic = []
+        not_periodic = []
         for i, term in enumerate(self.terms_):
             if isinstance(term, WaveformTerm) and self.features_fallback:
                 with warnings.catch_warnings():  # said in _fall_back, with what is done
                     warnings.simplefilter("ignore", IllPosedLikelihoodWarning)
                     term.setup(start_params, warm_start=self.warm_start)
-                if term.period_mismatch > PERIOD_MISMATCH_LIMIT * term.sigma_hat:
-                    periodic.append((i, term.not_periodic()))
+                if not term.periodic:
+                    not_periodic.append((i, term.not_periodic()))
             else:
                 term.setup(start_params, warm_start=self.warm_start)
         self.log_posterior_ = LogPosterior(base, names, self.priors_, self.terms_, sigma_fixed)
-        for i, reason in periodic:
+        for i, reason in not_periodic:
             self._fall_back(i, reason)
         for term in self.terms_:
             if self.continuation and hasattr(term, "continue_runs"):

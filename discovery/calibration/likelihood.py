@@ -484,10 +484,16 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
         self._refine_step(start_params, warm_start,
                           lambda dt: self._build_simulator(start_params, warm_start, dt))
         self.period_mismatch = self.period_mismatch_of(start_params)
-        if self.period_mismatch > PERIOD_MISMATCH_LIMIT * self.sigma_hat:
+        if not self.periodic:
             warnings.warn(IllPosedLikelihoodWarning(
                 f"{self.not_periodic()}. Use likelihood='features'."), stacklevel=2)
         return self
+
+    @property
+    def periodic(self) -> bool:
+        """The start's simulated cycle repeats itself within ``PERIOD_MISMATCH_LIMIT`` noise sds
+        (after :meth:`setup`; a cycle that does not oscillate counts as periodic here)."""
+        return not self.period_mismatch > PERIOD_MISMATCH_LIMIT * self.sigma_hat
 
     def not_periodic(self) -> str:
         """Why the waveform is ill-posed for a cycle that is not periodic (after :meth:`setup`)."""
