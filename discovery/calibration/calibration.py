@@ -396,7 +396,7 @@ class Calibration:
             if not isinstance(term, WaveformTerm):
                 continue
             load = term.settling_load(params, short, 2.0 * short)
-            lp.account(1, [term])
+            lp.account_seconds(term.settling_seconds(2.0 * short), term.simulator.dt)
             if load > SETTLING_LOAD_LIMIT:
                 self._fall_back(i, (
                     f"{term.name}: its simulated cycle attracts slowly (at the maximum a posteriori, "

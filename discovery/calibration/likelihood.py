@@ -457,6 +457,9 @@ PERIOD_MISMATCH_LIMIT = 3.0
 #: Relative size by which :meth:`WaveformTerm.settling_load`'s run starts larger than the record's
 #: cycle.
 SETTLING_PERTURBATION = 0.2
+#: Seconds of the run that finds the warm start of :meth:`WaveformTerm.settling_load`
+#: (:func:`.fastsim.warm_start_state`'s default).
+SETTLING_REFERENCE = 20.0
 
 
 class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
@@ -518,10 +521,9 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
         second (noise 2.6e-5), which put the truth 75 nats under a point whose dead zone and delay
         lay outside their 90 % intervals.
         """
-        span = float(self.tau[-1])
-        ws = warm_start_state(params, self.experiment, self.simulator.dt,
+        ws = warm_start_state(params, self.experiment, self.simulator.dt, t_ref=SETTLING_REFERENCE,
                               rms_target=(1.0 + perturbation) * self.cycle_rms)
-        sim = BatchSimulator(self.experiment, long + span + 2.5 * self.period + 0.2,
+        sim = BatchSimulator(self.experiment, self._settling_run(long),
                              self.simulator.dt, rate=self.simulator.rate, warm_start=ws)
         delta, ok = sim.run([params])
         if not ok[0]:
@@ -532,6 +534,14 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
         e = models[1] - models[0]
         e = e - np.mean(e)
         return 0.5 * float(np.sum(e * e)) / self.sigma_hat**2
+
+    def _settling_run(self, long):
+        """Length (s) of :meth:`settling_load`'s run after its warm start."""
+        return long + float(self.tau[-1]) + 2.5 * self.period + 0.2
+
+    def settling_seconds(self, long):
+        """Seconds :meth:`settling_load` simulates (its warm start's reference run included)."""
+        return SETTLING_REFERENCE + self._settling_run(long)
 
     def period_mismatch_of(self, params):
         """RMS difference (rad) of ``params``' simulated cycle and itself one period later,

@@ -87,6 +87,12 @@ class LogPosterior:
                 self._seconds += n_runs * float(sim.t_end)
                 self._steps += n_runs * float(sim.t_end) / float(sim.dt)
 
+    def account_seconds(self, seconds, dt):
+        """Count a run of ``seconds`` at step ``dt`` outside the terms' own simulators (a check's
+        longer run)."""
+        self._seconds += float(seconds)
+        self._steps += float(seconds) / float(dt)
+
     def natural(self, z):
         """Internal -> natural coordinates, ``(n, ndim)``."""
         z = np.atleast_2d(np.asarray(z, dtype=float))
