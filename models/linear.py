@@ -1,4 +1,5 @@
-"""Linear blocks: the Butterworth band-pass of the feedback loop, as a state-space model.
+"""Linear blocks: the Butterworth band-pass of the feedback loop, as a state-space model, and the
+frequency response of the second-order block with its delay.
 
 Paper 001 section 4 ("a 4th order Butterworth design, with frequencies between 9 and 10 Hz");
 MODELS.md fixes it as ``scipy.signal.butter(2, [2*pi*9, 2*pi*10], 'bandpass', analog=True)``.
@@ -10,7 +11,8 @@ from functools import lru_cache
 import numpy as np
 from scipy import signal
 
-__all__ = ["bandpass_transfer_function", "bandpass_state_space", "MAX_BANDPASS_STATES"]
+__all__ = ["bandpass_transfer_function", "bandpass_state_space", "second_order_response",
+           "MAX_BANDPASS_STATES"]
 
 #: Largest band-pass state the kernel carries (order 4 -> 8 states).
 MAX_BANDPASS_STATES = 8
@@ -41,3 +43,31 @@ def bandpass_state_space(low_hz, high_hz, order=2):
     for arr in (a, b, c):
         arr.setflags(write=False)
     return a, b, c
+
+
+def second_order_response(gain, damping, stiffness, delay, inside, omega):
+    """Frequency response of the second-order block and its transport delay (MODELS.md).
+
+    ``inside`` (the delay before the first integrator, ``y'' = [K1 e - K2 y' - K3 y](t - Td)``):
+    ``K1 / (s^2 e^{s Td} + K2 s + K3)``; otherwise (the delay before the integrator or at the
+    output; with the nonlinearities left out both read as a delay after the block):
+    ``K1 e^{-s Td} / (s^2 + K2 s + K3)``.
+
+    Parameters
+    ----------
+    gain, damping, stiffness : float
+        ``K1`` (1/s^2 per rad of error), ``K2`` (1/s), ``K3`` (1/s^2).
+    delay : float
+        ``Td`` (s).
+    inside : bool
+    omega : array_like
+        Angular frequencies (rad/s).
+
+    Returns
+    -------
+    ndarray of complex
+    """
+    s = 1j * np.asarray(omega, dtype=float)
+    if inside:
+        return gain / (s * s * np.exp(s * delay) + damping * s + stiffness)
+    return gain * np.exp(-s * delay) / (s * s + damping * s + stiffness)

@@ -1,5 +1,6 @@
 """tvcid discover / discovery.structure: bad input, and recovery on a drawn scenario."""
 import json
+import math
 
 import numpy as np
 import pytest
@@ -196,9 +197,11 @@ def test_period_two_cycle_is_measured_at_its_fundamental():
 
 def test_delay_moved_into_the_block_keeps_the_cycle():
     """Moving M000's delay from inside the second-order block's loop to after it (and back) with
-    the matched linear block: the round trip is exact and the moved model's cycles at controllers
-    A and B agree within 0.5 % in amplitude and 0.2 % in frequency (moving the delay alone changes
-    the amplitude 3.6 % at A); this is why the ranking may leave the two positions undecided."""
+    the matched linear block: the round trip returns within 0.5 % (each way matches over a band
+    scaled by its own block's natural frequency; measured 0.26 %) and the moved model's cycles
+    at controllers A and B agree within 0.3 % in amplitude and 0.05 % in frequency (measured
+    0.12 % and 0.011 %; moving the delay alone changes the amplitude 3.6 % at A); this is why the
+    ranking may leave the two positions undecided."""
     from discovery.structure.discover import delay_moved
     from models import ClosedLoop, hypothesis, simulate
     from models.hypotheses import DelayPosition
@@ -207,14 +210,50 @@ def test_delay_moved_into_the_block_keeps_the_cycle():
     q = delay_moved(p, DelayPosition.BEFORE_INTEGRATOR)
     back = delay_moved(q, DelayPosition.BEFORE_FIRST_INTEGRATOR)
     for name in ("gain", "damping", "stiffness", "delay"):
-        assert getattr(back, name) == pytest.approx(getattr(p, name), rel=1e-9)
+        assert getattr(back, name) == pytest.approx(getattr(p, name), rel=5e-3)
     naive = p.replace(delay_position=DelayPosition.BEFORE_INTEGRATOR)
     for kp, kd, mu in ((5.84, 0.062, 12.3), (9.8, 0.06, 4.5)):
         f = [simulate(x, ClosedLoop(kp, kd, mu), 30.0).features(window=10.0) for x in (p, q, naive)]
-        assert f[1].amplitude == pytest.approx(f[0].amplitude, rel=5e-3)
-        assert f[1].frequency == pytest.approx(f[0].frequency, rel=2e-3)
+        assert f[1].amplitude == pytest.approx(f[0].amplitude, rel=3e-3)
+        assert f[1].frequency == pytest.approx(f[0].frequency, rel=5e-4)
         if kp == 5.84:
             assert abs(f[2].amplitude / f[0].amplitude - 1) > 0.03
+
+
+def test_delay_moved_matches_the_frequency_response_of_drawn_blocks():
+    """Drawn truths (the benchmark's generator, seed 11, 40 draws) with their delay moved across
+    the block (inside <-> after): the moved block's frequency response over ``MATCHED_BAND`` is
+    never further from the given one than the first-order match's, and where ``K2 Td <= 0.5`` it
+    is within 1 % in gain and 0.01 rad in phase (measured <= 0.75 %), where the first-order match
+    alone misses by over 5 % in some (it did on benchmark draw 1019: 29 %, and its refit stopped
+    at cost 133 against the truth's 0.72)."""
+    from discovery.structure.discover import MATCHED_BAND, _first_order_moved, delay_moved
+    from models.hypotheses import DelayPosition
+    from models.linear import second_order_response
+    from studies.scenarios import draw_truth
+
+    rng = np.random.default_rng(11)
+    inner = DelayPosition.BEFORE_FIRST_INTEGRATOR
+    first_order_misses, small = 0, 0
+    for _ in range(40):
+        p = draw_truth(rng)
+        inside = p.delay_position is inner
+        to = DelayPosition.OUTPUT if inside else inner
+        omega = np.geomspace(*MATCHED_BAND, 48) * math.sqrt(p.stiffness)
+        given = second_order_response(p.gain, p.damping, p.stiffness, p.delay, inside, omega)
+        errors = []
+        for move in (delay_moved, _first_order_moved):
+            q = move(p, to)
+            ratio = second_order_response(q.gain, q.damping, q.stiffness, q.delay, not inside,
+                                          omega) / given
+            errors.append(max(np.max(np.abs(np.log(np.abs(ratio)))),
+                              np.max(np.abs(np.angle(ratio)))))
+        assert errors[0] <= errors[1] + 1e-12
+        if p.damping * p.delay <= 0.5:
+            small += 1
+            assert errors[0] <= 0.01, (p, errors)
+            first_order_misses += errors[1] > 0.05
+    assert small >= 10 and first_order_misses >= 1
 
 
 def test_transferred_start_is_valid_for_every_structure_and_keeps_the_threshold():
