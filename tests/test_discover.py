@@ -417,6 +417,45 @@ def test_a_superset_of_a_member_joins_the_set_merged_whatever_its_own_fit_scored
         "backlash"] is None
 
 
+def test_wandering_cycles_raise_the_margin_floor(tmp_path):
+    """The bundled benchmark draw 1000 (two band-pass cycles at 200 Hz, which wander from period
+    to period): each cycle's window cost is over twice ``TOL_ABS`` (measured 0.24 and 0.22), and a
+    structure 0.225 worse than the best (draw 1000's truth's structure against the winner at
+    696f4e1) is inside the set with these floors, outside with the default ones. A periodic
+    cycle (benchmark draw 1019's truth, no band-pass loop, 25 s at its first controller) keeps
+    the default floor (its window cost 0.08, from the pieces' ends at sampled crossings)."""
+    from pathlib import Path
+
+    from discovery.structure.discover import (TOL_ABS, StructureFit, indistinguishable_set,
+                                              margin_floors)
+    from discovery.structure.targets import make_target
+    from models import ClosedLoop, simulate
+    from models.recording import load_recording, recording_from_trajectory
+
+    bundled = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
+    targets = [make_target(load_recording(p), 5e-4) for p in sorted(bundled.glob("rec*.csv"))]
+    floors = margin_floors(targets)
+    assert floors.shape == (2,) and np.all(floors > 2 * TOL_ABS)
+
+    def fit(name, score):
+        return StructureFit(structure=Structure.parse(name), params=None, theta=np.zeros(1),
+                            cost=score, cost_by_recording={}, origin="test", score=score,
+                            fold_costs=np.full((2, 2), score / 2.0))
+
+    for given, inside in ((None, False), (floors, True)):
+        best = fit("dz_velocity+delay_before_integrator+backlash+bandpass", 0.753)
+        truth = fit("dz_velocity+delay_before_first_integrator+backlash+bandpass", 0.978)
+        indistinguishable_set([best, truth], n_recordings=2, floors=given)
+        assert truth.indistinguishable_from_best is inside
+
+    scenario = draw_scenario(1019)
+    closed = next(r for r in scenario.recordings if r.kind == "closed")
+    run = simulate(scenario.truth, ClosedLoop(closed.kp, closed.kd, closed.mu), 25.0, rate=1000.0)
+    path = save_recording(tmp_path / "cycle.csv", *recording_from_trajectory(run))
+    cycle = make_target(load_recording(path), 5e-4)
+    assert cycle.window_cost < TOL_ABS and margin_floors([cycle])[0] == TOL_ABS
+
+
 def _held_m000_records(tmp_path):
     """Paper 000's model recorded as the HWIL did (issue 11's case, made here by the kernel at
     1e-4 s): controller held at 200 Hz, 40 s at 200 Hz after a 10 s lead, noise 2e-5 rad,

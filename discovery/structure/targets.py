@@ -296,6 +296,10 @@ class CycleTarget(_Target):
                                 np.full(2 * N_HARMONICS, HARMONIC_TOLERANCE * self.scale)])
         #: one unit of each residual: the floor, widened by the cycle's own wander
         self.unit = np.sqrt(floor**2 + self.wander**2)
+        #: cost the generating model pays for the simulated window's own wander alone (a window
+        #: of WINDOW_PERIODS wanders as PERIODS / WINDOW_PERIODS times the pieces' variance); a
+        #: cost difference of that size is no evidence (:func:`.discover.margin_floors`)
+        self.window_cost = float(np.mean(self.wander**2 * (PERIODS / WINDOW_PERIODS) / self.unit**2))
         self._observed = self._features(self.omega, self.harmonics)
         self._tail = (t, d, np.asarray(ups))
         #: runs simulated again from the second start (:meth:`residuals`)
@@ -444,6 +448,8 @@ class OutputTarget(_Target):
     """
 
     kind = "open"
+    #: a simulation from rest has no window to wander (:attr:`CycleTarget.window_cost`)
+    window_cost = 0.0
 
     def __init__(self, recording, dt):
         self.recording = recording
