@@ -725,7 +725,7 @@ def margin_floors(targets):
     Re-evaluated on the 22 benchmark rows that keep their ranking, this floor changes two
     verdicts: 1000 (truth back in a set of 2) and 1023 (a set of 3 becomes 4).
     """
-    return np.array([max(TOL_ABS, float(getattr(t, "window_cost", 0.0))) for t in targets])
+    return np.array([max(TOL_ABS, t.window_cost) for t in targets])
 
 
 def indistinguishable_margin(best_units, other_units, n_recordings, floors=None):
