@@ -399,7 +399,9 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
     return OK, n_steps
 
 
-@njit(cache=True, parallel=True)
+# nogil: discovery simulates several recordings (and refinements) from Python threads at once;
+# a one-set batch alone keeps one core busy.
+@njit(cache=True, parallel=True, nogil=True)
 def simulate_batch_kernel(
     p, ctrl, bp_a, bp_b, bp_c, u_cmd, exp_index, noise, dt, n_steps, decimation, out, status
 ):

@@ -17,6 +17,7 @@ from models.hypotheses import ActuatorParams
 from models.hypotheses import hypothesis as get_hypothesis
 from models.recording import Recording, load_recording
 
+from ..threads import one_blas_thread
 from .backend import CheckpointBackend
 from .likelihood import (DEFAULT_FEATURES, LIKELIHOODS, SETTLING_PERTURBATION, FeatureTerm,
                          IllPosedLikelihoodWarning, WaveformTerm, make_term)
@@ -774,6 +775,10 @@ class Calibration:
         (:class:`.runner.ConvergenceReport`), ``sampler_``, ``log_posterior_``, ``terms_``,
         ``priors_``, ``truths_``, ``sigma_hat_``.
         """
+        with one_blas_thread():  # the kernels own the cores (:mod:`discovery.threads`)
+            return self._fit(recordings)
+
+    def _fit(self, recordings):
         self.setup(recordings)
         backend = None
         if self.backend is not None:

@@ -45,8 +45,10 @@ from models.linear import second_order_response
 from models.recording import Recording, load_recording
 from models.structures import Structure, shared_choices, structure_space
 
+from ..threads import one_blas_thread
 from .coordinates import SearchSpace, UnknownParameterError
-from .search import Objective, distinct_members, global_search, local_sd, refine
+from .search import (Objective, concurrent_map, distinct_members, global_search, local_sd, refine,
+                     refine_all)
 from .targets import make_target
 
 __all__ = ["StructureDiscovery", "StructureFit", "SearchSizes", "SEARCHES", "validate_recordings",
@@ -387,6 +389,11 @@ class StructureDiscovery:
         return best
 
     def fit(self, recordings):
+        """Screen, search, refine and rank every structure on ``recordings``; returns ``self``."""
+        with one_blas_thread():  # the kernels own the cores (:mod:`discovery.threads`)
+            return self._fit(recordings)
+
+    def _fit(self, recordings):
         t_start = time.perf_counter()
         timings = {}
         if self.search not in SEARCHES:
@@ -455,19 +462,32 @@ class StructureDiscovery:
 
         t0 = time.perf_counter()
         rest = [s for s in kept if s not in fits]
-        rest.sort(key=lambda s: -len(s.components))
-        for s in _progress(rest, "nested structures", self.progress):
-            parent = min((f for f in fits.values() if _is_nested(s, f.structure)),
-                         key=lambda f: f.cost, default=None)
-            if parent is None:
-                fr = self._fit_global(spaces[s], objective, rng, [])
-                origin = "global search"
-            else:
+        bar = _progress_bar(len(rest), "nested structures", self.progress)
+        # level by level, largest first: a parent has more components, so the structures of one
+        # level are refined concurrently from parents already fitted (the loop's result)
+        for size in sorted({len(s.components) for s in rest}, reverse=True):
+            level = [s for s in rest if len(s.components) == size]
+            parents = {s: min((f for f in fits.values() if _is_nested(s, f.structure)),
+                              key=lambda f: f.cost, default=None) for s in level}
+            done = {}
+            for s in (s for s in level if parents[s] is None):  # in order: the rng's draws
+                done[s] = (self._fit_global(spaces[s], objective, rng, []), "global search")
+                bar.update()
+
+            def from_parent(s):
+                parent = parents[s]
                 start = s.to_params(parent.params, **_reduced_values(parent.params, s))
                 fr = refine(spaces[s], objective, spaces[s].coordinates(start),
                             max_nfev=self.sizes_.nfev)
-                origin = f"least squares from {parent.structure.name} with the component removed"
-            fits[s] = self._fit_record(s, spaces[s], fr, origin, sindy.get(s.name, []))
+                bar.update()
+                return fr, f"least squares from {parent.structure.name} with the component removed"
+
+            adopted = [s for s in level if parents[s] is not None]
+            done.update(zip(adopted, concurrent_map(from_parent, adopted)))
+            for s in level:
+                fr, origin = done[s]
+                fits[s] = self._fit_record(s, spaces[s], fr, origin, sindy.get(s.name, []))
+        bar.close()
         self.repaired_ = self._repair_supersets(fits, spaces, objective)
         self.repaired_ += self._seed_from_best(fits, spaces, objective)
         timings["nested"] = time.perf_counter() - t0
@@ -537,13 +557,19 @@ class StructureDiscovery:
                       if i < self.max_ranked or (f.cost <= limit and i < MAX_RANKED)]
         for f in order[len(candidates):]:
             f.score, f.criterion = math.inf, "not ranked (in-sample cost far from the best)"
-        for f in _progress(candidates, "two-fold out-of-sample ranking", self.progress):
-            per_unit = np.zeros((2, len(targets)))
-            for k in (0, 1):
-                fr = refine(spaces[f.structure], objective, f.theta,
-                            max_nfev=self.sizes_.rank_nfev, targets=fit_on[k])
-                per_unit[k] = objective.costs([spaces[f.structure].params(fr.theta)],
-                                              fit_on[1 - k])[0]
+        bar = _progress_bar(2 * len(candidates), "two-fold out-of-sample ranking", self.progress)
+
+        def held_out(task):  # one structure's refit on one fold, scored on the other
+            f, k = task
+            fr = refine(spaces[f.structure], objective, f.theta,
+                        max_nfev=self.sizes_.rank_nfev, targets=fit_on[k])
+            bar.update()
+            return objective.costs([spaces[f.structure].params(fr.theta)], fit_on[1 - k])[0]
+
+        scored = iter(concurrent_map(held_out, [(f, k) for f in candidates for k in (0, 1)]))
+        bar.close()
+        for f in candidates:
+            per_unit = np.array([next(scored), next(scored)])
             f.fold_costs = per_unit
             f.held_out = {t.name: float(per_unit[:, i].mean()) for i, t in enumerate(targets)}
             f.score = float(per_unit.sum(axis=1).mean())
@@ -582,11 +608,14 @@ class StructureDiscovery:
         Returns the structures the superset repair that follows refitted.
         """
         best = min(fits.values(), key=lambda f: f.cost)
-        for s in sorted(fits, key=lambda s: s.name):
-            if s == best.structure or fits[s].cost <= best.cost:
-                continue
-            self._keep_better(fits, spaces, objective, s, transferred(best.params, s),
-                              f"least squares from the optimum of {best.structure.name}")
+        chosen = [s for s in sorted(fits, key=lambda s: s.name)
+                  if s != best.structure and fits[s].cost > best.cost]
+        refined = concurrent_map(  # independent refinements from one start each
+            lambda s: refine(spaces[s], objective, spaces[s].coordinates(transferred(best.params, s)),
+                             max_nfev=self.sizes_.nfev), chosen)
+        for s, fr in zip(chosen, refined):
+            self._keep_better(fits, spaces, objective, s, None,
+                              f"least squares from the optimum of {best.structure.name}", fr)
         return self._repair_supersets(fits, spaces, objective)
 
     def _repair_supersets(self, fits, spaces, objective):
@@ -597,22 +626,32 @@ class StructureDiscovery:
         landscape rugged); the superset is refined from the nested optimum with the component
         switched on small.
         """
-        repaired = []
-        for s in sorted(fits, key=lambda s: len(s.components)):
+        def repair(s):
+            fixed = False
             for comp in s.components:
                 sub = fits.get(s.without(comp))
                 if sub is None or fits[s].cost <= sub.cost * (1 + 1e-3):
                     continue
                 start = s.to_params(sub.params, **_widen(sub.params, s))
-                if self._keep_better(fits, spaces, objective, s, start,
-                                     f"least squares from {sub.structure.name} with {comp} added"):
-                    repaired.append(s.name)
+                fixed |= self._keep_better(fits, spaces, objective, s, start,
+                                           f"least squares from {sub.structure.name} with {comp} added")
+            return fixed
+
+        repaired = []
+        order = sorted(fits, key=lambda s: len(s.components))
+        # level by level, smallest first: a structure's nested ones have fewer components, so
+        # one level's repairs read only fits already final (the loop's result, concurrently)
+        for size in sorted({len(s.components) for s in order}):
+            level = [s for s in order if len(s.components) == size]
+            repaired += [s.name for s, fixed in zip(level, concurrent_map(repair, level)) if fixed]
         return repaired
 
-    def _keep_better(self, fits, spaces, objective, s, start, origin):
-        """Refine ``s`` from ``start``; replace its fit (keeping SINDy's seeds) if the cost drops."""
-        fr = refine(spaces[s], objective, spaces[s].coordinates(start),
-                    max_nfev=self.sizes_.nfev)
+    def _keep_better(self, fits, spaces, objective, s, start, origin, fr=None):
+        """Refine ``s`` from ``start`` (or take the refined ``fr``); replace its fit (keeping
+        SINDy's seeds) if the cost drops."""
+        if fr is None:
+            fr = refine(spaces[s], objective, spaces[s].coordinates(start),
+                        max_nfev=self.sizes_.nfev)
         if fr.cost >= fits[s].cost:
             return False
         seeds = fits[s].sindy_seeds
@@ -695,8 +734,9 @@ def _searched(box, space, objective, rng, starts, pop, gens, nfev, targets=None)
     member and from the runners-up in other basins (a short search often ends before one basin has
     won); the best refined fit."""
     de = global_search(box, objective, rng, seeds=starts, popsize=pop, maxiter=gens, targets=targets)
-    fits = [refine(space, objective, s, max_nfev=nfev, targets=targets)
-            for s in distinct_members(de.population, de.population_costs, box, N_STARTS)]
+    fits = refine_all(space, objective,
+                      distinct_members(de.population, de.population_costs, box, N_STARTS),
+                      max_nfev=nfev, targets=targets)
     return min(fits, key=lambda f: f.cost)
 
 
@@ -897,3 +937,20 @@ def _progress(items, desc, enabled):
     from tqdm.auto import tqdm
 
     return tqdm(items, desc=desc, leave=False)
+
+
+class _NoBar:
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
+
+
+def _progress_bar(total, desc, enabled):
+    """A bar that concurrent tasks advance (tqdm's ``update`` holds a lock)."""
+    if not enabled:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, leave=False)

@@ -9,20 +9,47 @@
   finite-difference Jacobian computed as one batch.
 * :func:`local_sd` -- Gauss-Newton spread of each coordinate at a fit: the change that raises the
   cost by one unit (a 1 % error); large values mark what the recordings do not decide.
+
+Threads: the batch kernel releases the GIL, so the recordings of one evaluation are simulated
+concurrently (a refinement's one-set batches otherwise keep one core busy), and so are the
+refinements of a search's distinct candidates (:func:`refine_all`). Every evaluation is
+deterministic, so the results do not depend on the threads' order.
 """
 from __future__ import annotations
 
 import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import differential_evolution, least_squares
 from scipy.stats import qmc
 
-__all__ = ["Objective", "FitResult", "global_search", "refine", "local_sd", "distinct_members"]
+__all__ = ["Objective", "FitResult", "global_search", "refine", "refine_all", "concurrent_map",
+           "local_sd", "distinct_members"]
 
 #: Finite-difference step of the Jacobian in internal coordinates (0.2 % in the logs).
 FD_STEP = 2e-3
+#: Threads simulating recordings concurrently, and refinements (or tasks) run concurrently
+#: (separate pools: a task waits on its refinements, a refinement on its recordings).
+TARGET_THREADS = 4
+REFINE_THREADS = 3
+#: ``False`` runs every map as a plain loop (the tests compare both).
+THREADED = True
+_pools = {}
+_pools_lock = threading.Lock()
+
+
+def _map(name, workers, fn, items):
+    """``[fn(x) for x in items]``, in pool ``name``'s threads when :data:`THREADED`."""
+    items = list(items)
+    if not THREADED or len(items) <= 1:
+        return [fn(x) for x in items]
+    with _pools_lock:
+        if name not in _pools:
+            _pools[name] = ThreadPoolExecutor(workers, thread_name_prefix=f"tvcid-{name}")
+    return list(_pools[name].map(fn, items))
 
 
 class Objective:
@@ -37,6 +64,7 @@ class Objective:
     def __init__(self, targets):
         self.targets = list(targets)
         self.n_evaluations = 0
+        self._lock = threading.Lock()
 
     def _sets_for(self, target, param_sets):
         if target.initial_conditions() is None:
@@ -47,16 +75,18 @@ class Objective:
         """Residual blocks ``[(n, m_i)]``, one per target; invalid sets get penalty rows."""
         from .targets import PENALTY
 
-        self.n_evaluations += sum(p is not None for p in param_sets)
-        out = []
-        for target in targets or self.targets:
+        with self._lock:
+            self.n_evaluations += sum(p is not None for p in param_sets)
+
+        def block(target):
             sets = self._sets_for(target, param_sets)
             r = target.residuals(sets)
             bad = np.array([p is None for p in sets])
             if bad.any():
                 r[bad] = PENALTY / math.sqrt(r.shape[1])
-            out.append(r)
-        return out
+            return r
+
+        return _map("targets", TARGET_THREADS, block, targets or self.targets)
 
     def costs(self, param_sets, targets=None):
         """Cost per target, ``(n, n_targets)``: sum of squared residuals (one unit ~ 1 % error)."""
@@ -157,16 +187,18 @@ def distinct_members(population, costs, space, n, min_distance=0.1):
 
 def refine(space, objective, theta0, max_nfev=40, targets=None):
     """Trust-region least squares from ``theta0`` (batched finite-difference Jacobian)."""
-    n0 = objective.n_evaluations
     lo, hi = space.low, space.high
     theta0 = np.clip(np.asarray(theta0, dtype=float), lo, hi)
     cache = {}
+    count = [2]  # the two costs below; counted here, not from the objective, which concurrent
+    # refinements share
 
     def fun(th):
         key = th.tobytes()
         if key not in cache:
             cache.clear()
             cache[key] = objective.residuals([space.params(th)], targets)[0]
+            count[0] += 1
         return cache[key]
 
     def jac(th):
@@ -174,6 +206,7 @@ def refine(space, objective, theta0, max_nfev=40, targets=None):
         r0 = fun(th)
         steps = np.where(th + FD_STEP <= hi, FD_STEP, -FD_STEP)
         r = objective.residuals([space.params(p) for p in th + np.diag(steps)], targets)
+        count[0] += len(steps)
         return (r - r0).T / steps
 
     res = least_squares(fun, theta0, jac=jac, bounds=(lo, hi), method="trf", x_scale=1.0,
@@ -183,7 +216,22 @@ def refine(space, objective, theta0, max_nfev=40, targets=None):
     start = _batch_cost(space, objective, [theta0], targets)[0]
     if start.sum() < cbt.sum():  # least_squares never worsens, but the penalty plateaus can
         theta, cbt = theta0, start
-    return FitResult(theta, float(cbt.sum()), cbt, objective.n_evaluations - n0)
+    return FitResult(theta, float(cbt.sum()), cbt, count[0])
+
+
+def refine_all(space, objective, starts, max_nfev=40, targets=None):
+    """:func:`refine` from each of ``starts`` (run concurrently); the fits in the same order."""
+    return _map("refine", REFINE_THREADS,
+                lambda s: refine(space, objective, s, max_nfev=max_nfev, targets=targets), starts)
+
+
+def concurrent_map(fn, items):
+    """``[fn(x) for x in items]`` with the calls run concurrently, results in order.
+
+    For independent, deterministic tasks (a refinement per structure): the result is the loop's.
+    ``fn`` may call :func:`refine_all` and the objective (their own threads), not this function.
+    """
+    return _map("tasks", REFINE_THREADS, fn, items)
 
 
 def local_sd(space, objective, theta, targets=None):

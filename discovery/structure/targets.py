@@ -28,6 +28,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import threading
 
 import numpy as np
 
@@ -87,6 +88,7 @@ TAIL_TOLERANCE = 0.15
 MIN_HALF_PERIODS = 2
 #: Blocks an open-loop record is cut into for the ranking's folds (even blocks, odd blocks).
 OUTPUT_BLOCKS = 8
+_COUNT_LOCK = threading.Lock()
 
 
 class NoCycleError(ValueError):
@@ -405,7 +407,8 @@ class CycleTarget(_Target):
             better = np.sum(r2 * r2, axis=1) < cost[redo]
             rows = np.asarray(redo)[better]
             delta[rows], ok[rows], res[rows] = d2[better], ok2[better], r2[better]
-        self.second_starts += len(redo)
+        with _COUNT_LOCK:  # concurrent refinements share the target
+            self.second_starts += len(redo)
         return delta, ok, res
 
     def residuals_of_runs(self, delta, ok):
