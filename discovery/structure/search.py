@@ -12,8 +12,9 @@
 
 Threads: the batch kernel releases the GIL, so the recordings of one evaluation are simulated
 concurrently (a refinement's one-set batches otherwise keep one core busy), and so are the
-refinements of a search's distinct candidates (:func:`refine_all`). Every evaluation is
-deterministic, so the results do not depend on the threads' order.
+refinements of a search's distinct candidates (:func:`refine_all`) and other independent tasks
+(:func:`concurrent_map`). Every evaluation is deterministic, so the results do not depend on the
+threads' order (``tests/test_threads.py``).
 """
 from __future__ import annotations
 
@@ -190,8 +191,7 @@ def refine(space, objective, theta0, max_nfev=40, targets=None):
     lo, hi = space.low, space.high
     theta0 = np.clip(np.asarray(theta0, dtype=float), lo, hi)
     cache = {}
-    count = [2]  # the two costs below; counted here, not from the objective, which concurrent
-    # refinements share
+    count = [2]  # the two costs below; not read off the objective, which refinements share
 
     def fun(th):
         key = th.tobytes()
