@@ -939,18 +939,9 @@ def _progress(items, desc, enabled):
     return tqdm(items, desc=desc, leave=False)
 
 
-class _NoBar:
-    def update(self, n=1):
-        pass
-
-    def close(self):
-        pass
-
-
 def _progress_bar(total, desc, enabled):
-    """A bar that concurrent tasks advance (tqdm's ``update`` holds a lock)."""
-    if not enabled:
-        return _NoBar()
+    """A bar that concurrent tasks advance (tqdm's ``update`` holds a lock); silent unless
+    ``enabled``."""
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, leave=False)
+    return tqdm(total=total, desc=desc, leave=False, disable=not enabled)
