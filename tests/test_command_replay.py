@@ -221,7 +221,7 @@ def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path, mon
     assert term.refine_at(truth).sim_dt == 2.5e-4
 
 
-@pytest.mark.parametrize("index, hunts", [(5, True), (7, False)])
+@pytest.mark.parametrize("index, hunts", [(5, True), (7, False), (18, True)])
 def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunts):
     """Coverage draw 5's square (band-pass loop, backlash, friction offset): the output hunts on
     every plateau, so the grid's response shifted to other edges is not the response to them
@@ -230,7 +230,10 @@ def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunt
     when simulated at the centre), and fits to under a tenth of the noise (1.7e-6). Draw 7's
     square settles: shifting the grid's response is then as good as simulating the edges where
     they are (both loads under 0.1; since the stage average of a piecewise command is its exact
-    integral, the centre's is the smaller, 0.004 against 0.016, and either way may be taken)."""
+    integral, the centre's is the smaller, 0.004 against 0.016, and either way may be taken).
+    Draw 18's 2.56 Hz square at 200 Hz (band-pass loop) hunts too, but its centre edges fall on
+    the grid, where both ways are one simulation (loads 0.76 each): the way is chosen at the
+    record's own timing, 2.4 ms from the centre (grid 249, its own edges 5.7)."""
     from models.recording import Recording
     from models.reference import simulate_reference
     from studies.bench_coverage import Config, coverage_scenario
@@ -246,7 +249,7 @@ def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunt
     term.sigma_hat = noise  # the noise-free record stands for one with the draw's noise
     term.setup(truth, warm_start=False)
     loads = term.edge_loads_  # chi-square against the centre edges simulated 8x finer
-    assert (loads["grid"] > 10 * loads["centre"]) is hunts
+    assert (loads["grid_at_timing"] > 10 * loads["centre_at_timing"]) is hunts
     if hunts:
         assert not term.edges_on_grid
     else:

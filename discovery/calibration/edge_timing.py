@@ -105,14 +105,18 @@ class EdgeTiming:
         self.grid = grid
         self.experiment = OpenLoop.piecewise(grid, self.levels)
 
-    def simulate_at(self, theta, dt):
+    def simulate_at(self, theta, dt, on_grid=False):
         """Simulate the edges at timing ``theta`` where they are (off the step grid; shifts are
         then taken from there): for a response that does not settle between edges, whose shifted
         copy errs in proportion to the shift (coverage draw 5's square, 4 s: theta 0.9 ms from
-        the centre, rms 2.9e-5 rad against noise 8.9e-5 when simulated at the centre)."""
+        the centre, rms 2.9e-5 rad against noise 8.9e-5 when simulated at the centre).
+        ``on_grid`` rounds them to the grid of step ``dt`` (shifts then under ``dt / 2``)."""
         theta = np.asarray(theta, dtype=float)
         off = theta[0] + (self.index * theta[1] if self.dim == 2 else 0.0)
-        grid = np.maximum(self.centre + off, dt)
+        grid = self.centre + off
+        if on_grid:
+            grid = np.round(grid / dt) * dt
+        grid = np.maximum(grid, dt)
         if np.any(np.diff(grid) <= 0):
             raise ValueError("edges closer than the solver's step")
         self.grid = grid
