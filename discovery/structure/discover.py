@@ -440,7 +440,7 @@ class StructureDiscovery:
                 group = [s for s in members if s.bandpass == bandpass]
                 if group:
                     tops.append(max(group, key=lambda s: len(s.components)))
-        bar = _progress(tops, "global search", self.progress)
+        bar = _progress_bar(tops, "global search", self.progress)
         for s in bar:
             seeds = list(sindy.get(s.name, []))
             for other, plist in sindy.items():  # nested proposals seed their parents too
@@ -500,7 +500,7 @@ class StructureDiscovery:
                 f"cost {best_fit.cost:.3g}); check the "
                 "fixed parameters and the sidecars' controller settings")
         t0 = time.perf_counter()
-        ranked = self._rank(fits, spaces)
+        ranked, rank_evaluations = self._rank(fits, spaces)
         timings["ranking"] = time.perf_counter() - t0
         best = ranked[0]
         for f in [g for g in ranked if g.indistinguishable_from_best]:
@@ -515,7 +515,7 @@ class StructureDiscovery:
         self.noise_ = {t.name: (t.noise(best.params) if t.kind == "open" else self._noise_of(t.recording))
                        for t in targets}
         self.fixed_ = dict(self.fixed or {})
-        self.n_simulations_ = objective.n_evaluations + self._rank_evaluations
+        self.n_simulations_ = objective.n_evaluations + rank_evaluations
         timings["total"] = time.perf_counter() - t_start
         self.timings_ = timings
         self.searches_ = dict(self._searches)
@@ -545,6 +545,8 @@ class StructureDiscovery:
         0.637 for the delay before the integrator, its squares' residual 1.4e-5 rad rms at the
         truth against a noise of 1.2e-5; at 2.5e-4 s the three delay positions fit at
         0.638-0.647, as indistinguishable as they are.
+
+        Returns the ranked fits (:func:`indistinguishable_set`) and the simulations the refits ran.
         """
         order = sorted(fits.values(), key=lambda f: f.cost)
         targets = [make_target(t.recording, self.dt / RANK_OPEN_LOOP_REFINEMENT)
@@ -575,9 +577,9 @@ class StructureDiscovery:
             f.score = float(per_unit.sum(axis=1).mean())
             f.criterion = ("two-fold out-of-sample cost (fit on one half of every recording, "
                            "scored on the other; mean of both ways)")
-        self._rank_evaluations = objective.n_evaluations
-        return indistinguishable_set(sorted(order, key=lambda f: (f.score, f.cost)), len(targets),
-                                     floors=margin_floors(targets))
+        ranked = indistinguishable_set(sorted(order, key=lambda f: (f.score, f.cost)), len(targets),
+                                       floors=margin_floors(targets))
+        return ranked, objective.n_evaluations
 
     def _cross_seed(self, fits, spaces, objective, n_sources=2):
         """Refine each searched structure from the better optima of its delay-position siblings.
@@ -931,17 +933,11 @@ def _valid(seeds, s):
     return out
 
 
-def _progress(items, desc, enabled):
-    if not enabled:
-        return items
+def _progress_bar(work, desc, enabled):
+    """A tqdm bar, silent unless ``enabled``: over ``work`` when it is a sequence, else of
+    ``work`` steps that concurrent tasks advance (tqdm's ``update`` holds a lock)."""
     from tqdm.auto import tqdm
 
-    return tqdm(items, desc=desc, leave=False)
-
-
-def _progress_bar(total, desc, enabled):
-    """A bar that concurrent tasks advance (tqdm's ``update`` holds a lock); silent unless
-    ``enabled``."""
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, leave=False, disable=not enabled)
+    if isinstance(work, int):
+        return tqdm(total=work, desc=desc, leave=False, disable=not enabled)
+    return tqdm(work, desc=desc, leave=False, disable=not enabled)
