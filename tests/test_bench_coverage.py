@@ -108,3 +108,32 @@ def test_oracle_replay_chi_square_sees_a_sines_chords(capsys):
     with pytest.raises(SystemExit):
         oracle_main(["3", "4"])
     assert "--replay-only" in capsys.readouterr().err
+
+
+def test_widening_compares_interval_widths_with_and_without_the_discrepancy_term():
+    """``widening`` divides each parameter's 90 % width with the term by its width without it,
+    pairs draws by index (a draw run one way only is left out) and counts ratios within 1.2."""
+    from studies.bench_coverage import widening
+
+    def row(index, widths, inflation=(1.0,)):
+        return {"index": index, "inflation": list(inflation), "converged": True,
+                "parameters": {n: {"q05": 1.0, "q95": 1.0 + w, "inside": True}
+                               for n, w in widths.items()}}
+
+    on = [row(13, {"dead_zone": 0.3, "delay": 0.1}, (2.7, 1.0)), row(15, {"dead_zone": 0.2})]
+    off = [row(13, {"dead_zone": 0.2, "delay": 0.1}), row(25, {"dead_zone": 0.1})]
+    result = widening(on, off)
+    (draw,) = result["draws"]
+    assert draw["index"] == 13 and draw["inflation"] == [2.7, 1.0]
+    assert draw["parameters"]["dead_zone"]["ratio"] == pytest.approx(1.5)
+    assert draw["parameters"]["delay"]["ratio"] == pytest.approx(1.0)
+    assert result["intervals"] == 2 and result["within_20_percent"] == 1
+    assert result["max_ratio"] == pytest.approx(1.5)
+
+
+def test_widening_without_finished_draws_says_so(tmp_path, capsys):
+    """``--widening`` before the benchmark has rows in DIR: exit 1 and a message naming the file."""
+    from studies.bench_coverage import main as bench_main
+
+    assert bench_main(["--quick", "--widening", "--out", str(tmp_path)]) == 1
+    assert "no finished draws" in capsys.readouterr().out
