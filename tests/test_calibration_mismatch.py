@@ -40,7 +40,20 @@ def test_correlated_excess_is_inflated_by_its_variance_and_correlation():
     for i in range(1, r.size):
         r[i] = 0.9 * r[i - 1] + np.sqrt(1 - 0.81) * e[i]
     assert waveform_inflation(2.0 * r, 1.0) == pytest.approx(76.0, rel=0.2)
-    assert features_inflation(np.full(5, 10.0)) == pytest.approx(100.0)
+    # features: the chi-square's excess over its 95 % quantile (11.07 for k = 5), per feature
+    assert features_inflation(np.full(5, 10.0)) == pytest.approx(1.0 + (500.0 - 11.0705) / 5, rel=1e-4)
+
+
+def test_features_inflation_starts_from_one_at_the_tests_threshold():
+    """No jump at the threshold: a chi-square just past the 95 % quantile inflates by almost
+    nothing (the rule before jumped to chi2 / k = 2.2 there); the factor grows with the excess."""
+    k, q = 5, 11.0705
+    below = np.full(k, np.sqrt((q - 0.01) / k))
+    above = np.full(k, np.sqrt((q + 0.01) / k))
+    assert features_inflation(below) == 1.0
+    assert 1.0 < features_inflation(above) < 1.01
+    factors = [features_inflation(np.full(k, np.sqrt(c / k))) for c in (15.0, 30.0, 100.0)]
+    assert factors == sorted(factors) and factors[0] == pytest.approx(1.0 + (15.0 - q) / k, rel=1e-4)
 
 
 @pytest.fixture(scope="module")

@@ -100,16 +100,26 @@ def waveform_inflation(residuals, sigma) -> float:
 
 
 def features_inflation(whitened) -> float:
-    """Covariance inflation of a features likelihood for model discrepancy: ``chi2 / k`` of the
-    whitened residuals at the maximum a posteriori when ``chi2`` lies beyond the ``1 -
-    DISCREPANCY_P`` quantile of a chi-square with ``k`` degrees of freedom, else 1."""
+    """Covariance inflation of a features likelihood for model discrepancy.
+
+    ``1 + (chi2 - q) / k`` for the ``k`` whitened residuals at the maximum a posteriori, where
+    ``q`` is the ``1 - DISCREPANCY_P`` quantile of a chi-square with ``k`` degrees of freedom; 1
+    when ``chi2 <= q``. Only the misfit beyond what sensor noise makes in all but
+    ``DISCREPANCY_P`` of records counts, so the factor starts from 1 at the test's threshold
+    instead of jumping to ``q / k`` (2.2 for five features), and tends to ``chi2 / k`` for a large
+    misfit. The jump made the test's false alarms on right models (one record in twenty by
+    construction) cost up to 1.5x in interval width: coverage draw 13, the truth's own structure
+    with a tail noise realisation (chi-square 14.8 at the truth, 13.3 at the maximum), was inflated
+    2.66x, its backlash's interval 24 % wider; now 1.45x.
+    """
     from scipy.stats import chi2 as chi2_dist
 
     z = np.asarray(whitened, dtype=float)
     if not np.all(np.isfinite(z)):
         return 1.0
-    k, q = z.size, float(np.sum(z * z))
-    return q / k if q > chi2_dist.ppf(1.0 - DISCREPANCY_P, k) else 1.0
+    k, chi2 = z.size, float(np.sum(z * z))
+    q = float(chi2_dist.ppf(1.0 - DISCREPANCY_P, k))
+    return 1.0 + (chi2 - q) / k if chi2 > q else 1.0
 
 #: A trend of the features across the window's pieces counts as a cycle still settling beyond
 #: this many noise-only standard errors of its slope ...
