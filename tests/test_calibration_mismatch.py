@@ -149,3 +149,33 @@ def test_a_point_short_of_the_maximum_is_not_read_as_discrepancy(square):
     assert z is not None
     assert cal._inflations_at(lp, z) == [1.0]
     assert [t.inflation for t in cal.terms_] == factors  # restored: the caller sets them
+
+
+def test_a_sampled_noise_sd_does_not_undo_the_inflation(square):
+    """Where the noise sd is sampled (``"sigma"``), the inflation must not be absorbed by it. An
+    inflated variance ``sigma^2 f`` was: its maximum over ``sigma`` moved to ``sqrt(RSS / n f)``,
+    and the physical parameters' curvature there was what it was without the term (coverage draw
+    18, an open-loop factor of 1.36: intervals 4-7 % narrower with the term than without). The
+    tempered likelihood keeps the noise sd's maximum where it is and divides the physical
+    parameters' curvature by ``f``."""
+    from models import M002
+
+    base = M002()
+    base = base.replace(gain=base.gain * 1.3)  # a wrong model: a smooth misfit over the noise
+    cal = Calibration(base, params=("dead_zone", "sigma"), n_walkers=12, seed=1).setup([square])
+    term = cal.terms_[0]
+    sigmas = np.geomspace(1e-5, 1e-1, 1201)
+    near = [base.replace(dead_zone=base.dead_zone * (1 + e)) for e in (-0.02, 0.0, 0.02)]
+
+    def profile(f):
+        term.inflation = f
+        ll = term.loglike([base] * sigmas.size, sigmas)
+        best = sigmas[int(np.argmax(ll))]
+        at = term.loglike(near, np.full(3, best))
+        return best, at[0] + at[2] - 2.0 * at[1]
+
+    (s1, c1), (s4, c4) = profile(1.0), profile(4.0)
+    term.inflation = 1.0
+    assert 2e-5 < s1 < 0.09  # inside the grid: the misfit's rms
+    assert s4 == pytest.approx(s1, rel=0.02)  # inflated variance: s4 = s1 / 2
+    assert c4 == pytest.approx(c1 / 4.0, rel=0.05)
