@@ -144,65 +144,6 @@ SETTLING_SLOPE_SD = 3.0
 SETTLING_R2 = 0.8
 #: ... and the settled features are then unknown by this many times the drift over the window.
 SETTLING_WINDOWS = 2.0
-#: Over the whole record, an exponential approach must explain the pieces' features this much
-#: better than a constant (chi-square gain, in units of the fit's own residual variance: an F of
-#: 50, p ~ 1e-5 at 12 pieces; at 25, two settled records whose pieces scatter beyond their noise,
-#: coverage draws 1 and 13, took gaps of 6-8 noise sd their truths do not have) ...
-SETTLING_FIT_GAIN = 100.0
-#: ... and every time constant whose fit lies within this chi-square of the best counts.
-SETTLING_PROFILE_CHI2 = 4.0
-#: At least this many pieces of the record (three parameters and three degrees of freedom).
-SETTLING_MIN_PIECES = 6
-
-
-def exponential_settling_variance(centres, values, noise_var, window_start) -> float:
-    """How far a record's window may sit from the cycle it settles to: a variance (feature units).
-
-    The pieces' features ``values`` at times ``centres`` (s, increasing; sensor-noise variance
-    ``noise_var`` each) are fitted by ``a + b exp((c_last - c) / T)`` over a grid of time constants
-    ``T``; the gap is the fitted curve's mean over the pieces from ``window_start`` on, minus the
-    settled ``a``. Returned: the largest squared gap over the time constants within
-    :data:`SETTLING_PROFILE_CHI2` of the best fit plus the gap's least-squares variance, both in
-    units of the fit's residual variance when that exceeds the noise (a two-mode settling is not
-    one exponential); 0 unless the approach beats a constant by :data:`SETTLING_FIT_GAIN`.
-
-    A drawn truth (coverage draw 15, dead zone on the velocity signal with a friction offset)
-    settles with a ~4.5 s time constant; its record's last 10 s sat 8 sd of the noise under the
-    settled H1, and the window's own four pieces showed no clear trend. Over the record's 12
-    pieces the fit puts the gap at 5.6-8.0 sd.
-    """
-    c = np.asarray(centres, dtype=float)
-    f = np.asarray(values, dtype=float)
-    w = 1.0 / np.maximum(np.asarray(noise_var, dtype=float), 1e-300)
-    n = c.size
-    if n < SETTLING_MIN_PIECES or not np.all(np.isfinite(f)):
-        return 0.0
-    chi_constant = float(np.sum(w * (f - np.sum(w * f) / np.sum(w)) ** 2))
-    window = c >= window_start
-    if not np.any(window):
-        return 0.0
-    span = c[-1] - c[0]
-    fits = []
-    for T in np.geomspace(0.25 * (c[1] - c[0]), span, 200):
-        e = np.exp((c[-1] - c) / T)
-        X = np.stack([np.ones(n), e], axis=1)
-        A = X.T @ (X * w[:, None])
-        if np.linalg.cond(A) > 1e12:
-            continue
-        cov = np.linalg.inv(A)
-        beta = cov @ (X.T @ (w * f))
-        chi = float(np.sum(w * (f - X @ beta) ** 2))
-        j = np.array([0.0, float(np.mean(e[window]))])
-        fits.append((chi, float(beta[1] * j[1]), float(j @ cov @ j)))
-    if not fits:
-        return 0.0
-    best = min(fit[0] for fit in fits)
-    scale = max(1.0, best / (n - 3))
-    if (chi_constant - best) / scale < SETTLING_FIT_GAIN:
-        return 0.0
-    kept = [fit for fit in fits if (fit[0] - best) / scale <= SETTLING_PROFILE_CHI2]
-    return max(gap * gap for _, gap, _ in kept) + scale * min(
-        var for chi, _, var in kept if chi == best)
 
 #: The solver's error as a multiple of the change its step-doubling shows: at first order (RK4
 #: near switching events) the coarse step's error is twice that change (Richardson). Waveforms
@@ -744,8 +685,6 @@ class FeatureTerm(_ClosedLoopTerm):
         # from window to window beyond what sensor noise explains; the data's and the simulated
         # window each wander by that much
         self.wander_var, self.settling_var = self._wander_variance(n_segments, n_mc, rng)
-        self.settling_var = np.maximum(self.settling_var,
-                                       self._record_settling_variance(n_segments, rng))
         cov += np.diag(2.0 * self.wander_var + self.settling_var)
         cov += np.diag((float(floor) * np.abs(self.observed)) ** 2)
         cov += np.diag(1e-12 * np.diag(cov) + 1e-300)
@@ -910,52 +849,6 @@ class FeatureTerm(_ClosedLoopTerm):
                 spread = (SETTLING_WINDOWS * relative * self.observed) ** 2
                 settling = np.where(harmonic, spread, settling)
         return wander, settling
-
-    def _record_settling_variance(self, n_segments, rng, n_noise=24):
-        """The settling the whole record shows (:func:`exponential_settling_variance`).
-
-        The window's own pieces see a trend only when it is clear over the window
-        (:meth:`_wander_variance`); a cycle settling with a time constant of a few seconds shows
-        its approach over the record before the window instead. The record is cut, back from its
-        end, into pieces as long as the window's (at least three periods), while a piece still
-        holds a cycle; their frequency and size (H1 or amplitude) are fitted, the harmonics take
-        the size's relative gap. Zeros when the record holds under
-        :data:`SETTLING_MIN_PIECES` pieces.
-        """
-        zero = np.zeros(len(self.features))
-        t, d = np.asarray(self.recording.t, dtype=float), np.asarray(self.recording.delta, dtype=float)
-        length = max(float(self.tau[-1] - self.tau[0]) / max(int(n_segments), 1), 3.0 * self.period)
-        centres, rows = [], []
-        end = float(t[-1])
-        while end - length >= t[0] - 1e-9:
-            sel = (t >= end - length) & (t <= end)
-            try:
-                rows.append(self._data_features_at(t[sel] - t[sel][0], d[sel]))
-            except InsufficientPeriodsError:
-                break
-            centres.append(end - 0.5 * length)
-            end -= length
-        if len(rows) < SETTLING_MIN_PIECES:
-            return zero
-        centres, rows = np.asarray(centres[::-1]), np.asarray(rows[::-1])
-        sel = (t >= t[-1] - length)
-        last = d[sel]
-        noise = np.var([self._data_features_at(t[sel] - t[sel][0],
-                                               last + self.sigma_hat * rng.standard_normal(last.size))
-                        for _ in range(int(n_noise))], axis=0, ddof=1)
-        window_start = float(t[-1] - (self.tau[-1] - self.tau[0]))
-        out = zero.copy()
-        sizes = [i for i, n in enumerate(self.features) if n in ("H1", "amplitude")]
-        for i, name in enumerate(self.features):
-            if name == "frequency" or (sizes and i == sizes[0]):
-                out[i] = exponential_settling_variance(centres, rows[:, i], np.full(len(rows), noise[i]),
-                                                       window_start)
-        if sizes:
-            i = sizes[0]
-            relative = math.sqrt(out[i]) / max(abs(self.observed[i]), 1e-300)
-            harmonic = np.array([n not in ("frequency", self.features[i]) for n in self.features])
-            out = np.where(harmonic, (relative * self.observed) ** 2, out)
-        return out
 
     def _data_features(self, d):
         return self._data_features_at(self.tau, d)
