@@ -73,13 +73,14 @@ def residual_statistics(residuals, sigma):
 
 
 def waveform_inflation(residuals, sigma) -> float:
-    """Variance inflation of an output-error likelihood for model discrepancy.
+    """Discrepancy factor of an output-error likelihood (its log-likelihood is divided by it,
+    :func:`tempered`).
 
     At the maximum a posteriori a right model leaves the sensor's white noise; a wrong or slightly
     wrong one (or a solver whose step error shows at switching events) leaves a structured misfit,
     larger than the noise and correlated over many samples, which a white-noise likelihood reads
-    as thousands of independent confirmations (needle posteriors). The variance is multiplied by
-    the misfit's excess over the noise, ``mean r^2 / sigma^2``, and by the residuals' integrated
+    as thousands of independent confirmations (needle posteriors). The factor is the product of
+    the misfit's excess over the noise, ``mean r^2 / sigma^2``, and the residuals' integrated
     autocorrelation time ``tau`` (samples per independent one; emcee's estimator with Sokal's
     window, c = 5): a generalised-Bayes tempering by what the residuals really hold. Each factor
     counts only beyond what a white residual gives by chance (``3 sqrt(2/n)`` for the variance
@@ -117,7 +118,8 @@ def tempered(loglike, inflation):
 
 
 def features_inflation(whitened) -> float:
-    """Covariance inflation of a features likelihood for model discrepancy.
+    """Discrepancy factor of a features likelihood (its log-likelihood is divided by it,
+    :func:`tempered`).
 
     ``1 + (chi2 - q) / k`` for the ``k`` whitened residuals at the maximum a posteriori, where
     ``q`` is the ``1 - DISCREPANCY_P`` quantile of a chi-square with ``k`` degrees of freedom; 1
@@ -127,7 +129,7 @@ def features_inflation(whitened) -> float:
     misfit. The jump made the test's false alarms on right models (one record in twenty by
     construction) cost up to 1.5x in interval width: coverage draw 13, the truth's own structure
     with a tail noise realisation (chi-square 14.8 at the truth, 13.3 at the maximum), was inflated
-    2.66x, its backlash's interval 24 % wider; now 1.45x.
+    2.66x, its backlash's interval 24 % wider; now 1.44x (12 % wider).
     """
     from scipy.stats import chi2 as chi2_dist
 
@@ -376,7 +378,7 @@ class _ClosedLoopTerm:
         self.recording = recording
         self.name = name or (recording.path.stem if recording.path else "recording")
         self.source = str(recording.path) if recording.path else self.name  # for error messages
-        #: likelihood variance inflation for model discrepancy (set at the MAP by Calibration)
+        #: model-discrepancy factor, the likelihood tempered by it (set at the MAP by Calibration)
         self.inflation = 1.0
         self.experiment = recording.experiment()
         self.window = window
@@ -951,7 +953,7 @@ class OpenLoopTerm(_WaveformSolverError):
         self.n = self.tau.size
         self.sigma_hat = estimate_noise(self.data)
         self.data_rate = float(recording.sample_rate)
-        self.inflation = 1.0  # model-discrepancy inflation (Calibration sets it at the MAP)
+        self.inflation = 1.0  # model-discrepancy factor (tempering; Calibration sets it at the MAP)
         self.warm_start = None
         self.simulator = None
 
