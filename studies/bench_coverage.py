@@ -132,7 +132,7 @@ def coverage_scenario(index, config: Config):
 
 def run_draw(index, config: Config, workdir: Path, discrepancy=True) -> dict:
     """Calibrate draw ``index`` on its own recordings; ``discrepancy=False`` without the
-    model-discrepancy inflation (:func:`widening`)."""
+    model-discrepancy factor that tempers the likelihood (:func:`widening`)."""
     from discovery.calibration import Calibration
     from discovery.calibration.runner import ConvergenceWarning
     from models.structures import Structure
