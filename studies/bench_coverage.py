@@ -189,6 +189,41 @@ def run_draw(index, config: Config, workdir: Path, discrepancy=True) -> dict:
 CODE_COMMIT = code_commit()
 
 
+def run_draws(todo, config: Config, workdir: Path, jobs: int, record, discrepancy=True) -> list:
+    """:func:`run_draw` for every index in ``todo``, ``jobs`` at a time, ``record(row)`` as each
+    finishes. A draw that raises is reported and skipped, not allowed to stop the others (a
+    benchmark of an hour must keep what it finished); returns the failed indices."""
+    failed = []
+
+    def failure(index, exc):
+        failed.append(index)
+        print(f"draw {index} FAILED: {exc!r}", flush=True)
+
+    if jobs > 1 and len(todo) > 1:
+        from concurrent.futures import as_completed
+
+        from .common import process_pool
+
+        with process_pool(jobs) as pool:
+            futures = {pool.submit(run_draw, i, config, workdir, discrepancy): i for i in todo}
+            for fut in as_completed(futures):
+                try:
+                    row = fut.result()
+                except Exception as exc:  # noqa: BLE001 - one draw's failure must not stop the rest
+                    failure(futures[fut], exc)
+                else:
+                    record(row)
+    else:
+        for i in todo:
+            try:
+                row = run_draw(i, config, workdir, discrepancy)
+            except Exception as exc:  # noqa: BLE001 - as above
+                failure(i, exc)
+            else:
+                record(row)
+    return failed
+
+
 def summarise(rows) -> dict:
     """Coverage (truth inside the 90 % interval) and rank histograms per parameter."""
     out = {}
@@ -338,8 +373,6 @@ def main(argv=None) -> int:
               f"{', '.join(map(str, skipped))}", flush=True)
     todo = [i for i in todo if i not in skipped]
 
-    failed = []
-
     def record(row):
         rows.append(row)
         rows.sort(key=lambda r: r["index"])
@@ -350,22 +383,7 @@ def main(argv=None) -> int:
         path.write_text(json.dumps({"config": asdict(config), "rows": rows,
                                     "summary": summarise(rows)}, indent=2))
 
-    if args.jobs > 1 and len(todo) > 1:
-        from concurrent.futures import as_completed
-
-        from .common import process_pool
-
-        with process_pool(args.jobs) as pool:
-            futures = {pool.submit(run_draw, i, config, out / "data"): i for i in todo}
-            for fut in as_completed(futures):
-                try:
-                    record(fut.result())
-                except Exception as exc:  # noqa: BLE001 - one draw's failure must not stop the rest
-                    failed.append(futures[fut])
-                    print(f"draw {futures[fut]} FAILED: {exc!r}", flush=True)
-    else:
-        for i in todo:
-            record(run_draw(i, config, out / "data"))
+    failed = run_draws(todo, config, out / "data", args.jobs, record)
     summary = summarise(rows)
     path.write_text(json.dumps({"config": asdict(config), "rows": rows, "summary": summary}, indent=2))
     plot_ranks(summary, out / "ranks.png")
@@ -400,20 +418,14 @@ def _widening_main(args, config, out, rows) -> int:
                           if d["index"] == row["index"] for n, c in d["parameters"].items())
         print(f"draw {row['index']} without the term: widths with it {cells}", flush=True)
 
-    if args.jobs > 1 and len(todo) > 1:
-        from .common import process_pool
-
-        with process_pool(args.jobs) as pool:
-            for row in pool.map(run_draw, todo, [config] * len(todo), [out / "data"] * len(todo),
-                                [False] * len(todo)):
-                record(row)
-    else:
-        for i in todo:
-            record(run_draw(i, config, out / "data", discrepancy=False))
+    failed = run_draws(todo, config, out / "data", args.jobs, record, discrepancy=False)
     result = widening(rows, plain)
     path.write_text(json.dumps({"plain_rows": plain, "widening": result}, indent=2))
     print(f"{result['within_20_percent']} of {result['intervals']} intervals widened by at most "
           f"20 % (median x{result['median_ratio']}, max x{result['max_ratio']}); wrote {path}")
+    if failed:
+        print(f"FAILED draws (not in the table): {', '.join(map(str, sorted(failed)))}")
+        return 1
     return 0
 
 

@@ -137,3 +137,36 @@ def test_widening_without_finished_draws_says_so(tmp_path, capsys):
 
     assert bench_main(["--quick", "--widening", "--out", str(tmp_path)]) == 1
     assert "no finished draws" in capsys.readouterr().out
+
+
+def test_a_failing_draw_is_reported_and_the_others_still_run(tmp_path, monkeypatch, capsys):
+    """Both the benchmark and ``--widening`` run their draws through ``run_draws``: a draw that
+    raises is named in the output and in the exit status, the draws after it still run."""
+    from dataclasses import asdict
+
+    import studies.bench_coverage as bc
+
+    def fake_run_draw(index, config, workdir, discrepancy=True):
+        if index == 0:
+            raise RuntimeError("simulated failure")
+        width = 0.2 if discrepancy else 0.1
+        return {"index": index, "structure": "s", "inflation": [2.0], "converged": True,
+                "iterations": 1, "wall_s": 1.0, "simulated_seconds": 1.0,
+                "parameters": {"dead_zone": {"q05": 1.0, "q95": 1.0 + width, "inside": True,
+                                             "rank": 0.5, "relative_width": width}}}
+
+    monkeypatch.setattr(bc, "run_draw", fake_run_draw)
+    seen = []
+    assert bc.run_draws([0, 1], bc.QUICK, tmp_path, 1, seen.append) == [0]
+    assert [r["index"] for r in seen] == [1]
+    assert "draw 0 FAILED: RuntimeError('simulated failure')" in capsys.readouterr().out
+
+    rows = [fake_run_draw(i, bc.QUICK, tmp_path) for i in (0, 1) if i]  # draw 1 finished
+    rows.append({**rows[0], "index": 0})  # and draw 0, whose plain rerun will fail
+    (tmp_path / "bench.json").write_text(json.dumps({"config": asdict(bc.QUICK), "rows": rows}))
+    assert bc.main(["--quick", "--widening", "--out", str(tmp_path)]) == 1
+    out = capsys.readouterr().out
+    assert "draw 0 FAILED" in out and "FAILED draws (not in the table): 0" in out
+    plain = json.loads((tmp_path / "widening.json").read_text())
+    assert [r["index"] for r in plain["plain_rows"]] == [1]
+    assert plain["widening"]["draws"][0]["parameters"]["dead_zone"]["ratio"] == pytest.approx(2.0)
