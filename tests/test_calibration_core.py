@@ -1,5 +1,6 @@
 """Calibration core: priors, bad input, the runner on a known Gaussian, resume equality, -inf."""
 import json
+import math
 
 import numpy as np
 import pytest
@@ -130,6 +131,54 @@ def test_runner_warns_at_the_cap():
     with pytest.warns(ConvergenceWarning, match="NOT CONVERGED"):
         _, rep = run_ensemble(lp, lambda rng: rng.standard_normal((8, 2)), 8, 2, 30, seed=1)
     assert not rep.converged and rep.iterations == 30
+
+
+class _StoredChain:
+    """What :func:`convergence_report` reads off a sampler, for a chain given as an array."""
+
+    def __init__(self, chain):
+        import emcee
+
+        self.chain = chain
+        self.iteration, n_walkers, self.ndim = chain.shape
+        self.acceptance_fraction = np.full(n_walkers, 0.3)
+        self._tau = emcee.autocorr.integrated_time
+
+    def get_autocorr_time(self, discard=0, tol=0, quiet=True):
+        return self._tau(self.chain[discard:], tol=tol, quiet=quiet)
+
+
+def _ar1_chain(rng, n_steps, n_walkers=16, rho=0.8):
+    x = np.zeros((n_steps, n_walkers, 1))
+    for k in range(1, n_steps):
+        x[k] = rho * x[k - 1] + math.sqrt(1 - rho * rho) * rng.standard_normal((n_walkers, 1))
+    return x
+
+
+def test_convergence_is_judged_after_the_walkers_way_in():
+    """A chain that starts 20 sd off and relaxes within ~100 steps, then mixes with tau ~8: the
+    whole chain's tau is inflated by the way in and never passes; its second half passes alone
+    and the report says so (burn = half the chain, the posterior's samples start there). A
+    stationary chain passes on the whole (burn 0); a chain that drifts throughout passes neither
+    way."""
+    from discovery.calibration.runner import convergence_report
+
+    rng = np.random.default_rng(3)
+    steps = 1200
+    stationary = _ar1_chain(rng, steps)
+    rep = convergence_report(_StoredChain(stationary))
+    assert rep.converged and rep.burn == 0 and steps > 50 * max(rep.tau)
+
+    way_in = stationary + 20.0 * np.exp(-np.arange(steps) / 25.0)[:, None, None]
+    whole = convergence_report(_StoredChain(way_in))
+    assert whole.converged and whole.burn == steps // 2
+    assert (steps - whole.burn) > 50 * max(whole.tau)
+    import emcee
+
+    assert steps < 50 * float(emcee.autocorr.integrated_time(way_in, tol=0, quiet=True)[0])
+
+    drift = stationary + np.linspace(0.0, 60.0, steps)[:, None, None]
+    assert not convergence_report(_StoredChain(drift)).converged
 
 
 def test_gaussian_resume_through_hdf_equals_straight_run(tmp_path):

@@ -53,13 +53,14 @@ class Posterior:
     @classmethod
     def from_sampler(cls, calibration, sampler, report, burn=None, thin=None, min_burn=0):
         """Samples after a burn-in of ``2 tau`` steps, and at least ``min_burn`` (the sampler's
-        last adaptation), both capped at half the chain; thinned by half the shortest tau."""
+        last adaptation), both capped at half the chain, or after the steps the convergence test
+        left out (``report.burn``); thinned by half the shortest tau."""
         lp = calibration.log_posterior_
         it = sampler.iteration
         tau = np.asarray(report.tau, dtype=float)
         tmax = float(np.max(tau)) if np.all(np.isfinite(tau)) else it / 10.0
         if burn is None:
-            burn = int(min(max(2 * tmax, min_burn, 0), it // 2))
+            burn = max(int(min(max(2 * tmax, min_burn, 0), it // 2)), int(getattr(report, "burn", 0)))
         if thin is None:
             tmin = float(np.min(tau)) if np.all(np.isfinite(tau)) else 1.0
             thin = max(1, int(0.5 * tmin))

@@ -44,7 +44,7 @@ def sample_gaussian(mean, cov, n_walkers=16, max_steps=3000, seed=0, backend=Non
         pool=pool, tau_factor=tau_factor, check_every=check_every, warn=False,
     )
     tau = max(report.tau)
-    burn = int(min(3 * tau, sampler.iteration // 2))
+    burn = max(int(min(3 * tau, sampler.iteration // 2)), report.burn)
     thin = max(1, int(tau / 2))
     return sampler.get_chain(discard=burn, thin=thin, flat=True), report, sampler
 
