@@ -129,12 +129,10 @@ def convergence_report(sampler, tau_factor=50.0, new_steps=0, wall_time=0.0) -> 
     if it < 2:
         tau = np.full(ndim, np.inf)
     else:
-        tau = np.asarray(sampler.get_autocorr_time(tol=0, quiet=True), dtype=float)
+        tau = _autocorr_time(sampler, 0)
     ok = _passes(tau, it, tau_factor)
     if not ok and it >= 4:
-        with np.errstate(invalid="ignore", divide="ignore"):  # a stuck half: NaN, not passed
-            half = np.asarray(sampler.get_autocorr_time(discard=it // 2, tol=0, quiet=True),
-                              dtype=float)
+        half = _autocorr_time(sampler, it // 2)
         if _passes(half, it - it // 2, tau_factor):
             ok, tau, burn = True, half, it // 2
     tmax = float(np.max(tau)) if tau.size else math.inf
@@ -151,6 +149,12 @@ def convergence_report(sampler, tau_factor=50.0, new_steps=0, wall_time=0.0) -> 
         wall_time=float(wall_time),
         burn=int(burn),
     )
+
+
+def _autocorr_time(sampler, discard):
+    # a parameter no walker has moved yet has a zero autocovariance: NaN (not passed), no warning
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(sampler.get_autocorr_time(discard=discard, tol=0, quiet=True), dtype=float)
 
 
 def _passes(tau, steps, tau_factor) -> bool:
