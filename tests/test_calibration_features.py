@@ -74,10 +74,14 @@ def test_waveform_likelihood_warns_on_a_cycle_that_is_not_periodic(tmp_path):
 
 def test_periodic_and_wandering_cycles_are_not_taken_as_settling(tmp_path):
     rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 3, tmp_path / "m002.csv", keep_last=10.0)
-    assert np.all(FeatureTerm(rec, 10.0, 6.0, 5e-4).settling_var == 0.0)
+    term = FeatureTerm(rec, 10.0, 6.0, 5e-4)
+    assert np.all(term.settling_var == 0.0) and term.record_start is None
     for name in ("A", "B"):  # M000's band-pass wander has no steady direction
         term = FeatureTerm(load_recording(DATA / f"m000_closed_{name}.csv"), 10.0, 6.0, 5e-4)
         assert np.all(term.settling_var == 0.0), name
+        # over the whole record: A's wander is not an approach; B's cycle grows from its kick
+        # (H1 4.3, 5.8, 6.6, 6.7, 7.0 e-3 rad over its first five 2.9 s pieces), which is one
+        assert (term.record_start is None) == (name == "A"), name
 
 
 def test_a_cycle_still_settling_leaves_its_settled_features_inside_the_covariance(tmp_path):
@@ -173,3 +177,50 @@ def test_solver_error_of_the_features_is_gone_at_its_source_and_the_correction_k
     assert np.all(np.abs(raw - exact) < 0.1 * sd), (raw - exact) / sd
     assert np.all(np.abs(raw + term.solver_bias - exact) < 0.6 * sd), (raw + term.solver_bias - exact) / sd
     assert np.allclose(term.solver_var, (term.solver_bias / 2.0) ** 2)
+
+
+def _settling_record(path, index, record=0, lead=10.0, noise=1e-5, seed=5):
+    """A coverage draw's closed-loop record made by the kernel as the benchmark makes it: from the
+    generator's start, ``lead`` seconds dropped, white noise."""
+    from models import simulate
+    from models.recording import save_recording
+    from studies.bench_coverage import Config, coverage_scenario
+
+    scenario = coverage_scenario(index, Config())
+    design = scenario.recordings[record]
+    exp = design.experiment()
+    tr = simulate(scenario.truth, exp, lead + design.duration, dt=1e-4, rate=1000.0)
+    keep = tr.t >= lead - 1e-9
+    rng = np.random.default_rng(seed)
+    delta = tr.delta[keep] + noise * rng.standard_normal(int(keep.sum()))
+    save_recording(path, {"t": tr.t[keep] - tr.t[keep][0], "u": tr.u[keep], "delta": delta},
+                   {"kind": "closed", "kp": exp.kp, "kd": exp.kd, "mu": exp.mu,
+                    "controller_rate": design.controller_rate})
+    return scenario.truth, load_recording(path)
+
+
+def test_a_record_still_settling_is_simulated_from_where_it_starts(tmp_path, monkeypatch):
+    """Coverage draw 15's first cycle (dead zone on the velocity signal, friction offset, 1 kHz,
+    controller held at 200 Hz): it settles with a ~4.5 s time constant and its last 10 s sit
+    several noise sd under the settled cycle while the window's own pieces show no trend. The
+    whole record's pieces show the approach, so runs start at its first piece's size: at the
+    truth the features then agree with the record (chi-square under 11.1, the 95 % point on 5;
+    measured 6.6), where runs started at the window's size do not (measured 41, H1 6.1 sd off). The same truth
+    recorded after 60 s, settled, is simulated as before."""
+    truth, rec = _settling_record(tmp_path / "d15.csv", 15)
+    term = FeatureTerm(rec, 10.0, 20.0, 5e-4)
+    assert term.record_start is not None
+    rms, seconds, piece = term.record_start
+    assert seconds == pytest.approx(float(rec.t[-1] - rec.t[0]) - float(term.tau[-1]))
+    term.setup(truth)
+    chi2 = float(np.sum(term.whitened_residuals([truth], np.array([term.sigma_hat]))[0] ** 2))
+    assert chi2 < 11.07
+
+    monkeypatch.setattr(FeatureTerm, "_record_start", lambda self, n_segments: None)
+    window_sized = FeatureTerm(rec, 10.0, 20.0, 5e-4).setup(truth)
+    z = window_sized.whitened_residuals([truth], np.array([window_sized.sigma_hat]))[0]
+    assert float(np.sum(z**2)) > 3 * 11.07
+    monkeypatch.undo()
+
+    _, settled = _settling_record(tmp_path / "d15_settled.csv", 15, lead=60.0)
+    assert FeatureTerm(settled, 10.0, 20.0, 5e-4).record_start is None
