@@ -746,8 +746,7 @@ class FeatureTerm(_ClosedLoopTerm):
         #: at the window's size, ``transient`` seconds before it
         self.record_start = self._record_start(n_segments)
         if self.record_start is not None:
-            self.transient = self.record_start[1]
-            self.sim_t_end = self.transient + float(self.tau[-1]) + 2.5 * self.period + 0.2
+            self.set_transient(self.record_start[1])  # no simulator yet: sets the run's length
         self._start_rms = None
 
     @property
