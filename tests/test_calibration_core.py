@@ -425,3 +425,67 @@ def test_switched_off_laplace_move_is_tried_again_once_the_chain_has_doubled():
     assert cal.laplace_["retries"] == 1 <= LAPLACE_MAX_RETRIES
     assert cal.laplace_["adapted_at"] == 400 and cal.laplace_["expected_acceptance"] > 0.5
     np.testing.assert_allclose(sampler._weights, _move_weights(0.9))
+
+
+class _BoxedGaussian:
+    """N(mean, cov) cut to a box (a posterior whose ridge the prior cuts), with the ``priors``
+    interface (``internal_bounds``) the Laplace checks read."""
+
+    def __init__(self, mean, cov, lows, highs):
+        from types import SimpleNamespace
+
+        from discovery.calibration.testing import GaussianLogProb
+
+        self.gaussian = GaussianLogProb(mean, cov)
+        self.lows, self.highs = np.asarray(lows, float), np.asarray(highs, float)
+        self.priors = [SimpleNamespace(internal_bounds=(lo, hi)) for lo, hi in zip(lows, highs)]
+
+    def __call__(self, x):
+        x = np.atleast_2d(x)
+        inside = np.all((x >= self.lows) & (x <= self.highs), axis=1)
+        return np.where(inside, self.gaussian(x), -np.inf)
+
+
+def test_laplace_move_waits_idle_on_a_ridge_the_prior_cuts():
+    """A maximum on a prior bound (coverage draw 20: friction offset 0) leaves no Hessian: the
+    move starts idle instead of being dropped, is switched on once fitted to the chain, and the
+    chain converges in fewer steps than with the DE moves alone (measured 260 against 850, tau 4-5
+    against 13-17), to the cut Gaussian's moments (mean and sd of each coordinate within 0.15 sd /
+    15 % of a rejection sample's)."""
+    from discovery.calibration import Calibration
+    from discovery.calibration.calibration import _hessian
+    from discovery.calibration.runner import run_ensemble
+
+    mean, sd, cov = _correlated_gaussian()
+    lows, highs = mean - 6 * sd, mean + 6 * sd
+    lows[0] = mean[0] - 0.5 * sd[0]  # the prior cuts the 0.99 ridge near its middle
+    lp = _BoxedGaussian(mean, cov, lows, highs)
+    z0 = mean.copy()
+    z0[0] = lows[0]  # the maximum found on the bound
+    z0[1] = mean[1] + 0.99 * (z0[0] - mean[0]) * sd[1] / sd[0]
+    assert _hessian(lp, z0, 0.5 * sd) is None  # a probe leaves the prior
+    ref = np.random.default_rng(0).multivariate_normal(mean, cov, 400_000)
+    ref = ref[np.all((ref >= lows) & (ref <= highs), axis=1)]
+
+    def run(laplace_move):
+        cal = Calibration("M002", n_walkers=16, seed=7, laplace_move=laplace_move)
+        cal.log_posterior_ = lp
+        cal.laplace_ = None
+        if laplace_move:
+            cal._start_laplace(lp, z0, None, np.diag(0.5 * sd))
+            assert cal.laplace_["share"] == 0.0 and "adapted_at" not in cal.laplace_
+        initial = z0 + np.abs(0.1 * sd * np.random.default_rng(1).standard_normal((16, len(z0))))
+        sampler, report = run_ensemble(lp, initial, 16, len(z0), 3000, seed=7, moves=cal._moves(),
+                                       check_every=10, warn=False, after_chunk=cal._adapt_laplace)
+        return cal, sampler, report
+
+    cal, sampler, report = run(True)
+    _, _, de_only = run(False)
+    assert cal.laplace_["share"] > 0, cal.laplace_
+    assert report.converged and report.iterations < 0.7 * de_only.iterations, (
+        report.iterations, de_only.iterations)
+    burn = max(report.burn, int(cal.laplace_["adapted_at"]))
+    samples = sampler.get_chain(discard=burn, flat=True)
+    m, s = ref.mean(axis=0), ref.std(axis=0)
+    assert np.all(np.abs(samples.mean(axis=0) - m) < 0.15 * s)
+    assert np.all(np.abs(samples.std(axis=0) / s - 1) < 0.15)

@@ -436,14 +436,7 @@ class Calibration:
             axes = _principal_axes(lp, z0, scale, hess)
         self.laplace_ = None
         if self.laplace_move:
-            cov = laplace_covariance(lp, z0, hess)
-            if cov is not None:
-                self.laplace_ = {"mean": z0.tolist(), "cov": cov.tolist()}
-            elif _curvature_unresolved(lp, z0, hess):
-                # idle until the chain gives it a proposal (M002, 2 noise seeds of 7: an
-                # eigenvalue of -164 beside 2e4-2e11, and without the move the chains took
-                # 710-750 steps instead of 90-130); a ridge cut by the prior never gets it
-                self.laplace_ = {"mean": z0.tolist(), "cov": (axes @ axes.T).tolist(), "share": 0.0}
+            self._start_laplace(lp, z0, hess, axes)
         self.initial_axes_ = axes
         out = self._walkers_around(lp, z0, axes, rng)
         if out is None:
@@ -453,6 +446,22 @@ class Calibration:
         if self._set_transient_variance(lp, out) and self.discrepancy:
             self._set_inflation(lp, z0)  # measured against the widened covariance
         return out
+
+    def _start_laplace(self, lp, z0, hess, axes):
+        """``laplace_`` at the start: the Laplace approximation at ``z0`` where it can serve as a
+        proposal (:func:`laplace_covariance`), else the move idle (share 0) until its first refit
+        to the chain (:meth:`_adapt_laplace`), which keeps it only if it would be accepted often
+        enough. Idle covers a curvature not resolved at an optimum not quite reached (M002, 2
+        noise seeds of 7: an eigenvalue of -164 beside 2e4-2e11; without the move the chains
+        took 710-750 steps instead of 90-130) and a maximum on a prior bound or on a ridge the
+        prior cuts, where the Hessian cannot be had (coverage draw 20: its optimum at friction
+        offset 0; with the DE moves alone 1500 steps, tau 26-81, not converged; idle, then on from its
+        third retry at step 400: converged in 680 steps, tau 5-7, the same intervals)."""
+        cov = laplace_covariance(lp, z0, hess)
+        if cov is not None:
+            self.laplace_ = {"mean": z0.tolist(), "cov": cov.tolist()}
+        else:
+            self.laplace_ = {"mean": z0.tolist(), "cov": (axes @ axes.T).tolist(), "share": 0.0}
 
     def _maximum(self, lp, z0, rng):
         """The maximum a posteriori from ``z0`` (internal coordinates): Nelder-Mead, then, where
@@ -1061,14 +1070,6 @@ def laplace_covariance(lp, z0, hess, max_fraction=LAPLACE_MAX_FRACTION):
         return None
     vals, vecs = eig
     return (vecs / vals) @ vecs.T
-
-
-def _curvature_unresolved(lp, z0, hess, max_fraction=LAPLACE_MAX_FRACTION):
-    """The curvature at ``z0`` fails :func:`laplace_covariance` only by an eigenvalue that is not
-    negative (finite differences at an optimum not quite reached), with no resolved direction a
-    ridge reaching ``max_fraction`` of the prior box."""
-    eig = _curvature_without_ridge(lp, z0, hess, max_fraction)
-    return eig is not None and not np.all(eig[0] > 0)
 
 
 def _curvature_without_ridge(lp, z0, hess, max_fraction):

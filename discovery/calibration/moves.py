@@ -10,10 +10,10 @@ Mixed with the DE moves, which carry the chain where the approximation is poor, 
 detailed balance move by move. Measured on M002's benchmark record (f, zm, Td, sigma; nine moves
 in ten independent, the proposal refitted once to the chain after 50 steps): tau 2.3 steps instead
 of 13.8, converged after 125 steps instead of 700, the same 90 % intervals to 1-2 % of their
-widths. A posterior that is a ridge cut by the prior never gets the move
-(:func:`discovery.calibration.calibration.laplace_covariance`); one whose refitted proposal would
-be accepted under a quarter of the time loses it after 50 steps
-(:meth:`LaplaceIndependenceMove.expected_acceptance`).
+widths. Where the Laplace approximation cannot serve (a ridge cut by the prior, a maximum on a
+prior bound: :func:`discovery.calibration.calibration.laplace_covariance`) the move waits idle
+until it can be fitted to the chain; a proposal that would be accepted under a quarter of the
+time is not switched on (:meth:`LaplaceIndependenceMove.expected_acceptance`).
 """
 from __future__ import annotations
 
