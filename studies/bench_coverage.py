@@ -168,6 +168,9 @@ def run_draw(index, config: Config, workdir: Path, discrepancy=True) -> dict:
         row["transients"] = {k: float(v) for k, v in cal.transients_.items()}
         row["likelihoods"] = dict(cal.likelihoods_)  # closed-loop records may fall back to features
     row["inflation"] = list(cal.inflation_)
+    # how the independence move ran (None: not used; share 0 at the end: off)
+    row["laplace"] = ({k: cal.laplace_[k] for k in ("share", "adapted_at", "refits", "retries")
+                       if k in cal.laplace_} if cal.laplace_ else None)
     row["discrepancy"] = bool(discrepancy)
     row["commit"] = CODE_COMMIT
     for j, n in enumerate(names):
