@@ -25,6 +25,7 @@ def test_bench_coverage_quick_rows_agree_with_their_summary(quick_dir):
     report = json.loads((tmp_path / "bench.json").read_text())
     (row,) = report["rows"]
     assert row["parameters"] and row["simulated_seconds"] > 0 and len(row["inflation"]) == len(row["design"])
+    assert row["laplace"] is None or 0.0 <= row["laplace"]["share"] <= 1.0  # how the move ran
     for name, cell in row["parameters"].items():
         assert cell["q05"] <= cell["q50"] <= cell["q95"] and 0.0 <= cell["rank"] <= 1.0
         assert cell["inside"] == (cell["q05"] <= cell["truth"] <= cell["q95"])
