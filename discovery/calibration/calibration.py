@@ -455,8 +455,9 @@ class Calibration:
         noise seeds of 7: an eigenvalue of -164 beside 2e4-2e11; without the move the chains
         took 710-750 steps instead of 90-130) and a maximum on a prior bound or on a ridge the
         prior cuts, where the Hessian cannot be had (coverage draw 20: its optimum at friction
-        offset 0; with the DE moves alone 1500 steps, tau 26-81, not converged; idle, then on from its
-        third retry at step 400: converged in 680 steps, tau 5-7, the same intervals)."""
+        offset 0; with the DE moves alone 1500 steps, tau 26-81, not converged; idle, then on
+        from its third retry at step 400: converged in 680 steps, tau 5-7, the same
+        intervals)."""
         cov = laplace_covariance(lp, z0, hess)
         if cov is not None:
             self.laplace_ = {"mean": z0.tolist(), "cov": cov.tolist()}
