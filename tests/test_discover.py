@@ -417,6 +417,30 @@ def test_a_superset_of_a_member_joins_the_set_merged_whatever_its_own_fit_scored
         "backlash"] is None
 
 
+def test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature():
+    """The margin's floors add like independent errors (:func:`.discover.indistinguishable_margin`):
+    a structure worse by 0.07 on every one of five recordings, the two folds agreeing (benchmark
+    draw 1017's dead zone on the error: +0.02 to +0.14 on each, 0.35 in all), is outside the
+    margin of ``2 sqrt(5) TOL_ABS / 2`` = 0.224 (a linear sum of the floors, 0.5, kept it inside);
+    the same 0.07 on one recording alone is inside; one recording's margin is the larger of its
+    folds' disagreement and its floor."""
+    from discovery.structure.discover import TOL_ABS, indistinguishable_margin
+
+    best = np.zeros((2, 5))
+    everywhere = np.full((2, 5), 0.07)
+    once = np.zeros((2, 5))
+    once[:, 2] = 0.07
+    margin = indistinguishable_margin(best, everywhere, 5)
+    assert margin == pytest.approx(math.sqrt(5) * TOL_ABS)
+    assert everywhere.mean(axis=0).sum() > margin > once.mean(axis=0).sum()
+    assert indistinguishable_margin(best[:, :1], np.array([[0.3], [0.1]]), 1) == pytest.approx(0.2)
+    assert indistinguishable_margin(best[:, :1], np.array([[0.11], [0.1]]), 1) == pytest.approx(TOL_ABS)
+    # a recording's own floor (a wandering cycle's window cost) counts for that recording alone
+    floors = np.array([0.4, TOL_ABS, TOL_ABS, TOL_ABS, TOL_ABS])
+    assert indistinguishable_margin(best, everywhere, 5, floors) == pytest.approx(
+        math.sqrt(0.4**2 + 4 * TOL_ABS**2))
+
+
 def test_wandering_cycles_raise_the_margin_floor(tmp_path):
     """The bundled benchmark draw 1000 (two band-pass cycles at 200 Hz, which wander from period
     to period): each cycle's window cost is over twice ``TOL_ABS`` (measured 0.24 and 0.22), and a
