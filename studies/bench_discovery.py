@@ -1,6 +1,7 @@
 """Discovery benchmark: random truths and designs, data from the reference path, read as measured.
 
-``python -m studies.bench_discovery [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]``
+``python -m studies.bench_discovery [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]
+[--rederive]``
 
 Each draw (:func:`studies.scenarios.draw_scenario`, seeded) is a truth over every structure of the
 grammar and an experiment design (limit cycles at 1-3 controller settings, open-loop squares and
@@ -24,6 +25,10 @@ Printed per structure class and overall, and written to ``DIR/bench.json``:
   :func:`models.structures.shared_choices`), as the fraction of all the draws' choices decided
   right and the count decided wrong;
 * timings.
+
+``--rederive`` runs no search: it derives every finished row's set again from the row's stored
+ranking (every ranked structure's held-out fold costs) with the current set rule, so that a
+change of the rule alone reaches the finished rows (:func:`rederived`).
 
 Goals (issue 11): right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
 parameters within 5 % in >= 90 %. Every draw runs the ``standard`` search sizes
@@ -233,6 +238,66 @@ def summarise(rows, key=structure_class):
     return table
 
 
+def draw_floors(seed, out_dir):
+    """The margin floors (:func:`discovery.structure.discover.margin_floors`) of draw ``seed``'s
+    recordings, regenerated into ``out_dir/drawNNN`` unless they are there."""
+    from discovery.structure.discover import margin_floors, validate_recordings
+    from discovery.structure.targets import make_target
+
+    paths = write_recordings(draw_scenario(seed), Path(out_dir) / f"draw{seed:03d}", reuse=True)
+    dt = StructureDiscovery().dt
+    return margin_floors([make_target(r, dt) for r in validate_recordings(paths)])
+
+
+def rederived(row, floors, commit=CODE_COMMIT):
+    """``row`` with its indistinguishable set, winner and verdict derived again from its stored
+    ranking (every ranked structure's held-out fold costs) by the current set rule
+    (:func:`discovery.structure.discover.indistinguishable_set`), with ``floors`` per recording.
+
+    No search runs: the fits and scores are the row's own. Structures the row did not rank join
+    the set where they contain a member (as in the discovery). A changed verdict keeps the old one
+    under ``previous``; ``set_rule_check`` says which commit's rule and what changed.
+    """
+    from discovery.structure.discover import StructureFit, indistinguishable_set
+    from models.structures import structure_space
+
+    def fit(structure, score, cost, folds=None):
+        return StructureFit(structure=structure, params=None, theta=np.zeros(1), cost=cost,
+                            cost_by_recording={}, origin=row.get("commit", ""), score=score,
+                            fold_costs=None if folds is None else np.asarray(folds, dtype=float))
+
+    fits = [fit(Structure.parse(x["structure"]), x["score"], x["cost"], x["fold_costs"])
+            for x in row["ranking"]]
+    named = {f.structure for f in fits}
+    fits += [fit(s, math.inf, math.inf) for s in structure_space({})[0] if s not in named]
+    fits.sort(key=lambda f: (f.score, f.cost))
+    ranked = indistinguishable_set(fits, len(floors), floors=np.asarray(floors, dtype=float))
+    inside = [f for f in ranked if f.indistinguishable_from_best]
+    unmerged = [f for f in inside if f.merged_into is None]
+    truth = Structure.parse(row["structure"])
+    verdict = {"winner": ranked[0].structure.name, "right_winner": ranked[0].structure == truth,
+               "truth_in_set": any(f.structure == truth for f in inside),
+               "set_size": len(unmerged), "set": [f.structure.name for f in inside]}
+    verdict["right_or_in_small_set"] = verdict["right_winner"] or (
+        verdict["truth_in_set"] and len(unmerged) <= 3)
+    keys = ("winner", "set_size", "truth_in_set", "right_or_in_small_set")
+    changed = [k for k in keys if verdict[k] != row[k]]
+    out = dict(row)
+    if changed:
+        out["previous"] = {k: row.get(k) for k in ("commit", "winner", "right_winner",
+                                                   "truth_in_set", "set_size",
+                                                   "right_or_in_small_set")}
+    out.update(verdict)
+    merged = {f.structure.name: f.merged_into for f in ranked}
+    out["ranking"] = [{**x, "merged_into": merged[x["structure"]]} for x in row["ranking"]]
+    floors_text = ", ".join(f"{v:.3g}" for v in floors)
+    out["set_rule_check"] = (
+        f"the indistinguishable set re-derived from this row's ranking with {commit}'s rule "
+        f"(floors {floors_text}): " + ("unchanged" if not changed else "; ".join(
+            f"{k} {row[k]} -> {verdict[k]}" for k in changed)))
+    return undecided_marked(out)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="a handful of draws, no SINDy seeds")
@@ -241,6 +306,10 @@ def main(argv=None) -> int:
     parser.add_argument("--jobs", type=int, default=1,
                         help="draws run at once, one process each (default 1)")
     parser.add_argument("--out", default="results/bench_discovery", help="output directory")
+    parser.add_argument("--rederive", action="store_true",
+                        help="no search: derive every finished row's set again from its stored "
+                             "ranking with the current set rule (the recordings regenerated for "
+                             "the margin floors where absent), then print the table")
     args = parser.parse_args(argv)
     n = args.draws or (2 if args.quick else 30)
     out = Path(args.out)
@@ -266,8 +335,14 @@ def main(argv=None) -> int:
         path.write_text(json.dumps({"quick": args.quick, "rows": rows, "table": summarise(rows),
                                     "by_design": summarise(rows, key=design_class)}, indent=2))
 
+    if args.rederive:
+        rows = [r if "error" in r else rederived(r, draw_floors(r["seed"], out)) for r in rows]
+        for r in rows:
+            print(f"draw {r['seed']}: {r.get('set_rule_check', r.get('error'))}", flush=True)
+        path.write_text(json.dumps({"quick": args.quick, "rows": rows, "table": summarise(rows),
+                                    "by_design": summarise(rows, key=design_class)}, indent=2))
     done = {r["seed"] for r in rows}
-    seeds = [s for s in range(args.seed, args.seed + n) if s not in done]
+    seeds = [] if args.rederive else [s for s in range(args.seed, args.seed + n) if s not in done]
     n = len(seeds)
     if args.jobs > 1 and len(seeds) > 1:
         from .common import process_pool

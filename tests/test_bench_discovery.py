@@ -60,3 +60,29 @@ def test_bundled_draw_is_rebuilt_byte_for_byte(tmp_path):
         for q in (p, p.with_suffix(".json")):
             assert hashlib.sha256(q.read_bytes()).hexdigest() == \
                 hashlib.sha256((BUNDLED / q.name).read_bytes()).hexdigest(), q.name
+
+
+def test_a_finished_row_is_rederived_from_its_stored_ranking():
+    """Benchmark draw 1017's recorded row (three cycles and two squares at 1 kHz, all periodic:
+    floors 0.1): with the floors added in quadrature the dead zone on the error, worse on every
+    recording (0.35 in all), leaves the set, which keeps the three delay positions of the truth's
+    dead-zone position; the old verdict stays under ``previous``. A row re-derived twice is the
+    same."""
+    import json
+    from pathlib import Path
+
+    from studies.bench_discovery import rederived
+
+    record = Path(__file__).resolve().parents[1] / "studies" / "records" / "bench_discovery_quick.json"
+    row = next(r for r in json.loads(record.read_text())["rows"] if r["seed"] == 1017)
+    row = {**row, **row.get("previous", {}), "set_size": 5, "right_or_in_small_set": False,
+           "winner": "dz_velocity+delay_before_integrator"}
+    new = rederived(row, [0.1] * 5, commit="test")
+    unmerged = {x["structure"] for x in new["ranking"]
+                if x["structure"] in new["set"] and x["merged_into"] is None}
+    assert unmerged == {"dz_velocity+delay_before_integrator", "dz_velocity+delay_output",
+                        "dz_velocity+delay_before_first_integrator"}
+    assert new["set_size"] == 3 and new["truth_in_set"] and new["right_or_in_small_set"]
+    assert new["previous"]["set_size"] == 5 and "set_size 5 -> 3" in new["set_rule_check"]
+    again = rederived(new, [0.1] * 5, commit="test")
+    assert again["set"] == new["set"] and again["set_rule_check"].endswith("unchanged")
