@@ -1,7 +1,7 @@
 """Discovery benchmark: random truths and designs, data from the reference path, read as measured.
 
 ``python -m studies.bench_discovery [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]
-[--rederive]``
+[--rederive] [--floor-scan]``
 
 Each draw (:func:`studies.scenarios.draw_scenario`, seeded) is a truth over every structure of the
 grammar and an experiment design (limit cycles at 1-3 controller settings, open-loop squares and
@@ -28,7 +28,11 @@ Printed per structure class and overall, and written to ``DIR/bench.json``:
 
 ``--rederive`` runs no search: it derives every finished row's set again from the row's stored
 ranking (every ranked structure's held-out fold costs) with the current set rule, so that a
-change of the rule alone reaches the finished rows (:func:`rederived`).
+change of the rule alone reaches the finished rows (:func:`rederived`). ``--floor-scan`` weighs
+the rule's margin floors (:func:`floor_scan`): every finished row re-derived with the floors
+scaled from 0 to 3, the rates per scale and the draws no scale turns into a hit (a draw missed
+at every scale is held by its data, not by the margin), to ``DIR/floor_scan.json`` and
+``DIR/floor_scan.png``.
 
 Goals (issue 11): right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
 parameters within 5 % in >= 90 %. Every draw runs the ``standard`` search sizes
@@ -37,8 +41,9 @@ parameters within 5 % in >= 90 %. Every draw runs the ``standard`` search sizes
 without SINDy's seeds on the same data (full-length records at the generator's step: cut to 12 s, a band-pass cycle's
 wander rests on two pieces of six periods and draw 1000's truth missed its own record by 13.6 cost
 units, 0.7 on the full 31 s; at a 2e-4 s step the data's own RK4 error near square edges is of the
-order of the open-loop targets' unit, the sensor noise), and asserts the same rates scaled down (at
-least half of the draws).
+order of the open-loop targets' unit, the sensor noise). The exit status says whether the goals
+hold: over 30 draws or more the issue's 90 %, over fewer (CI's handful) the same rates scaled
+down to half of the draws.
 """
 from __future__ import annotations
 
@@ -47,6 +52,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -298,6 +304,83 @@ def rederived(row, floors, commit=CODE_COMMIT):
     return undecided_marked(out)
 
 
+#: Scales of the margin floors weighed by ``--floor-scan`` (1 is the rule in use).
+FLOOR_SCALES = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
+
+
+@dataclass(frozen=True)
+class FloorScan:
+    """The set rule's trade-off on finished rows: each scale of the margin floors against the
+    fraction of draws whose truth is the winner or in a set of at most 3, the fraction whose
+    set holds the truth, and the mean set size (:func:`floor_scan`).
+
+    Attributes
+    ----------
+    scales : tuple of float
+        Factors on every recording's floor (:func:`discovery.structure.discover.margin_floors`).
+    right_or_in_set_le3, truth_in_set, mean_set_size : tuple of float
+        Per scale, over the draws.
+    misses : tuple of tuple of int
+        Per scale, the seeds neither the winner nor in a set of at most 3.
+    """
+
+    scales: tuple
+    right_or_in_set_le3: tuple
+    truth_in_set: tuple
+    mean_set_size: tuple
+    misses: tuple
+
+    @property
+    def missed_at_every_scale(self) -> tuple:
+        """Seeds that no floor turns into a hit: the set rule is not what holds them."""
+        common = set(self.misses[0])
+        for m in self.misses[1:]:
+            common &= set(m)
+        return tuple(sorted(common))
+
+    def to_dict(self) -> dict:
+        return {"scales": list(self.scales), "right_or_in_set_le3": list(self.right_or_in_set_le3),
+                "truth_in_set": list(self.truth_in_set), "mean_set_size": list(self.mean_set_size),
+                "misses": [list(m) for m in self.misses],
+                "missed_at_every_scale": list(self.missed_at_every_scale)}
+
+    def plot(self, ax=None):
+        """Both rates and the goal (90 %) against the floors' scale; the rule's scale 1 marked."""
+        if ax is None:
+            from .common import pyplot
+
+            ax = pyplot().subplots(figsize=(6, 3.6))[1]
+        ax.plot(self.scales, self.right_or_in_set_le3, "o-", label="winner, or in a set of at most 3")
+        ax.plot(self.scales, self.truth_in_set, "s--", label="truth in the reported set")
+        ax.axhline(0.9, color="0.5", lw=0.8, ls=":", label="goal (issue 11)")
+        ax.axvline(1.0, color="0.7", lw=0.8)
+        ax.set_xlabel("scale on every recording's margin floor (1: the rule in use)")
+        ax.set_ylabel("fraction of draws")
+        ax.set_ylim(0.0, 1.02)
+        ax.legend(loc="lower right", fontsize=8)
+        return ax
+
+
+def floor_scan(rows, floors, scales=FLOOR_SCALES):
+    """Re-derive every finished row's set (:func:`rederived`) with its margin floors scaled.
+
+    ``floors``: seed -> the draw's floors per recording (:func:`draw_floors`). No search runs. A
+    draw missed at every scale (:attr:`FloorScan.missed_at_every_scale`) is not held by the
+    margin's floor: its structures' held-out scores do not tell the truth from more than two
+    others, or, with no floor, exclude it.
+    """
+    rows = [r for r in rows if "error" not in r]
+    hits, truth_in, sizes, misses = [], [], [], []
+    for scale in scales:
+        again = [rederived(r, np.asarray(floors[r["seed"]], dtype=float) * scale) for r in rows]
+        hits.append(float(np.mean([r["right_or_in_small_set"] for r in again])))
+        truth_in.append(float(np.mean([r["truth_in_set"] for r in again])))
+        sizes.append(float(np.mean([r["set_size"] for r in again])))
+        misses.append(tuple(r["seed"] for r in again if not r["right_or_in_small_set"]))
+    return FloorScan(tuple(float(s) for s in scales), tuple(hits), tuple(truth_in), tuple(sizes),
+                     tuple(misses))
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="a handful of draws, no SINDy seeds")
@@ -310,6 +393,10 @@ def main(argv=None) -> int:
                         help="no search: derive every finished row's set again from its stored "
                              "ranking with the current set rule (the recordings regenerated for "
                              "the margin floors where absent), then print the table")
+    parser.add_argument("--floor-scan", action="store_true",
+                        help="no search: weigh the set rule's margin floors scaled by "
+                             f"{', '.join(map(str, FLOOR_SCALES))} on every finished row "
+                             "(writes floor_scan.json and floor_scan.png)")
     args = parser.parse_args(argv)
     n = args.draws or (2 if args.quick else 30)
     out = Path(args.out)
@@ -322,6 +409,10 @@ def main(argv=None) -> int:
             rows = [undecided_marked(r) if "error" not in r else r
                     for r in old["rows"] if args.seed <= r["seed"] < args.seed + n]
 
+    def save():
+        path.write_text(json.dumps({"quick": args.quick, "rows": rows, "table": summarise(rows),
+                                    "by_design": summarise(rows, key=design_class)}, indent=2))
+
     def record(seed, row):
         rows.append(row)
         rows.sort(key=lambda r: r["seed"])
@@ -332,17 +423,28 @@ def main(argv=None) -> int:
             print(f"draw {seed}: truth {row['structure']}\n  winner {row['winner']} "
                   f"right={row['right_winner']} in set={row['truth_in_set']} (set {row['set_size']}) "
                   f"identifiable errors {ident} [{row['seconds_discovery']:.0f} s]", flush=True)
-        path.write_text(json.dumps({"quick": args.quick, "rows": rows, "table": summarise(rows),
-                                    "by_design": summarise(rows, key=design_class)}, indent=2))
+        save()
 
     if args.rederive:
         rows = [r if "error" in r else rederived(r, draw_floors(r["seed"], out)) for r in rows]
         for r in rows:
             print(f"draw {r['seed']}: {r.get('set_rule_check', r.get('error'))}", flush=True)
-        path.write_text(json.dumps({"quick": args.quick, "rows": rows, "table": summarise(rows),
-                                    "by_design": summarise(rows, key=design_class)}, indent=2))
+        save()
+    if args.floor_scan:
+        scan = floor_scan(rows, {r["seed"]: draw_floors(r["seed"], out) for r in rows
+                                 if "error" not in r})
+        (out / "floor_scan.json").write_text(json.dumps(scan.to_dict(), indent=2))
+        ax = scan.plot()
+        ax.figure.tight_layout()
+        ax.figure.savefig(out / "floor_scan.png", dpi=90)
+        print(f"{'floor scale':>11s}  right|set<=3  truth in set  mean set size  misses")
+        for i, scale in enumerate(scan.scales):
+            print(f"{scale:11.2f}  {scan.right_or_in_set_le3[i]:11.2f}  {scan.truth_in_set[i]:12.2f}  "
+                  f"{scan.mean_set_size[i]:13.2f}  {list(scan.misses[i])}")
+        print(f"missed at every scale: {list(scan.missed_at_every_scale)}")
     done = {r["seed"] for r in rows}
-    seeds = [] if args.rederive else [s for s in range(args.seed, args.seed + n) if s not in done]
+    seeds = ([] if args.rederive or args.floor_scan
+             else [s for s in range(args.seed, args.seed + n) if s not in done])
     n = len(seeds)
     if args.jobs > 1 and len(seeds) > 1:
         from .common import process_pool
@@ -360,7 +462,8 @@ def main(argv=None) -> int:
               f"{t['identifiable_within_5pc']:9.2f}  {t['choices_decided_right']:13.2f}  "
               f"{t['choices_decided_wrong']:5d}  {t['median_seconds']:8.0f}")
     overall = table["overall"]
-    goal = 0.5 if args.quick else 0.9
+    # the issue's goal over 30 draws or more, scaled down for CI's handful
+    goal = 0.9 if overall["draws"] >= 30 else 0.5
     ok = overall["right_or_in_set_le3"] >= goal and overall["identifiable_within_5pc"] >= goal
     print(f"goal ({goal:.0%} of draws right or in a set <= 3, and identifiable within 5 %): "
           f"{'met' if ok else 'NOT met'}")

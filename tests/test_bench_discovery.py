@@ -86,3 +86,26 @@ def test_a_finished_row_is_rederived_from_its_stored_ranking():
     assert new["previous"]["set_size"] == 5 and "set_size 5 -> 3" in new["set_rule_check"]
     again = rederived(new, [0.1] * 5, commit="test")
     assert again["set"] == new["set"] and again["set_rule_check"].endswith("unchanged")
+
+
+def test_floor_scan_weighs_the_set_rule_on_finished_rows():
+    """``--floor-scan`` on five recorded rows whose recordings all have the floor 0.1 (periodic
+    cycles, open-loop tests): with no floor draw 1003's set loses its truth, with three times the
+    floor draw 1017's set grows past 3, and draws 1010, 1020 and 1025 (the three positions of the
+    delay fitting within 0.003-0.015 of each other, the folds disagreeing as much) are missed at
+    every scale. The truth is never lost by widening the margin."""
+    from studies.bench_discovery import FLOOR_SCALES, floor_scan
+
+    record = Path(__file__).resolve().parents[1] / "studies" / "records" / "bench_discovery_quick.json"
+    seeds = (1003, 1010, 1017, 1020, 1025)
+    rows = [r for r in json.loads(record.read_text())["rows"] if r["seed"] in seeds]
+    floors = {r["seed"]: [0.1] * len(r["design"]["recordings"]) for r in rows}
+    scan = floor_scan(rows, floors)
+    assert scan.scales == FLOOR_SCALES and scan.scales.index(1.0) == 4
+    assert np.all(np.diff(scan.truth_in_set) >= 0), scan.truth_in_set
+    assert 1003 in scan.misses[0] and 1003 not in scan.misses[4]
+    assert 1017 not in scan.misses[4] and 1017 in scan.misses[-1]
+    assert scan.missed_at_every_scale == (1010, 1020, 1025)
+    assert scan.to_dict()["missed_at_every_scale"] == [1010, 1020, 1025]
+    ax = scan.plot()
+    assert len(ax.lines) == 4  # both rates, the goal, the rule's scale
