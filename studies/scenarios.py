@@ -38,7 +38,8 @@ from models.reference import simulate_reference
 from models.structures import Structure, structure_space
 
 __all__ = ["RecordingDesign", "Acquisition", "Scenario", "draw_truth", "draw_design",
-           "draw_scenario", "oscillates", "write_recordings", "ridge_scenario", "RIDGE_PARAMETERS"]
+           "draw_scenario", "oscillates", "write_recordings", "write_recording", "ridge_scenario",
+           "RIDGE_PARAMETERS"]
 
 CONTROLLERS = ((5.84, 0.062, 12.3), (9.8, 0.06, 4.5))
 #: Step (s) of the kernel run that decides whether a drawn truth oscillates.
@@ -236,26 +237,29 @@ def write_recordings(scenario: Scenario, directory, dt=None, reuse=False) -> lis
     if reuse and stored.exists() and all(p.exists() and p.with_suffix(".json").exists() for p in names):
         if json.loads(stored.read_text()) == provenance:
             return names
-    acq = scenario.acquisition
-    paths = []
-    for i, rd in enumerate(scenario.recordings):
-        exp = rd.experiment()
-        lead = 10.0 if rd.kind == "closed" else 0.0
-        tr = simulate_reference(scenario.truth, exp, rd.duration + lead, dt=dt,
-                                rate=rd.rate)
-        keep = tr.t >= lead - 1e-9
-        t = tr.t[keep] - tr.t[keep][0]
-        rng = np.random.default_rng([scenario.seed, i])
-        delta = acq.measure(tr.delta[keep], rng)
-        meta = {"kind": rd.kind, "source": "simulated",
-                "generator": "studies/scenarios.py (reference path)"}
-        if rd.kind == "closed":
-            meta.update(kp=rd.kp, kd=rd.kd, mu=rd.mu, controller_rate=rd.controller_rate)
-        path = names[i]
-        save_recording(path, {"t": t, "u": tr.u[keep], "delta": delta}, meta)
-        paths.append(path)
+    paths = [write_recording(scenario, i, names[i], dt) for i in range(len(scenario.recordings))]
     stored.write_text(json.dumps(provenance, indent=2))
     return paths
+
+
+def write_recording(scenario: Scenario, index, path, dt=None):
+    """Recording ``index`` of ``scenario`` made by the reference path (step ``dt``, default
+    :data:`DATA_DT`), measured by the scenario's sensor (noise drawn from
+    ``default_rng([seed, index])``) and written with a measured-style sidecar to ``path``."""
+    rd = scenario.recordings[index]
+    lead = 10.0 if rd.kind == "closed" else 0.0
+    tr = simulate_reference(scenario.truth, rd.experiment(), rd.duration + lead, dt=dt or DATA_DT,
+                            rate=rd.rate)
+    keep = tr.t >= lead - 1e-9
+    t = tr.t[keep] - tr.t[keep][0]
+    rng = np.random.default_rng([scenario.seed, index])
+    delta = scenario.acquisition.measure(tr.delta[keep], rng)
+    meta = {"kind": rd.kind, "source": "simulated",
+            "generator": "studies/scenarios.py (reference path)"}
+    if rd.kind == "closed":
+        meta.update(kp=rd.kp, kd=rd.kd, mu=rd.mu, controller_rate=rd.controller_rate)
+    save_recording(path, {"t": t, "u": tr.u[keep], "delta": delta}, meta)
+    return Path(path)
 
 
 def shortened(scenario: Scenario, closed=None, open_=None) -> Scenario:

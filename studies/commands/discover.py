@@ -2,10 +2,11 @@
 
 Screening (SINDy seeds), fitting every structure by closed- and open-loop simulation, ranking by
 two-fold out-of-sample error (:class:`discovery.structure.StructureDiscovery`), then the MCMC
-calibration of the winner on all recordings (:class:`discovery.calibration.Calibration`). Nothing
-is lost to a killed run: ``discovery.json`` is written as soon as the ranking is done and carries a
-hash of the inputs, so a rerun with the same recordings and options reuses it instead of searching
-again, and the chain is checkpointed, so the MCMC resumes where it stopped. Writes
+calibration of the winner on all recordings (:class:`discovery.calibration.Calibration`); where
+the recordings leave several structures, the test that would tell them apart (:func:`next_test`).
+Nothing is lost to a killed run: ``discovery.json`` is written as soon as the ranking is done and
+carries a hash of the inputs, so a rerun with the same recordings and options reuses it instead of
+searching again, and the chain is checkpointed, so the MCMC resumes where it stopped. Writes
 ``DIR/discovery.json`` and ``DIR/report.md`` with the figures beside them.
 """
 from __future__ import annotations
@@ -118,12 +119,52 @@ def discover(files, out: Path, fixed=None, seed=0, quick=False, max_steps=None, 
         summary, best_params, best_structure, closed, offsets, t_disc = _rank_structures(
             recs, fixed, seed, search, progress, inputs)
         _write(out, summary)  # the ranking survives whatever happens to the chain
+    if "next_test" not in summary:
+        t0 = time.perf_counter()
+        summary["next_test"] = next_test(summary, recs, seed, out)
+        summary["timings"]["next_test"] = time.perf_counter() - t0
+        _write(out, summary)
     if mcmc:
         summary = _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixed,
                              seed, quick, max_steps, progress, out)
     summary["timings"]["discovery"] = t_disc
     _write(out, summary)
     return summary
+
+
+def next_test(summary, recs, seed, out):
+    """The test that would tell apart the structures the recordings cannot
+    (:func:`discovery.structure.discrimination.discriminating_tests` on the set's unmerged
+    members at their fitted parameters, refitted to the recordings for the best
+    candidates; the default menu acquired at the recordings' highest rate, the recordings'
+    median noise); writes ``next_test.png``. ``None`` for a set of one."""
+    from discovery.structure.discrimination import default_candidates, discriminating_tests
+    from discovery.structure.targets import make_target
+    from models import params_from_dict
+
+    members = [params_from_dict("custom", s["params"]) for s in summary["structures"]
+               if s["indistinguishable_from_best"] and s["merged_into"] is None]
+    if len(members) < 2:
+        return None
+    noises = [float(v) for v in summary["sensor_noise"].values()
+              if isinstance(v, (int, float)) and math.isfinite(v) and v > 0]
+    if not noises:  # noise-free recordings: the code's own tolerance sets the units
+        noises = [1e-6]
+    noise = float(np.median(noises))
+    rate = max(r.sample_rate for r in recs)
+    recorded = [make_target(r, 5e-4) for r in recs]  # the targets ignore a constant offset
+    ranking = discriminating_tests(members, default_candidates(rate), noise_sd=noise, seed=seed,
+                                   recorded=recorded)
+    from ..common import pyplot
+
+    plt = pyplot()
+    ax = ranking.plot()
+    ax.figure.tight_layout()
+    ax.figure.savefig(out / "next_test.png", dpi=90)
+    plt.close(ax.figure)
+    result = ranking.to_dict()
+    result["tests"] = result["tests"][:8]  # the best few; the figure shows twelve
+    return result
 
 
 def inputs_hash(recs, fixed, seed, search) -> str:
@@ -254,6 +295,46 @@ def _shown(value):
     return value if isinstance(value, str) else ("on" if value else "off")
 
 
+def _next_test_lines(nt):
+    """The report's section on the test that would tell the set's structures apart."""
+    if not nt:
+        return []
+    lines = ["", "## A test that would decide", "",
+             f"The {len(nt['members'])} structures the recordings cannot tell apart, "
+             f"{', '.join(f'`{m}`' for m in nt['members'])}, simulated through candidate tests "
+             f"as the discovery would see them (sensor noise {nt['noise_sd']:.2g} rad). A pair is "
+             f"decided when the cost one would add on the new recording if the other were the "
+             f"truth is at least {nt['decides']:g} (the margin's floor is 0.1 a recording). The "
+             "whole menu is compared at the fitted parameters; the best candidates again with "
+             "every member refitted to all the recordings and the other's record of the test "
+             "(what a rerun would do: a refit absorbs most of a difference at fixed parameters).",
+             ""]
+    best = nt.get("best")
+    if best is None:
+        return lines + ["No candidate test ran (the best structure shows no cycle at the candidate "
+                        "controller settings).", ""]
+    if best["pairs_decided"] == 0:
+        lines += [f"**No candidate decides any pair**: refitted, these structures reproduce each "
+                  f"other's responses to the best tests of the menu (closest to deciding: "
+                  f"{best['name']}, {best['closest_separation']:.3g} for "
+                  f"`{best['closest_pair'][0]}` against `{best['closest_pair'][1]}`). At this "
+                  "noise they are one model for such tests; a lower-noise or faster test, or a "
+                  "known part (`--fix`), is what could separate them.", ""]
+    else:
+        lines += [f"Best: **{best['name']}**, deciding {best['pairs_decided']} of {nt['n_pairs']} "
+                  "pairs" + ("." if not best["undecided"] else "; still open: " + "; ".join(
+                      f"`{a}` / `{b}`" for a, b in best["undecided"]) + "."), ""]
+    lines += ["| test | pairs decided | at fixed parameters | closest pair's cost difference |",
+              "|---|---|---|---|"]
+    for t in nt["tests"]:
+        if "skipped" in t:
+            continue
+        refit = f"{t['pairs_decided']} of {nt['n_pairs']}" if t.get("refitted") else "(not refitted)"
+        lines.append(f"| {t['name']} | {refit} | {t['pairs_decided_fixed']} of {nt['n_pairs']} | "
+                     f"{t['closest_separation']:.3g} |")
+    return lines + ["", "![next test](next_test.png)", ""]
+
+
 def report(summary) -> str:
     """``report.md``: ranking table, what was fixed or estimated, posterior and figures."""
     lines = ["# tvcid discover", "", "Recordings: " + ", ".join(summary["recordings"]), ""]
@@ -279,8 +360,8 @@ def report(summary) -> str:
         else:
             lines.append(f"- {label}: decided, {_shown(value)}")
     if all(v is None for v in summary["decided"].values()):
-        lines += ["", "The recordings decide no structural choice: a test that separates them "
-                  "(an open-loop square wave, another controller setting; `tvcid design`) would."]
+        lines += ["", "The recordings decide no structural choice."]
+    lines += _next_test_lines(summary.get("next_test"))
     best = summary["structures"][0]
     lines += ["", "## Best structure's parameters", "", "| parameter | value | local spread (coordinate) |",
               "|---|---|---|"]

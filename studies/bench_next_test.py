@@ -1,0 +1,155 @@
+"""Does the suggested test decide what the recordings could not? The next-test check.
+
+``python -m studies.bench_next_test [--seeds 1004,1009,1010,1016,1020,1025] [--out DIR]``
+
+Hypothesis: where the discovery leaves several structures indistinguishable,
+:func:`discovery.structure.discrimination.discriminating_tests` (the default menu, at the
+recordings' highest rate and median estimated noise, the members refitted) predicts which pairs
+of structures the best test of the menu would decide. Checked by running that test: it is
+recorded from the draw's truth by the plain-Python reference path with the draw's own sensor,
+and the discovery runs again on all the draw's recordings. A pair of the first set is decided in
+fact when the second set holds one of its two structures and not the other. Deciding numbers:
+per draw, the set before and after (size, truth inside, right winner), the pairs predicted
+decided against the pairs decided in fact, and the pairs on which they agree.
+
+The default seeds are the discovery benchmark's six misses (studies/records), sets of 6-9
+structures that hold the truth. Each draw runs two discoveries with the benchmark's quick settings
+(no SINDy seeds) and the suggestion's refits: about 15-25 minutes a draw on two cores. Rows are
+written to ``DIR/bench.json`` as they finish; a rerun keeps finished draws.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from discovery.structure import StructureDiscovery
+from discovery.structure.discrimination import default_candidates, discriminating_tests
+
+from .common import code_commit
+from .scenarios import RecordingDesign, draw_scenario, write_recording, write_recordings
+
+DEFAULT_SEEDS = (1004, 1009, 1016, 1010, 1020, 1025)
+
+
+def _set_of(disc, truth):
+    inside = [f for f in disc.indistinguishable_]
+    unmerged = [f for f in inside if f.merged_into is None]
+    truth_member = next((f.merged_into or f.structure.name for f in inside if f.structure == truth),
+                        None)
+    return {"winner": disc.best_.structure.name, "set": [f.structure.name for f in unmerged],
+            "set_size": len(unmerged), "truth_in_set": truth_member is not None,
+            "truth_member": truth_member, "right_winner": disc.best_.structure == truth}
+
+
+def _design_of(candidate, rate):
+    """The candidate as a recording of the benchmark's designs."""
+    exp = candidate.experiment
+    if candidate.kind == "closed":
+        return RecordingDesign("closed", candidate.duration, rate, exp.kp, exp.kd, exp.mu,
+                               controller_rate=exp.sample_rate)
+    return RecordingDesign("open", candidate.duration, rate, waveform=exp.waveform,
+                           amplitude=exp.amplitude, frequency=exp.frequency)
+
+
+def run_draw(seed, out):
+    """Discover, ask for the next test, record it from the truth, discover again."""
+    scenario = draw_scenario(seed)
+    truth = scenario.structure
+    paths = write_recordings(scenario, out / f"draw{seed:03d}", reuse=True)
+    t0 = time.perf_counter()
+    disc = StructureDiscovery(seed=seed, use_sindy=False).fit(paths)
+    before = _set_of(disc, truth)
+    row = {"seed": seed, "structure": truth.name, "design": scenario.to_dict(), "before": before,
+           "commit": code_commit()}
+    members = [f.params for f in disc.indistinguishable_ if f.merged_into is None]
+    names = [f.structure.name for f in disc.indistinguishable_ if f.merged_into is None]
+    if len(members) < 2:
+        row["suggestion"] = None
+        row["seconds"] = time.perf_counter() - t0
+        return row
+    rate = max(r.rate for r in scenario.recordings)
+    menu = {c.name: c for c in default_candidates(rate)}
+    noise = float(np.median([v for v in disc.noise_.values() if v > 0]))
+    ranking = discriminating_tests(members, list(menu.values()), noise_sd=noise, seed=seed,
+                                   recorded=disc.targets_)
+    best = ranking.best
+    row["suggestion"] = {k: best[k] for k in ("name", "refitted", "pairs_decided",
+                                              "pairs_decided_fixed", "undecided",
+                                              "closest_separation", "separation")}
+    row["suggestion"].update(n_pairs=ranking.n_pairs, noise_sd=noise,
+                             seconds=time.perf_counter() - t0)
+    # the suggested test recorded from the truth, beside the draw's recordings
+    design = _design_of(menu[best["name"]], rate)
+    extended = dataclasses.replace(scenario, recordings=scenario.recordings + (design,))
+    directory = out / f"draw{seed:03d}_next"
+    (directory / "truth").mkdir(parents=True, exist_ok=True)
+    index = len(scenario.recordings)
+    new_path = directory / f"rec{index:02d}_{design.kind}.csv"
+    stored = directory / "truth" / "scenario.json"
+    provenance = json.dumps(extended.to_dict(), indent=2, default=str)
+    made = (stored.exists() and stored.read_text() == provenance and new_path.exists()
+            and new_path.with_suffix(".json").exists())
+    if not made:  # the reference path costs about 10 s per simulated second
+        write_recording(extended, index, new_path)
+        stored.write_text(provenance)
+    # the discovery again, on every recording with the new one
+    disc2 = StructureDiscovery(seed=seed, use_sindy=False).fit(list(paths) + [new_path])
+    after = _set_of(disc2, truth)
+    inside = {f.structure.name for f in disc2.indistinguishable_}
+    pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    decided = [(a, b) for a, b in pairs if (a in inside) != (b in inside)]
+    predicted_open = {tuple(sorted(u)) for u in best["undecided"]}
+    agree = sum(((a, b) in decided) == (tuple(sorted((a, b))) not in predicted_open)
+                for a, b in pairs)
+    after.update(pairs_decided=len(decided), decided=[list(d) for d in decided],
+                 pairs_agreeing_with_prediction=int(agree),
+                 right_or_in_small_set=after["right_winner"]
+                 or (after["truth_in_set"] and after["set_size"] <= 3))
+    row["after"] = after
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)),
+                        help="benchmark draws, comma separated")
+    parser.add_argument("--out", default="results/bench_next_test", help="output directory")
+    args = parser.parse_args(argv)
+    try:
+        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    except ValueError:
+        parser.error(f"--seeds must be integers separated by commas (got {args.seeds!r})")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "bench.json"
+    rows = json.loads(path.read_text())["rows"] if path.exists() else []
+    rows = [r for r in rows if r["seed"] in seeds]
+    for seed in seeds:
+        if any(r["seed"] == seed for r in rows):
+            continue
+        rows.append(run_draw(seed, out))
+        rows.sort(key=lambda r: r["seed"])
+        path.write_text(json.dumps({"rows": rows}, indent=2, default=str))
+    print(f"{'draw':>5s}  {'truth':45s}  set before -> after (truth in, right winner)  suggested "
+          "test: pairs predicted decided (at fixed parameters), decided in fact, agreeing")
+    for r in rows:
+        b, s, a = r["before"], r.get("suggestion"), r.get("after")
+        if s is None:
+            print(f"{r['seed']:5d}  {r['structure']:45s}  {b['set_size']} (set of one)")
+            continue
+        print(f"{r['seed']:5d}  {r['structure']:45s}  {b['set_size']} -> {a['set_size']} "
+              f"({a['truth_in_set']}, {a['right_winner']})  {s['name']}: {s['pairs_decided']} "
+              f"({s['pairs_decided_fixed']}) of {s['n_pairs']}, {a['pairs_decided']}, "
+              f"{a['pairs_agreeing_with_prediction']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,115 @@
+"""Which test tells structures apart (discovery.structure.discrimination)."""
+import numpy as np
+import pytest
+
+from discovery.prediction.design import Candidate
+from discovery.structure.discrimination import DECIDES, default_candidates, discriminating_tests
+from models import M001i, M002
+from models.experiments import CONTROLLER_A, OpenLoop
+
+MENU = [Candidate("sine 10 mrad 1 Hz", OpenLoop.sine(10e-3, 1.0), 6.0),
+        Candidate("square 20 mrad 4 Hz", OpenLoop.square(20e-3, 4.0), 6.0),
+        Candidate("controller A", CONTROLLER_A, 12.0)]
+
+
+def test_different_actuators_are_told_apart_and_the_matrix_is_a_distance():
+    """Paper 002's actuator (dead zone on the error, 7 ms at the output, a 30 Hz block) against
+    paper 001's (dead zone on the velocity signal, 5.6 ms, a 19 Hz block): every test decides the
+    pair (their cycles differ by 12 %, their responses by far more than the noise of 2e-5 rad)."""
+    r = discriminating_tests([M002(), M001i()], MENU, noise_sd=2e-5, seed=1)
+    assert r.members == ("dz_error+delay_output+backlash", "dz_velocity+delay_output+backlash")
+    assert r.n_pairs == 1 and len(r.tests) == 3
+    for t in r.tests:
+        assert "skipped" not in t, t
+        sep = np.array(t["separation"])
+        assert sep.shape == (2, 2) and np.allclose(sep, sep.T) and np.allclose(np.diag(sep), 0)
+        assert t["pairs_decided"] == 1 and t["closest_separation"] >= DECIDES and not t["undecided"]
+    seps = [t["closest_separation"] for t in r.tests]
+    assert seps == sorted(seps, reverse=True)
+    assert r.best is r.tests[0] and r.to_dict()["best"]["name"] == r.tests[0]["name"]
+
+
+def test_a_backlash_of_ten_nanoradians_cannot_be_told_from_none():
+    """Paper 001's actuator with a backlash of 1e-8 rad against the same without one (the
+    negative control): no test of the menu separates them at 2e-5 rad of noise."""
+    a = M001i().replace(backlash=1e-8)
+    b = a.replace(backlash=0.0)
+    r = discriminating_tests([a, b], MENU, noise_sd=2e-5, seed=2)
+    assert all(t["pairs_decided"] == 0 and t["closest_separation"] < DECIDES for t in r.tests)
+    assert r.tests[0]["undecided"] == [list(r.members)]
+    ax = r.plot()
+    assert len(ax.patches) == 3
+
+
+def test_refitted_members_are_weighed_on_the_best_candidates_only(tmp_path):
+    """With the recordings the members were fitted to (a limit cycle of paper 002's actuator at
+    controller A), the best candidate at fixed parameters is weighed again with each member
+    refitted to that cycle and the other's record of the test: a refit starts from the fixed
+    comparison and only lowers it (within the two records' noise), and the other candidates
+    keep their fixed verdicts."""
+    from discovery.calibration.synthetic import synthetic_recording
+    from discovery.structure.targets import make_target
+
+    rec = synthetic_recording(M002(), CONTROLLER_A, 30.0, 2e-5, 4, tmp_path / "cycle.csv",
+                              keep_last=20.0)
+    r = discriminating_tests([M002(), M001i()], MENU, noise_sd=2e-5, seed=1,
+                             recorded=[make_target(rec, 5e-4)], n_refit=1)
+    refitted = [t for t in r.tests if t["refitted"]]
+    assert len(refitted) == 1 and r.best is refitted[0]
+    for t in r.tests:
+        sep, fixed = np.array(t["separation"]), np.array(t["separation_fixed"])
+        assert np.allclose(sep, sep.T) and np.all(sep <= 1.1 * fixed + 0.05), (sep, fixed)
+        if not t["refitted"]:
+            assert np.array_equal(sep, fixed)
+
+
+def test_bad_requests_are_refused():
+    with pytest.raises(ValueError, match="at least two"):
+        discriminating_tests([M002()], MENU)
+    with pytest.raises(ValueError, match="share a structure"):
+        discriminating_tests([M002(), M002().replace(dead_zone=2e-3)], MENU)
+    with pytest.raises(ValueError, match="noise_sd"):
+        discriminating_tests([M002(), M001i()], MENU, noise_sd=0.0)
+
+
+def test_default_menu_spans_slow_and_fast_tests_and_both_controllers():
+    menu = default_candidates(sample_rate=200.0)
+    assert len(menu) == 32 and len({c.name for c in menu}) == 32
+    assert {c.kind for c in menu} == {"open", "closed"}
+    assert all(c.sample_rate == 200.0 for c in menu)
+    freqs = {c.experiment.frequency for c in menu if c.kind == "open"}
+    assert min(freqs) == 0.5 and max(freqs) == 8.0
+
+
+def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
+    """``tvcid discover``'s ``next_test`` on a set of two (paper 002's and paper 001's actuators,
+    as a ranking would list them, with the bundled M000 cycle as the recording): the unmerged
+    members are weighed on the default menu at the recordings' rate and median noise, and the
+    report gives the best test and its verdict with the figure; a set of one gives ``None``
+    and no section."""
+    from models import M001i, M002
+    from models.recording import load_recording
+    from studies.commands.discover import _next_test_lines, next_test
+
+    def entry(params, inside=True, merged=None):
+        return {"params": params.to_dict(), "indistinguishable_from_best": inside,
+                "merged_into": merged}
+
+    structures = [entry(M002()), entry(M001i()), entry(M002().replace(backlash=0.0), True, "x"),
+                  entry(M001i().replace(dead_zone=0.02), False)]
+    summary = {"structures": structures, "sensor_noise": {"a": 2e-5, "b": "nan", "c": 4e-5}}
+    recs = [load_recording("data/m000_closed_A.csv")]
+    nt = next_test(summary, recs, 0, tmp_path)
+    assert nt["members"] == ["dz_error+delay_output+backlash", "dz_velocity+delay_output+backlash"]
+    assert nt["noise_sd"] == pytest.approx(3e-5) and nt["n_pairs"] == 1
+    # the best candidates were weighed with the members refitted to the recording (neither was
+    # fitted to it, so a refit can only bring them closer than at fixed parameters)
+    best = nt["best"]
+    assert best["refitted"] and best["pairs_decided"] <= best["pairs_decided_fixed"] == 1
+    assert len(nt["tests"]) == 8 and sum(t["refitted"] for t in nt["tests"]) == 3
+    assert (tmp_path / "next_test.png").exists()
+    text = "\n".join(_next_test_lines(nt))
+    assert "## A test that would decide" in text and best["name"] in text
+    assert ("No candidate decides any pair" in text) == (best["pairs_decided"] == 0)
+    assert next_test({"structures": structures[:1], "sensor_noise": {}}, recs, 0, tmp_path) is None
+    assert _next_test_lines(None) == []
