@@ -258,8 +258,9 @@ def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp):
     targets = [_target_of(p, cand, noise_sd, dt, seed, tmp / f"refit{j:02d}.csv")
                for j, p in enumerate(members)]
     targets = [None if isinstance(t, str) else t for t in targets]
-    old = Objective(recorded)
-    old_cost = old.costs(members).sum(axis=1)
+    old_cost = Objective(recorded).costs(members).sum(axis=1)
+    own = [None if t is None else float(Objective([t]).costs([p])[0].sum())
+           for t, p in zip(targets, members)]
     fixed = np.asarray(test["separation_fixed"])
     sep = np.zeros((k, k))
     for i, j in itertools.permutations(range(k), 2):
@@ -269,9 +270,8 @@ def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp):
         if min(fixed[i, j], fixed[j, i]) < DECIDES:
             sep[i, j] = fixed[i, j]
             continue
-        own = float(Objective([targets[j]]).costs([members[j]])[0].sum())
         space = SearchSpace(Structure.of_params(members[i]), members[i], {}, dt)
         fit = refine(space, Objective(list(recorded) + [targets[j]]),
                      space.coordinates(members[i]), max_nfev=REFIT_NFEV)
-        sep[i, j] = max(fit.cost - old_cost[i] - own, 0.0)
+        sep[i, j] = max(fit.cost - old_cost[i] - own[j], 0.0)
     test.update(refitted=True, **_verdict(np.minimum(sep, sep.T), names))
