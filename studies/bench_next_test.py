@@ -1,6 +1,6 @@
 """Does the suggested test decide what the recordings could not? The next-test check.
 
-``python -m studies.bench_next_test [--seeds 1004,1009,1010,1016,1020,1025] [--out DIR]``
+``python -m studies.bench_next_test [--seeds 1004,1009,1016,1010,1020,1025] [--out DIR]``
 
 Hypothesis: where the discovery leaves several structures indistinguishable,
 :func:`discovery.structure.discrimination.discriminating_tests` (the default menu, at the
@@ -12,7 +12,7 @@ fact when the second set holds one of its two structures and not the other. Deci
 per draw, the set before and after (size, truth inside, right winner), the pairs predicted
 decided against the pairs decided in fact, and the pairs on which they agree.
 
-The default seeds are the discovery benchmark's six misses (studies/records), sets of 6-9
+The default seeds are the discovery benchmark's six misses (studies/records), sets of 6-10
 structures that hold the truth. Each draw runs two discoveries with the benchmark's quick settings
 (no SINDy seeds) and the suggestion's refits: about 15-25 minutes a draw on two cores. Rows are
 written to ``DIR/bench.json`` as they finish; a rerun keeps finished draws.
