@@ -124,22 +124,16 @@ def run_draw(seed, out_dir, quick):
     disc = StructureDiscovery(seed=seed, use_sindy=not quick).fit(paths)
     t_disc = time.perf_counter() - t0
     truth_s = scenario.structure
-    in_set = [f for f in disc.indistinguishable_]
-    unmerged = [f for f in in_set if f.merged_into is None]
     errors = coordinate_errors(disc, scenario.truth, truth_s)
     own = next((f for f in disc.ranking_ if f.structure == truth_s), None)
     at_truth = truth_cost(disc, scenario.truth)
+    verdict = set_verdict(disc.ranking_, truth_s)
+    del verdict["members"]
     row = {
         "seed": seed,
         "structure": truth_s.name,
         "design": scenario.to_dict(),
-        "winner": disc.best_.structure.name,
-        "right_winner": disc.best_.structure == truth_s,
-        "truth_in_set": any(f.structure == truth_s for f in in_set),
-        "set_size": len(unmerged),
-        "set": [f.structure.name for f in in_set],
-        "right_or_in_small_set": disc.best_.structure == truth_s
-        or (any(f.structure == truth_s for f in in_set) and len(unmerged) <= 3),
+        **verdict,
         "coordinates": errors,
         # a fitted cost above the truth's own is a search failure, not a limit of the data
         "cost_at_truth": at_truth,
@@ -163,6 +157,27 @@ def run_draw(seed, out_dir, quick):
         "commit": CODE_COMMIT,
     }
     return undecided_marked(row)
+
+
+def set_verdict(ranked, truth):
+    """How a ranking (winner first, its indistinguishable set marked:
+    :func:`discovery.structure.discover.indistinguishable_set`) stands to the ``truth`` structure.
+
+    Returns ``winner``; ``right_winner``; ``set`` (every structure in the set, merged ones too);
+    ``members`` (the unmerged ones) and ``set_size`` (their number); ``truth_member`` (the member
+    the truth is or is merged into, ``None`` outside the set) and ``truth_in_set``; and
+    ``right_or_in_small_set``, issue 11's verdict: the right winner, or the truth in a set of at
+    most 3 members.
+    """
+    inside = [f for f in ranked if f.indistinguishable_from_best]
+    members = [f.structure.name for f in inside if f.merged_into is None]
+    truth_member = next((f.merged_into or f.structure.name for f in inside if f.structure == truth),
+                        None)
+    right = ranked[0].structure == truth
+    return {"winner": ranked[0].structure.name, "right_winner": right,
+            "truth_in_set": truth_member is not None, "truth_member": truth_member,
+            "set_size": len(members), "set": [f.structure.name for f in inside], "members": members,
+            "right_or_in_small_set": right or (truth_member is not None and len(members) <= 3)}
 
 
 def undecided_marked(row):
@@ -278,14 +293,9 @@ def rederived(row, floors, commit=CODE_COMMIT):
     fits += [fit(s, math.inf, math.inf) for s in structure_space({})[0] if s not in named]
     fits.sort(key=lambda f: (f.score, f.cost))
     ranked = indistinguishable_set(fits, len(floors), floors=np.asarray(floors, dtype=float))
-    inside = [f for f in ranked if f.indistinguishable_from_best]
-    unmerged = [f for f in inside if f.merged_into is None]
-    truth = Structure.parse(row["structure"])
-    verdict = {"winner": ranked[0].structure.name, "right_winner": ranked[0].structure == truth,
-               "truth_in_set": any(f.structure == truth for f in inside),
-               "set_size": len(unmerged), "set": [f.structure.name for f in inside]}
-    verdict["right_or_in_small_set"] = verdict["right_winner"] or (
-        verdict["truth_in_set"] and len(unmerged) <= 3)
+    verdict = set_verdict(ranked, Structure.parse(row["structure"]))
+    for key in ("members", "truth_member"):
+        del verdict[key]
     keys = ("winner", "set_size", "truth_in_set", "right_or_in_small_set")
     changed = [k for k in keys if verdict[k] != row[k]]
     out = dict(row)

@@ -31,6 +31,7 @@ import numpy as np
 from discovery.structure import StructureDiscovery
 from discovery.structure.discrimination import default_candidates, discriminating_tests
 
+from .bench_discovery import set_verdict
 from .common import code_commit
 from .scenarios import RecordingDesign, draw_scenario, write_recording, write_recordings
 
@@ -38,13 +39,11 @@ DEFAULT_SEEDS = (1004, 1009, 1016, 1010, 1020, 1025)
 
 
 def _set_of(disc, truth):
-    inside = [f for f in disc.indistinguishable_]
-    unmerged = [f for f in inside if f.merged_into is None]
-    truth_member = next((f.merged_into or f.structure.name for f in inside if f.structure == truth),
-                        None)
-    return {"winner": disc.best_.structure.name, "set": [f.structure.name for f in unmerged],
-            "set_size": len(unmerged), "truth_in_set": truth_member is not None,
-            "truth_member": truth_member, "right_winner": disc.best_.structure == truth}
+    """The discovery's set as this benchmark records it: ``set`` holds the unmerged members."""
+    verdict = set_verdict(disc.ranking_, truth)
+    verdict["set"] = verdict.pop("members")
+    return {k: verdict[k] for k in ("winner", "set", "set_size", "truth_in_set", "truth_member",
+                                    "right_winner")}
 
 
 def _design_of(candidate, rate):
