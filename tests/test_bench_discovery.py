@@ -107,5 +107,32 @@ def test_floor_scan_weighs_the_set_rule_on_finished_rows():
     assert 1017 not in scan.misses[4] and 1017 in scan.misses[-1]
     assert scan.missed_at_every_scale == (1010, 1020, 1025)
     assert scan.to_dict()["missed_at_every_scale"] == [1010, 1020, 1025]
+    # 1010, 1020 and 1025: six, six and four minimal structures fit as well as the truth
+    assert scan.ceiling == 0.4 and scan.right_or_in_set_le3[4] == 0.4
     ax = scan.plot()
-    assert len(ax.lines) == 4  # both rates, the goal, the rule's scale
+    assert len(ax.lines) == 5  # both rates, the goal, the fit ceiling, the rule's scale
+
+
+def test_structures_fitting_as_well_as_the_truth_bound_the_set():
+    """:func:`as_well_as_truth` on recorded rows: draw 1013 (three cycles, two squares) leaves no
+    wrong structure fitting as well as the true parameters, draw 1010 (one cycle and a 0.55 Hz
+    sine) leaves the six positions of the dead zone and the delay, each minimal and each fitted at
+    most at the truth's cost; a set of at most 3 cannot hold 1010's truth without excluding a
+    structure the data favour as much. The summary counts the ceiling per class."""
+    from models.structures import Structure
+    from studies.bench_discovery import as_well_as_truth, summarise
+
+    record = Path(__file__).resolve().parents[1] / "studies" / "records" / "bench_discovery_quick.json"
+    rows = {r["seed"]: r for r in json.loads(record.read_text())["rows"]}
+    assert as_well_as_truth(rows[1013]) == [rows[1013]["structure"]]
+    row = rows[1010]
+    fitting = as_well_as_truth(row)
+    positions = {tuple(name.split("+")[:2]) for name in fitting}
+    assert len(fitting) == 6 and len(positions) == 6, fitting
+    assert set(fitting) == {Structure.parse(n).name for n in fitting}
+    cost = {x["structure"]: x["cost"] for x in row["ranking"]}
+    assert all(cost[n] <= row["cost_at_truth"] for n in fitting if n != row["structure"])
+    assert as_well_as_truth({**row, "cost_at_truth": None}) is None
+    table = summarise([rows[1013], rows[1010]])
+    assert table["overall"]["ceiling_set_le3"] == 0.5
+    assert table["overall"]["truth_in_set_le3"] == 0.5
