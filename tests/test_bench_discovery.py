@@ -133,6 +133,11 @@ def test_structures_fitting_as_well_as_the_truth_bound_the_set():
     cost = {x["structure"]: x["cost"] for x in row["ranking"]}
     assert all(cost[n] <= row["cost_at_truth"] for n in fitting if n != row["structure"])
     assert as_well_as_truth({**row, "cost_at_truth": None}) is None
+    # against the truth's structure's own fit (below the truth's cost) fewer structures qualify
+    oracle = as_well_as_truth(row, "fit")
+    assert row["structure"] in oracle and set(oracle) <= set(fitting) and len(oracle) == 4
+    with pytest.raises(ValueError, match="against"):
+        as_well_as_truth(row, "prior")
     table = summarise([rows[1013], rows[1010]])
     assert table["overall"]["ceiling_set_le3"] == 0.5
     assert table["overall"]["truth_in_set_le3"] == 0.5
