@@ -213,6 +213,13 @@ def as_well_as_truth(row, against="truth"):
     return [s.name for s in fitting if not any(_contains(s, o) for o in fitting)]
 
 
+def fit_ceiling(rows, against="truth"):
+    """Fraction of ``rows`` where at most 3 minimal structures fit as well as the truth
+    (:func:`as_well_as_truth` with ``against``); NaN where no row has a stored truth cost."""
+    counts = [len(m) for m in (as_well_as_truth(r, against) for r in rows) if m is not None]
+    return float(np.mean([c <= 3 for c in counts])) if counts else math.nan
+
+
 def undecided_marked(row):
     """``row`` with the coordinates the recordings leave open marked, and its verdict.
 
@@ -279,8 +286,6 @@ def summarise(rows, key=structure_class):
     for key, rs in sorted(by.items()) + [("overall", rows)]:
         # the draws' structural choices (5 each): decided and right, decided and wrong, open
         verdicts = [v for r in rs for v in choice_verdicts(r).values()]
-        ceilings = [m for m in map(as_well_as_truth, rs) if m is not None]
-        oracles = [m for m in (as_well_as_truth(r, "fit") for r in rs) if m is not None]
         table[key] = {
             "draws": len(rs),
             "right_winner": float(np.mean([r["right_winner"] for r in rs])),
@@ -288,11 +293,8 @@ def summarise(rows, key=structure_class):
             "identifiable_within_5pc": float(np.mean([r["identifiable_within"] for r in rs])),
             "truth_in_set_le3": float(np.mean([r["truth_in_set"] and r["set_size"] <= 3
                                                for r in rs])),
-            # draws where at most 3 minimal structures fit as well as the truth (as_well_as_truth)
-            "ceiling_set_le3": float(np.mean([len(m) <= 3 for m in ceilings]))
-            if ceilings else math.nan,
-            "oracle_set_le3": float(np.mean([len(m) <= 3 for m in oracles]))
-            if oracles else math.nan,
+            "ceiling_set_le3": fit_ceiling(rs),
+            "oracle_set_le3": fit_ceiling(rs, "fit"),
             "choices_decided_right": float(np.mean([v == "right" for v in verdicts])),
             "choices_decided_wrong": int(sum(v == "wrong" for v in verdicts)),
             "median_seconds": float(np.nanmedian([r["seconds_discovery"] for r in rs])),
@@ -436,10 +438,8 @@ def floor_scan(rows, floors, scales=FLOOR_SCALES):
         truth_in.append(float(np.mean([r["truth_in_set"] for r in again])))
         sizes.append(float(np.mean([r["set_size"] for r in again])))
         misses.append(tuple(r["seed"] for r in again if not r["right_or_in_small_set"]))
-    ceilings = [m for m in map(as_well_as_truth, rows) if m is not None]
     return FloorScan(tuple(float(s) for s in scales), tuple(hits), tuple(truth_in), tuple(sizes),
-                     tuple(misses), float(np.mean([len(m) <= 3 for m in ceilings]))
-                     if ceilings else math.nan)
+                     tuple(misses), fit_ceiling(rows))
 
 
 def main(argv=None) -> int:
