@@ -1,6 +1,7 @@
 """``tvcid fit``: Bayesian calibration of a hypothesis on recordings (emcee, resumable)."""
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 import warnings
@@ -64,35 +65,28 @@ def register(sub):
 def run(args) -> int:
     from discovery.calibration import Calibration, ConvergenceWarning, parse_prior
 
-    from ..common import write_posterior_figures
+    from ..common import map_pool, write_posterior_figures
 
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     priors = dict(parse_prior(text) for text in args.prior)
     fixed = parse_assignments(args.set)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    pool = None
-    if args.processes > 0:
-        import multiprocessing
-
-        pool = multiprocessing.get_context("spawn").Pool(args.processes)
-    cal = Calibration(
-        hypothesis=args.hypothesis, params=names, priors=priors, fixed=fixed,
-        likelihood=args.likelihood,
-        features=tuple(f.strip() for f in args.features.split(",") if f.strip()),
-        window=args.window, transient=args.transient, choose_transient=not args.keep_transient,
-        dt=args.dt, n_walkers=args.walkers, max_steps=args.max_steps, seed=args.seed,
-        backend=out / "chain.h5",
-        progress=not args.no_progress, pool=pool,
-    )
-    try:
+    with contextlib.ExitStack() as stack:
+        # its workers end with this process, however it ends
+        pool = stack.enter_context(map_pool(args.processes)) if args.processes > 0 else None
+        cal = Calibration(
+            hypothesis=args.hypothesis, params=names, priors=priors, fixed=fixed,
+            likelihood=args.likelihood,
+            features=tuple(f.strip() for f in args.features.split(",") if f.strip()),
+            window=args.window, transient=args.transient, choose_transient=not args.keep_transient,
+            dt=args.dt, n_walkers=args.walkers, max_steps=args.max_steps, seed=args.seed,
+            backend=out / "chain.h5",
+            progress=not args.no_progress, pool=pool,
+        )
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ConvergenceWarning)
             cal.fit(args.files)
-    finally:
-        if pool is not None:
-            pool.close()
-            pool.join()
     post = cal.posterior_
     post.to_json(out / "summary.json")
     from discovery.calibration import predictive_check
