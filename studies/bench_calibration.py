@@ -37,12 +37,20 @@ Usage: ``python -m studies.bench_calibration [--case m002|ridge|all] [--seeds 1,
 [--ridge-seeds 0] [--walkers 10] [--transient T] [--continuation] [--reference-transient 12]``;
 writes
 ``results/bench_calibration/bench.json`` and corner/trace plots. Other jobs on the machine inflate the wall time; the load average is recorded.
+The wall-time goals are judged against the batch kernel's reference measured in the same run
+(:meth:`studies.goals.Goal.speed`). The run ends with the goals of the cases it ran, one line each
+(M002: every seed converged, every seed within 40,000 simulated seconds, the slowest seed's wall
+time; ridge, per seed: converged within the step cap, every truth inside its 90 % interval, the
+wall time), and its exit status is 0 when all are met, 1 otherwise. Each case's numbers carry the
+commit of the code that ran them (``bench.json`` keeps the other case's from an earlier run);
+non-finite numbers are written as ``null``.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -50,6 +58,10 @@ import numpy as np
 
 from discovery.calibration import Calibration, synthetic_recording
 from models import CONTROLLER_A, M002
+
+from .common import code_commit
+from .goals import Goal, kernel_reference, write_json
+from .goals import report as goal_report
 
 OUT = Path("results/bench_calibration")
 NAMES = ("backlash", "dead_zone", "delay", "sigma")
@@ -74,6 +86,10 @@ def likelihood_errors(rec):
 
 #: Issue 12's cost goal for the M002 case (seconds simulated to convergence).
 GOAL_SIMULATED_SECONDS = 40000.0
+#: The ridge case's goal: converged within the step cap, in at most this wall time on 2 cores.
+RIDGE_GOAL = {"wall_time_s": 180.0, "step_cap": 4000}
+#: The commit of the code this process imported.
+CODE_COMMIT = code_commit()
 
 
 def run_case(seed, walkers, workdir, transient=None, continuation=False, choose_transient=True):
@@ -213,11 +229,18 @@ def main(argv=None):
     path = OUT / "bench.json"
     report = json.loads(path.read_text()) if path.exists() else {}  # the other case's numbers stay
     report.update({"cores": os.cpu_count(), "load_average_before": os.getloadavg()})
+    reference = kernel_reference()
+    goals = []
     if args.case in ("m002", "all"):
         report.update(_m002(args))
+        report["kernel_seconds_per_simulated_second"] = reference
+        goals += m002_goals(report, reference)
     if args.case in ("ridge", "all"):
-        report["ridge"] = [run_ridge_case(int(s), OUT) for s in args.ridge_seeds.split(",")]
-        report["ridge_goal"] = {"wall_time_s": 180.0, "step_cap": 4000}
+        report["ridge"] = [{**run_ridge_case(int(s), OUT), "commit": CODE_COMMIT}
+                           for s in args.ridge_seeds.split(",")]
+        report["ridge_goal"] = RIDGE_GOAL
+        report["ridge_kernel_seconds_per_simulated_second"] = reference
+        goals += ridge_goals(report["ridge"], reference)
         for r in report["ridge"]:
             cells = ", ".join(f"{n} {'in' if c['inside_90'] else 'OUT'} (width "
                               f"{c['relative_width']:.3f})" for n, c in r["parameters"].items())
@@ -225,10 +248,42 @@ def main(argv=None):
                   f"converged {r['converged']}, {r['simulated_seconds']:.0f} simulated s, truth's HPD rank "
                   f"{r['truth_hpd_rank']:.2f}; {cells}")
     report["load_average_after"] = os.getloadavg()
-    path.write_text(json.dumps(report, indent=2, default=float) + "\n")
+    write_json(path, report, default=float)
     print(f"load average before/after: {report['load_average_before']} / "
           f"{report['load_average_after']}")
     print(f"wrote {path}")
+    return goal_report(goals)
+
+
+def m002_goals(report, reference) -> list:
+    """The M002 case's goals (module docstring) from its ``report`` and the kernel ``reference``
+    (s per simulated second) of the same run."""
+    runs = report["runs"]
+    n = len(runs)
+    return [
+        Goal.count("M002 seeds converged", sum(bool(r["converged"]) for r in runs), n),
+        Goal.count(f"M002 seeds within {GOAL_SIMULATED_SECONDS:,.0f} simulated seconds",
+                   report["seeds_within_goal"], n),
+        Goal.speed(f"M002 wall time to a converged posterior, slowest of {n} seeds",
+                   max(r["wall_time_s"] for r in runs), reference, report["goal_wall_time_s"]),
+    ]
+
+
+def ridge_goals(rows, reference) -> list:
+    """The ridge case's goals, per truth seed (module docstring)."""
+    goals = []
+    for r in rows:
+        cells = r["parameters"].values()
+        goals += [
+            Goal.flag(f"ridge seed {r['seed']} converged within {r['step_cap']} steps",
+                      r["converged"], yes=f"yes, {r['iterations']} steps",
+                      no=f"no, {r['iterations']} steps"),
+            Goal.count(f"ridge seed {r['seed']} truths inside their 90 % intervals",
+                       sum(bool(c["inside_90"]) for c in cells), len(cells)),
+            Goal.speed(f"ridge seed {r['seed']} wall time", r["wall_time_s"], reference,
+                       RIDGE_GOAL["wall_time_s"]),
+        ]
+    return goals
 
 
 def _m002(args) -> dict:
@@ -276,6 +331,7 @@ def _m002(args) -> dict:
         print(f"against a {args.reference_transient:g} s transient: medians moved by at most "
               f"{worst_shift:.2f} half-widths, widths {min(ratios):.2f}-{max(ratios):.2f} of its")
     return {
+        "commit": CODE_COMMIT,
         "case": "M002, controller A, one 10 s record at 1 kHz, sensor noise 1e-4 rad; "
                 "(backlash, dead_zone, delay, sigma), waveform likelihood at its default step, "
                 f"{args.walkers} walkers, transient {results[0]['transient']:g} s"
@@ -291,4 +347,4 @@ def _m002(args) -> dict:
     }
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

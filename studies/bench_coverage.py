@@ -37,6 +37,13 @@ every row is complete and that coverage and ranks are computed from the rows.
 whose factor is over 1 are calibrated again without the term (same seed, start and chain
 settings) and ``DIR/widening.json`` gives, per draw and parameter, the ratio of the 90 %
 intervals' widths with and without it (issue 12: at most about 20 %).
+
+The run ends with its goals, one line each (:mod:`studies.goals`), and exits 0 when all are met,
+1 otherwise: no draw failed; per parameter, the truth inside its 90 % interval in 80-97 % of the
+finished draws (not judged on ``--quick``'s short chains); with ``--widening``, every interval
+widened by at most 20 %. Every row names the commit of the code that ran it; ``widening.json``
+names those of the rows with the term it was compared against. Non-finite numbers are written
+as ``null``.
 """
 from __future__ import annotations
 
@@ -52,6 +59,8 @@ from pathlib import Path
 import numpy as np
 
 from .common import code_commit
+from .goals import Goal, write_json
+from .goals import report as goal_report
 from .scenarios import (BACKLASH_CENTRE, DEAD_ZONE_CENTRE, DELAY_RANGE, RANGE_FACTOR, draw_scenario,
                         shortened, write_recordings)
 
@@ -61,6 +70,8 @@ SAMPLED = ("dead_zone", "backlash", "delay", "friction_offset")
 PRIOR_WIDENING = 1.5
 LEVEL = 0.90
 RANK_BINS = 10
+#: The hypothesis's range of the share of draws whose truth is inside its 90 % interval.
+COVERAGE_GOAL = (0.80, 0.97)
 
 
 @dataclass(frozen=True)
@@ -383,12 +394,11 @@ def main(argv=None) -> int:
                           for n, c in row["parameters"].items())
         print(f"draw {row['index']} ({row['structure']}): {cells}; {row['iterations']} steps, "
               f"{row['wall_s']:.0f} s", flush=True)
-        path.write_text(json.dumps({"config": asdict(config), "rows": rows,
-                                    "summary": summarise(rows)}, indent=2))
+        write_json(path, {"config": asdict(config), "rows": rows, "summary": summarise(rows)})
 
     failed = run_draws(todo, config, out / "data", args.jobs, record)
     summary = summarise(rows)
-    path.write_text(json.dumps({"config": asdict(config), "rows": rows, "summary": summary}, indent=2))
+    write_json(path, {"config": asdict(config), "rows": rows, "summary": summary})
     plot_ranks(summary, out / "ranks.png")
     for n, s in summary.items():
         if not n.startswith("_"):
@@ -396,8 +406,35 @@ def main(argv=None) -> int:
     print(f"wrote {path}, {out / 'ranks.png'}")
     if failed:
         print(f"FAILED draws (not in the table): {', '.join(map(str, sorted(failed)))}")
-        return 1
-    return 0
+    return goal_report([failed_goal(failed)] + ([] if args.quick else coverage_goals(summary)))
+
+
+def failed_goal(failed):
+    """Every draw run finished (a failed draw is left out of the table)."""
+    return Goal.at_most("draws that failed", len(failed), 0, fmt="{:d}",
+                        shown=", ".join(map(str, sorted(failed))) if failed else "none",
+                        target="none")
+
+
+def coverage_goals(summary) -> list:
+    """Per parameter: the truth inside its 90 % interval in ``COVERAGE_GOAL`` of the draws
+    (:func:`summarise`'s ``summary``; judged on full runs, not on ``--quick``'s two draws)."""
+    goals = []
+    for n, s in summary.items():
+        if n.startswith("_"):
+            continue
+        hits = round(s["coverage"] * s["draws"])
+        goals.append(Goal(f"{n} truth inside its 90 % interval", s["coverage"],
+                          low=COVERAGE_GOAL[0], high=COVERAGE_GOAL[1],
+                          shown=f"{hits} of {s['draws']} = {100 * s['coverage']:.0f} %",
+                          target=f"{100 * COVERAGE_GOAL[0]:.0f}-{100 * COVERAGE_GOAL[1]:.0f} %"))
+    return goals
+
+
+def widening_goal(result):
+    """Issue 12: the discrepancy term widens a right model's 90 % intervals by at most 20 %."""
+    return Goal.count("90 % intervals the discrepancy term widens by at most 20 %",
+                      result["within_20_percent"], result["intervals"])
 
 
 def _widening_main(args, config, out, rows) -> int:
@@ -416,21 +453,31 @@ def _widening_main(args, config, out, rows) -> int:
         row["config"] = asdict(config)
         plain.append(row)
         result = widening(rows, plain)
-        path.write_text(json.dumps({"plain_rows": plain, "widening": result}, indent=2))
+        write_widening(path, plain, result, rows)
         cells = ", ".join(f"{n} x{c['ratio']:.2f}" for d in result["draws"]
                           if d["index"] == row["index"] for n, c in d["parameters"].items())
         print(f"draw {row['index']} without the term: widths with it {cells}", flush=True)
 
     failed = run_draws(todo, config, out / "data", args.jobs, record, discrepancy=False)
     result = widening(rows, plain)
-    path.write_text(json.dumps({"plain_rows": plain, "widening": result}, indent=2))
+    write_widening(path, plain, result, rows)
     print(f"{result['within_20_percent']} of {result['intervals']} intervals widened by at most "
           f"20 % (median x{result['median_ratio']}, max x{result['max_ratio']}); wrote {path}")
     if failed:
         print(f"FAILED draws (not in the table): {', '.join(map(str, sorted(failed)))}")
-        return 1
-    return 0
+    return goal_report([failed_goal(failed), widening_goal(result)])
+
+
+def write_widening(path, plain, result, rows):
+    """``widening.json``: the rows without the term, the comparison, and the commits of the
+    rows with the term it was made against (by draw index)."""
+    paired = {d["index"] for d in result["draws"]}
+    write_json(path, {"plain_rows": plain, "widening": result,
+                      "with_term_commits": {str(r["index"]): r.get("commit") for r in rows
+                                            if r["index"] in paired}})
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from .common import run_interruptible  # Ctrl-C, SIGTERM: workers stopped, one line, 130
+
+    sys.exit(run_interruptible(main))

@@ -15,7 +15,11 @@ decided against the pairs decided in fact, and the pairs on which they agree.
 The default seeds are the discovery benchmark's six misses (studies/records), sets of 6-10
 structures that hold the truth. Each draw runs two discoveries with the benchmark's quick settings
 (no SINDy seeds) and the suggestion's refits: about 15-25 minutes a draw on two cores. Rows are
-written to ``DIR/bench.json`` as they finish; a rerun keeps finished draws.
+written to ``DIR/bench.json`` as they finish, each with the commit of the code that ran it
+(non-finite numbers as ``null``); a rerun keeps finished draws.
+
+Goals: none (a hypothesis checked by its deciding numbers); the run ends by saying so
+(:func:`studies.goals.report`) and exits 0.
 """
 from __future__ import annotations
 
@@ -33,6 +37,8 @@ from discovery.structure.discrimination import default_candidates, discriminatin
 
 from .bench_discovery import set_verdict
 from .common import code_commit
+from .goals import report as goal_report
+from .goals import write_json
 from .scenarios import RecordingDesign, draw_scenario, write_recording, write_recordings
 
 DEFAULT_SEEDS = (1004, 1009, 1016, 1010, 1020, 1025)
@@ -135,7 +141,7 @@ def main(argv=None) -> int:
             continue
         rows.append(run_draw(seed, out))
         rows.sort(key=lambda r: r["seed"])
-        path.write_text(json.dumps({"rows": rows}, indent=2, default=str))
+        write_json(path, {"rows": rows}, default=str)
     print(f"{'draw':>5s}  {'truth':45s}  set before -> after (truth in, right winner)  suggested "
           "test: pairs predicted decided (at fixed parameters), decided in fact, agreeing")
     for r in rows:
@@ -147,7 +153,7 @@ def main(argv=None) -> int:
               f"({a['truth_in_set']}, {a['right_winner']})  {s['name']}: {s['pairs_decided']} "
               f"({s['pairs_decided_fixed']}) of {s['n_pairs']}, {a['pairs_decided']}, "
               f"{a['pairs_agreeing_with_prediction']}")
-    return 0
+    return goal_report([])
 
 
 if __name__ == "__main__":

@@ -23,13 +23,17 @@ Measured:
   (amplitude and frequency measured the same way, at the simulator's default step).
 
 Usage: ``python -m studies.bench_prediction [--quick] [--seed N]``; writes
-``results/bench_prediction/bench.json``. The load average is recorded (other jobs inflate times).
+``results/bench_prediction/bench.json`` (with the commit of the code; non-finite numbers as
+``null``). The load average is recorded (other jobs inflate times). The speed goal is judged
+against the batch kernel's reference measured in the same run (:meth:`studies.goals.Goal.speed`),
+scaled to the map's runs (300 s per 80,000; ``--quick``'s small map gets its share); the run
+ends with that goal, met or NOT met, and exits 0 when it is met, 1 otherwise.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import os
+import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -48,12 +52,17 @@ from discovery.prediction import (
 from models import ClosedLoop, simulate
 from models.structures import Structure, structure_space
 
+from .common import code_commit
+from .goals import Goal, kernel_reference, write_json
+from .goals import report as goal_report
 from .scenarios import draw_truth, oscillates
 
 OUT = Path("results/bench_prediction")
 FIT_SETTINGS = ((5.84, 0.062, 12.3), (9.8, 0.06, 4.5))
 THIRD = (7.5, 0.075, 8.0)
 NOISE = 5e-5
+#: The map's speed goal: seconds per this many closed-loop runs (a 20 x 20 map of 200 draws).
+GOAL_SECONDS, GOAL_RUNS = 300.0, 80_000
 
 
 @dataclass(frozen=True)
@@ -158,6 +167,7 @@ def shortcut_accuracy(draws, settings, config, full_transient):
 def run(config: Config, seed: int, out: Path) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     pconfig = PredictionConfig()
+    reference = kernel_reference()
     t0 = time.perf_counter()
     directory, truth = prediction_case(seed, out / f"case{seed}", config.fit_steps)
     fit_seconds = time.perf_counter() - t0
@@ -200,6 +210,8 @@ def run(config: Config, seed: int, out: Path) -> dict:
         "config": asdict(config),
         "prediction_config": asdict(pconfig),
         "seed": seed,
+        "commit": code_commit(),
+        "kernel_seconds_per_simulated_second": reference,
         "load_average": os.getloadavg(),
         "cpu_count": os.cpu_count(),
         "fit_seconds": fit_seconds,
@@ -208,7 +220,7 @@ def run(config: Config, seed: int, out: Path) -> dict:
                 "seconds_without_df": map_seconds_no_df,
                 "full_length_seconds_estimate": full_map_seconds,
                 "speedup_vs_full_length": full_map_seconds / map_seconds_no_df,
-                "goal_seconds": 300.0, "fraction_diverging_settings":
+                "goal_seconds": GOAL_SECONDS, "fraction_diverging_settings":
                 float(np.mean(cmap.summary["fraction_diverging"] > 0.5))},
         "shortcut_accuracy": accuracy,
         "coverage": {"rows": coverage,
@@ -216,8 +228,16 @@ def run(config: Config, seed: int, out: Path) -> dict:
                      "frequency_inside": sum(r["frequency_inside"] for r in coverage),
                      "cases": len(coverage)},
     }
-    (out / "bench.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    write_json(out / "bench.json", summary, default=float)
     return summary
+
+
+def prediction_goals(summary) -> list:
+    """The map's speed goal, scaled to its runs, judged against the same run's kernel reference."""
+    m = summary["map"]
+    return [Goal.speed(f"Kp x Kd map of {m['runs']:,} runs wall time", m["seconds"],
+                       summary["kernel_seconds_per_simulated_second"],
+                       m["goal_seconds"] * m["runs"] / GOAL_RUNS)]
 
 
 def main(argv=None):
@@ -229,8 +249,8 @@ def main(argv=None):
     s = run(QUICK if args.quick else Config(), args.seed, Path(args.out))
     m, a, c = s["map"], s["shortcut_accuracy"], s["coverage"]
     print(f"map {m['shape'][0]}x{m['shape'][1]} x {m['draws']} draws = {m['runs']} runs: "
-          f"{m['seconds']:.1f} s ({m['seconds_without_df']:.1f} s without the DF; goal "
-          f"{m['goal_seconds']:.0f} s); full-length runs would take ~{m['full_length_seconds_estimate']:.0f} s "
+          f"{m['seconds']:.1f} s ({m['seconds_without_df']:.1f} s without the DF); full-length "
+          f"runs would take ~{m['full_length_seconds_estimate']:.0f} s "
           f"({m['speedup_vs_full_length']:.1f}x)")
     print(f"shortcut vs full length on {a['settings']} settings: amplitude per draw median "
           f"{a['amplitude']['per_draw_median']:.2e}, p99 {a['amplitude']['per_draw_p99']:.2e}; "
@@ -241,8 +261,8 @@ def main(argv=None):
     print(f"coverage at the third setting: amplitude {c['amplitude_inside']}/{c['cases']}, "
           f"frequency {c['frequency_inside']}/{c['cases']}")
     print(f"wrote {Path(args.out) / 'bench.json'}")
-    return s
+    return goal_report(prediction_goals(s))
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

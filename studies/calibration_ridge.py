@@ -14,7 +14,7 @@ Model comparison: M002 and M001i, each with (backlash, dead_zone, delay, sigma),
 
 Deciding figures: ``ridge.png`` (samples in (f, zm) over the DF family), ``comparison.png``
 (posterior predictive bands of both hypotheses); ``summary.json`` holds corr(ln f, ln zm), marginal
-90 % widths, correlation matrices, convergence, WAIC and BIC. Ridge chains are run to a step cap and
+90 % widths, correlation matrices, convergence, WAIC and BIC (non-finite numbers as ``null``). Ridge chains are run to a step cap and
 reported as ridges, not tested for convergence (MODELS.md).
 
 Run by ``h1_deadzone_backlash`` (outputs under ``results/h1_deadzone_backlash/mcmc_ridge/``), or
@@ -22,7 +22,6 @@ alone: ``python -m studies.calibration_ridge [--quick] [--seed N] [--out DIR]``.
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 import warnings
@@ -35,6 +34,7 @@ from discovery.calibration.runner import ConvergenceWarning
 from models import CONTROLLER_A, CONTROLLER_B, M002, OpenLoop
 
 from .common import pyplot, study_main
+from .goals import write_json
 
 NAME = "calibration_ridge"
 PARAMS = ("backlash", "dead_zone", "delay")
@@ -125,7 +125,7 @@ def run(config, seed, out_dir):
                                 "predictive_rms": comp.predictive[k].rms_error("m002_A")}
                             for k, f in fits.items()},
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    write_json(out / "summary.json", summary, default=float)
     return summary
 
 

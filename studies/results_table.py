@@ -1,0 +1,325 @@
+"""``docs/results.md``: the claims the benchmark records hold, rendered from the records.
+
+``python -m studies.results_table [--check] [--records DIR] [--out FILE]``
+
+Reads the stored benchmark rows (``studies/records/*.json``, :data:`CLAIMS`) and writes one
+table, a row per claim: the claim; its current value, computed from the record's rows by the
+benchmark's own functions, with the benchmark's goal met or NOT met where it has one; the command
+that produces the record; the test that checks that computation (it must exist in ``tests/``:
+:func:`find_test`); and the commits the rows were made at, "rows at N commits" where they
+come from several. ``--check`` writes nothing and exits 1 when the file differs from the
+rendering (so a quoted number cannot drift from its record). A record must be strict JSON (no
+``NaN`` or ``Infinity`` tokens: the benchmarks write ``null``, :func:`studies.goals.write_json`).
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import sys
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+RECORDS = ROOT / "studies" / "records"
+OUT = ROOT / "docs" / "results.md"
+
+
+def _refuse_constant(token):
+    raise ValueError(f"{token} is not JSON (write null)")
+
+
+def load_records(directory=RECORDS) -> dict:
+    """Every ``*.json`` of ``directory`` by its stem, parsed strictly (no NaN or Infinity)."""
+    out = {}
+    for path in sorted(Path(directory).glob("*.json")):
+        try:
+            out[path.stem] = json.loads(path.read_text(), parse_constant=_refuse_constant)
+        except ValueError as err:
+            raise ValueError(f"{path.name}: {err}") from None
+    return out
+
+
+def find_test(node_id, root=ROOT):
+    """The definition of ``tests/FILE.py::test_name`` at the top level of that file (parsed, not
+    imported), or ``None``."""
+    file, _, name = node_id.partition("::")
+    path = Path(root) / file
+    if not name.startswith("test") or not path.is_file():
+        return None
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return next((n for n in tree.body if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))
+                 and n.name == name), None)
+
+
+def is_slow(definition) -> bool:
+    """Whether a test's definition is marked ``slow`` (left out of the default suite)."""
+    return any(ast.unparse(d).endswith("mark.slow") for d in definition.decorator_list)
+
+
+def commits_text(rows) -> str:
+    """The rows' commits: one, or "rows at N commits" and how many rows each."""
+    counts = Counter(r.get("commit") or "" for r in rows)
+
+    def name(c):
+        return f"`{c}`" if c else "no commit recorded"
+
+    if len(counts) == 1:
+        return name(next(iter(counts)))
+    parts = ", ".join(f"{name(c)} ({n})" for c, n in sorted(counts.items(),
+                                                             key=lambda x: (-x[1], x[0])))
+    return f"**rows at {len(counts)} commits**: {parts}"
+
+
+def _goals_text(goals) -> str:
+    return "; ".join(f"goal {g.text()}" for g in goals)
+
+
+def _pct(x) -> str:
+    return f"{100 * x:.0f} %"
+
+
+# -- the claims: each a value from the records and the rows whose commits it shows ------------
+
+def _coverage_value(record):
+    from .bench_coverage import coverage_goals, summarise
+
+    s = summarise(record["rows"])
+    cells = [v for k, v in s.items() if not k.startswith("_")]
+    inside = sum(round(c["coverage"] * c["draws"]) for c in cells)
+    total = sum(c["draws"] for c in cells)
+    n = record["config"]["draws"]
+    return (f"{len(record['rows'])} of {n} draws have rows; "
+            + _goals_text(coverage_goals(s))
+            + f"; all parameters: {inside} of {total} = {_pct(inside / total)}")
+
+
+def coverage_features(records):
+    return _coverage_value(records["bench_coverage"])
+
+
+def coverage_waveform(records):
+    return (_coverage_value(records["bench_coverage_waveform"])
+            + " (draws with the band-pass loop are not run: no periodic cycle)")
+
+
+def coverage_chains(records):
+    from .bench_coverage import summarise
+
+    rows = records["bench_coverage"]["rows"]
+    s = summarise(rows)
+    infl = s["_inflation"]
+    at_1 = round(infl["fraction_at_1"] * infl["records"])
+    cap = records["bench_coverage"]["config"]["max_steps"]
+    return (f"{s['_all']['converged']} of {s['_all']['draws']} chains converged within the "
+            f"{cap}-step cap; discrepancy factor 1 on {at_1} of {infl['records']} records "
+            f"(largest {infl['max']:.3g})")
+
+
+def _widening(records):
+    from .bench_coverage import widening
+
+    plain = records["bench_coverage_widening"]["plain_rows"]
+    result = widening(records["bench_coverage"]["rows"], plain)
+    paired = {d["index"] for d in result["draws"]}
+    with_term = [r for r in records["bench_coverage"]["rows"] if r["index"] in paired]
+    return result, with_term + [r for r in plain if r["index"] in paired]
+
+
+def coverage_widening(records):
+    from .bench_coverage import widening_goal
+
+    result, _ = _widening(records)
+    draws = ", ".join(str(d["index"]) for d in result["draws"])
+    return (f"draws {draws}: " + _goals_text([widening_goal(result)])
+            + f"; median x{result['median_ratio']:.3g}, largest x{result['max_ratio']:.3g}")
+
+
+def _discovery_rates(rows):
+    from .bench_discovery import discovery_goals, summarise
+
+    o = summarise(rows)["overall"]
+    n = o["draws"]
+    return o, n, (_goals_text(discovery_goals(o))
+                  + f"; right winner {round(o['right_winner'] * n)} of {n}, truth in the reported "
+                  f"set {sum(bool(r['truth_in_set']) for r in rows)} of {n}; structural choices "
+                  f"decided right {_pct(o['choices_decided_right'])}, decided wrong "
+                  f"{o['choices_decided_wrong']}")
+
+
+def discovery_quick(records):
+    return _discovery_rates(records["bench_discovery_quick"]["rows"])[2]
+
+
+def discovery_ceiling(records):
+    o, n, _ = _discovery_rates(records["bench_discovery_quick"]["rows"])
+    return (f"{round(o['ceiling_set_le3'] * n)} of {n} = {_pct(o['ceiling_set_le3'])}; against "
+            f"the truth's structure's own fit (an oracle): {round(o['oracle_set_le3'] * n)} of {n}"
+            f" = {_pct(o['oracle_set_le3'])}")
+
+
+def discovery_fresh(records):
+    rows = records["bench_discovery_fresh"]["rows"]
+    o, n, text = _discovery_rates(rows)
+    seeds = sorted(r["seed"] for r in rows)
+    return (f"{n} draws finished (seeds {seeds[0]}-{seeds[-1]}): " + text
+            + f"; at most 3 structures fit as well as the truth in "
+            f"{round(o['ceiling_set_le3'] * n)} of {n}")
+
+
+def next_test(records):
+    rows = records["bench_next_test"]["rows"]
+    cells, hits, kept = [], 0, 0
+    for r in rows:
+        b, s, a = r["before"], r.get("suggestion"), r.get("after")
+        if s is None:
+            cells.append(f"{r['seed']}: a set of one, no test")
+            continue
+        hits += bool(a["right_or_in_small_set"])
+        kept += bool(a["truth_in_set"])
+        cells.append(
+            f"{r['seed']}: {s['name']}, set {b['set_size']} -> {a['set_size']} "
+            f"({'truth inside' if a['truth_in_set'] else 'truth outside'}"
+            f"{', right winner' if a['right_winner'] else ''}), pairs predicted decided "
+            f"{s['pairs_decided']} of {s['n_pairs']}, decided {a['pairs_decided']}, agreeing "
+            f"{a['pairs_agreeing_with_prediction']}")
+    tested = sum(r.get("suggestion") is not None for r in rows)
+    return (f"right winner or in a set of at most 3 after the test: {hits} of {tested}; truth kept "
+            f"in the set: {kept} of {tested}. " + "; ".join(cells))
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One row of the table.
+
+    Attributes
+    ----------
+    claim : str
+        What is claimed.
+    value : callable
+        Records (stem -> parsed JSON) -> the current value, as text.
+    rows : callable
+        Records -> the rows the value comes from (their ``commit`` shown).
+    command : str
+        The command that produces the record.
+    record : str
+        The record's stem in ``studies/records``.
+    test : str
+        ``tests/FILE.py::test_name`` of the test that checks the value's computation.
+    """
+
+    claim: str
+    value: Callable
+    rows: Callable
+    command: str
+    record: str
+    test: str
+
+
+CLAIMS = (
+    Claim("calibration coverage, features likelihood (true structure given, seeded draws): the "
+          "truth inside its 90 % interval, per parameter (goal 80-97 %)",
+          coverage_features, lambda r: r["bench_coverage"]["rows"],
+          "python -m studies.bench_coverage --jobs 2", "bench_coverage",
+          "tests/test_bench_coverage.py::"
+          "test_stored_record_covers_the_truth_80_to_97_percent_per_parameter"),
+    Claim("calibration coverage draws: chains converged, discrepancy factor",
+          coverage_chains, lambda r: r["bench_coverage"]["rows"],
+          "python -m studies.bench_coverage --jobs 2", "bench_coverage",
+          "tests/test_bench_coverage.py::"
+          "test_summary_counts_coverage_ranks_and_inflation_of_known_rows"),
+    Claim("calibration coverage, waveform likelihood (`tvcid fit`'s default): the truth inside "
+          "its 90 % interval, per parameter (goal 80-97 %)",
+          coverage_waveform, lambda r: r["bench_coverage_waveform"]["rows"],
+          "python -m studies.bench_coverage --likelihood waveform --jobs 2",
+          "bench_coverage_waveform",
+          "tests/test_bench_coverage.py::"
+          "test_quick_run_with_the_waveform_likelihood_enters_each_record_its_own_way"),
+    Claim("the discrepancy term widens right models' 90 % intervals by at most 20 % (rows with "
+          "the term from `bench_coverage.json`)",
+          coverage_widening, lambda r: _widening(r)[1],
+          "python -m studies.bench_coverage --widening --indices 13,15,18,25 --jobs 2",
+          "bench_coverage_widening",
+          "tests/test_bench_coverage.py::"
+          "test_widening_compares_interval_widths_with_and_without_the_discrepancy_term"),
+    Claim("discovery on random truths and designs (quick searches, seeds 1000-1029)",
+          discovery_quick, lambda r: r["bench_discovery_quick"]["rows"],
+          "python -m studies.bench_discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
+          "tests/test_bench_discovery.py::"
+          "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
+    Claim("discovery's fit ceiling: draws where at most 3 minimal structures fit the recordings "
+          "as well as the truth itself (what a fit-based set rule can reach)",
+          discovery_ceiling, lambda r: r["bench_discovery_quick"]["rows"],
+          "python -m studies.bench_discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
+          "tests/test_bench_discovery.py::test_structures_fitting_as_well_as_the_truth_bound_the_set"),
+    Claim("discovery on fresh draws the set rule was never weighed on",
+          discovery_fresh, lambda r: r["bench_discovery_fresh"]["rows"],
+          "python -m studies.bench_discovery --quick --seed 1030 --draws 10 --jobs 2",
+          "bench_discovery_fresh",
+          "tests/test_bench_discovery.py::"
+          "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
+    Claim("the next test `tvcid discover` names, recorded from the truth, on the discovery "
+          "benchmark's misses: the set after the discovery runs again",
+          next_test, lambda r: r["bench_next_test"]["rows"],
+          "python -m studies.bench_next_test --seeds 1004,1009,1016", "bench_next_test",
+          "tests/test_discrimination.py::test_discover_names_the_test_that_would_decide_its_set"),
+)
+
+HEADER = """# Results
+
+<!-- Written by `python -m studies.results_table` from studies/records/*.json: do not edit. -->
+
+Each value is computed from a benchmark's stored rows (`studies/records/`, described in its
+`README.md`) by the benchmark's own functions, with the benchmark's goal met or NOT met where it
+has one; the rows' commits are in the last column. `python -m studies.results_table --check`
+exits 1 when this file differs from that rendering (`tests/test_results_table.py`).
+
+| claim | current value | the command that produces it | the test that checks it | record commit(s) |
+|---|---|---|---|---|
+"""
+
+
+def _cell(text) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def render(records=None, claims=CLAIMS, root=ROOT) -> str:
+    """The markdown of ``claims`` on ``records`` (default: :func:`load_records`); a claim whose
+    test does not exist is refused (``ValueError``)."""
+    records = load_records() if records is None else records
+    lines = []
+    for c in claims:
+        definition = find_test(c.test, root)
+        if definition is None:
+            raise ValueError(f"claim {c.claim!r}: no test {c.test}")
+        command = f"`{c.command}` (`studies/records/{c.record}.json`)"
+        test = f"`{c.test}`" + (" (slow: `pytest -m slow`)" if is_slow(definition) else "")
+        lines.append("| " + " | ".join(_cell(x) for x in (
+            c.claim, c.value(records), command, test, commits_text(c.rows(records)))) + " |")
+    return HEADER + "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--check", action="store_true",
+                        help="write nothing; exit 1 if the file differs from the rendering")
+    parser.add_argument("--records", default=str(RECORDS), help="directory of the records")
+    parser.add_argument("--out", default=str(OUT), help="the markdown file")
+    args = parser.parse_args(argv)
+    text = render(load_records(args.records))
+    out = Path(args.out)
+    if args.check:
+        same = out.is_file() and out.read_text() == text
+        print(f"{out}: " + ("up to date" if same else
+                            "differs from the records' rendering: python -m studies.results_table"))
+        return 0 if same else 1
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
