@@ -102,3 +102,29 @@ def test_every_command_has_help(capsys):
             main([name, "--help"])
         assert exc.value.code == 0
         assert "usage" in capsys.readouterr().out
+
+
+def _command_paths(parser, prefix=()):
+    """Every command path of the parser tree (the top level included)."""
+    import argparse
+
+    yield prefix
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, child in action.choices.items():
+                yield from _command_paths(child, prefix + (name,))
+
+
+def test_help_of_every_command_prints_and_exits_0(capsys):
+    """``tvcid --help`` and ``tvcid COMMAND [SUBCOMMAND] --help`` over the whole command tree:
+    each prints its usage and exits 0 (a help string with a bare ``%`` would raise instead)."""
+    from studies.cli import build_parser
+
+    paths = list(_command_paths(build_parser()))
+    assert len(paths) > 5
+    for path in paths:
+        with pytest.raises(SystemExit) as exit_:
+            main([*path, "--help"])
+        assert exit_.value.code == 0, path
+        out = capsys.readouterr().out
+        assert out.startswith("usage: tvcid" + "".join(f" {p}" for p in path)), (path, out[:80])

@@ -12,7 +12,7 @@ from ._common import add_controller_arguments, add_compensator_options, bending_
 def register(sub):
     p = sub.add_parser(
         "predict",
-        help="limit cycle under a controller (or over a grid) from a posterior, with its 90 % band",
+        help="limit cycle under a controller (or over a grid) from a posterior, with its 90 %% band",
         description="Simulate posterior draws of a calibrated actuator (the --out directory of "
         "tvcid fit or tvcid discover) in closed loop with the given controller, u = -Kp (1 + Kd s) "
         "F(s) theta_m, and report the limit cycle's amplitude ((max-min)/2 of delta, rad) and "
