@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -55,8 +55,9 @@ class Config:
     ridge: calibration_ridge.Config = calibration_ridge.Config()
 
 
+# the quick ridge's M002-M001i comparison is a smoke run: 20 steps (no quick check reads it)
 QUICK = Config(family_widths=tuple(np.round(np.geomspace(5e-5, 1.2e-3, 5), 8)), t_end=15.0, window=8.0,
-               ridge=calibration_ridge.QUICK)
+               ridge=replace(calibration_ridge.QUICK, compare_steps=20))
 
 
 def simulate_family(family, config):

@@ -9,6 +9,7 @@ notch do to M002's cycle, and a 200 Hz hold against the simulator.
 import math
 import warnings
 
+import control  # python-control, in the test extras: a missing package fails, not skips
 import numpy as np
 import pytest
 
@@ -140,7 +141,6 @@ PYTHON_CONTROL_TOLERANCE = 1e-4
 
 @pytest.mark.parametrize("case", list(PYTHON_CONTROL_CASES), ids=list(PYTHON_CONTROL_CASES))
 def test_cycles_agree_with_python_control(case):
-    control = pytest.importorskip("control")
     controller = PYTHON_CONTROL_CASES[case]
     # M002 without backlash so that the dead zone is the only nonlinearity (python-control's loop
     # has one). The loop is then homogeneous in the dead zone: a unit half width scales every
@@ -171,7 +171,6 @@ def test_cycles_agree_with_python_control(case):
 
 
 def test_describing_functions_agree_with_python_control():
-    control = pytest.importorskip("control")
     # dead zone (M002's half width): python-control's numeric DF of a plain function
     z = 1.2e-3
     a = np.array([1.25e-3, 1.6e-3, 2.5e-3, 4.89e-3, 1e-2, 5e-2])
@@ -229,7 +228,6 @@ def test_lead_raises_the_frequency_and_shrinks_the_cycle():
 def _unstable_at_every_gain(controller, params, gains=(0.01, 0.1, 0.3, 0.5, 1.0), pade_order=6):
     """Whether the loop with the dead zone replaced by each gain in ``gains`` (its DF's range) has
     a pole in the right half plane (no backlash; the output delay as a Pade approximant)."""
-    control = pytest.importorskip("control")
     h = _python_control_loop(control, params, controller, pade_order)
     num, den = np.asarray(h.num[0][0]), np.asarray(h.den[0][0])
     return all(np.max(np.roots(np.polyadd(den, n * num)).real) > 0 for n in gains)
@@ -257,17 +255,6 @@ def _simulated_cycle(params, controller, t_end=60.0):
     return simulate(params, controller, t_end).features(window=20)
 
 
-def _simulator_runs_compensators():
-    """Whether :func:`models.simulate` applies a compensator (its kernel support came after this
-    describing-function code; before it the compensator was ignored)."""
-    params = hypothesis("M002")
-    try:
-        with_lead = _simulated_cycle(params, _with(CONTROLLER_A, compensator=_lead(4.0)), 20.0)
-    except (TypeError, ValueError, NotImplementedError):
-        return False
-    return abs(with_lead.frequency / _simulated_cycle(params, CONTROLLER_A, 20.0).frequency - 1) > 0.01
-
-
 # DF error against the simulator (DF over simulated first harmonic and frequency, minus 1),
 # measured with models.simulate and, independently, a stand-alone RK4 of M002 (4e-5 apart):
 # the error grows with the lead (COMPENSATOR_CAVEAT); the directions are all right.
@@ -281,8 +268,6 @@ COMPENSATED_CASES = {
 
 
 def test_compensated_cycles_against_the_simulator():
-    if not _simulator_runs_compensators():
-        pytest.skip("models.simulate does not run compensators yet")
     params = hypothesis("M002")
     plain_df = _stable_cycle(CONTROLLER_A)
     plain_sim = _simulated_cycle(params, CONTROLLER_A)

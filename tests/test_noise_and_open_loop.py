@@ -59,7 +59,9 @@ def test_benchmark_script_runs_and_reports(tmp_path):
     result = main(["--quick", "--out", str(tmp_path)])
     saved = json.loads((tmp_path / "bench.json").read_text())
     assert {r["hypothesis"] for r in saved["kernel_vs_reference"]} == {"M002", "M001i", "M001f", "M000"}
-    assert all(r["speedup"] > 1 for r in result["kernel_vs_reference"])
+    # kernel over reference, timed in this run: ~1600-2400x idle, down to ~500x on 2 oversubscribed
+    # cores (the kernel's ms-long timings get preempted); 50 fails a kernel that is not compiled
+    assert all(r["speedup"] > 50 for r in result["kernel_vs_reference"])
     assert set(saved["measured"]) == set(saved["goals"])
 
 

@@ -7,16 +7,15 @@ import pytest
 from studies.cli import main
 from studies.registry import STUDIES
 
-#: Collected first (tests/conftest.py): minutes on one core (the quick studies).
-RUN_FIRST = 10
 
 
 @pytest.fixture(scope="session")
 def quick_results(tmp_path_factory):
-    """``tvcid study all --quick --jobs 2 --skip discover`` run once for the session; the results
-    directory. The quick ``discover`` study (about 15 min on one core) is its own slow test."""
+    """``tvcid study all --quick --jobs 1 --skip discover`` run once for the session; the results
+    directory. One job: the suite's other xdist worker holds the second core. The quick
+    ``discover`` study (about 15 min on one core) is its own slow test."""
     results = tmp_path_factory.mktemp("results")
-    assert main(["study", "all", "--quick", "--jobs", "2", "--skip", "discover",
+    assert main(["study", "all", "--quick", "--jobs", "1", "--skip", "discover",
                  "--results", str(results)]) == 0
     return results
 
@@ -110,19 +109,27 @@ def test_h1_runs_the_mcmc_ridge_and_the_report_embeds_it(quick_results):
     summary = _summary(quick_results, "h1_deadzone_backlash")
     rows = {r["label"]: r for r in summary["mcmc_ridge"]["rows"]}
     assert set(rows) >= {"A amplitude+frequency", "A+B+open loop waveform"}
-    # Quick run (200-300 steps, none converged): bounds, not the README's numbers (those are the
-    # full run's, test_full_ridge_study_gives_the_readme_numbers, slow). Measured when this was
-    # written: corr 0.946, f's 90 % width 243 % of its median; B shrinks the widths 3.3-6.6x,
-    # B and open loop 54-64x, the waveform of all records 80-127x.
-    one = rows["A amplitude+frequency"]
-    # one cycle's amplitude and frequency: f and zm trade along the family
-    # (the unconverged quick chain's correlation moves with any change of its path: 0.913 and
-    # 0.858 on two commits that leave M002's cycles unchanged to 1e-5; converged, 0.95)
-    assert one["corr_log_pair"] > 0.8 and one["width90_relative"]["backlash"] > 1.0
-    for label, at_least in (("A+B amplitude+frequency", 2.0), ("A+B amp+freq + open loop", 20.0),
-                            ("A+B+open loop waveform", 30.0)):
-        for name, width in rows[label]["width90_relative"].items():
-            assert one["width90_relative"][name] / width > at_least, (label, name)
+    # The quick one-cycle and A+B chains are not converged (their widths move with the chain's
+    # path); the open-loop rows are. Measured on quick runs of seeds 0-2 (the README's numbers
+    # are the full run's: test_full_ridge_study_gives_the_readme_numbers, slow).
+    one = rows["A amplitude+frequency"]["width90_relative"]
+    both = rows["A+B amplitude+frequency"]["width90_relative"]
+    open_loop = rows["A+B amp+freq + open loop"]
+    waveform = rows["A+B+open loop waveform"]
+    # one cycle: f and zm trade along the DF family (corr 0.86-0.995, converged 0.989), f's 90 %
+    # interval is wider than half its median (0.78-2.4), and the ridge runs the family's way:
+    # zm's width over f's is its slope d ln zm / d ln f, 0.17-0.25 near M002 (measured 0.19-0.25)
+    assert rows["A amplitude+frequency"]["corr_log_pair"] > 0.7 and one["backlash"] > 0.5
+    assert 0.1 < one["dead_zone"] / one["backlash"] < 0.4
+    assert open_loop["converged"] and waveform["converged"]  # no ridge left: widths are not luck
+    for name in one:
+        # B alone narrows every width (3.3-15x, converged 6.6-17x; B ignored: ~1x); B and open
+        # loop break the ridge (24-64x, converged 38-49x; open loop ignored: B alone's, the delay's
+        # 3.4-5.1x)
+        assert one[name] / both[name] > 2.0, name
+        assert one[name] / open_loop["width90_relative"][name] > 10.0, name
+        # the waveform of the same records holds more than their features (1.36-2.2x)
+        assert waveform["width90_relative"][name] < open_loop["width90_relative"][name], name
     assert (quick_results / "h1_deadzone_backlash" / "mcmc_ridge" / "ridge.png").exists()
     report = (quick_results / "report.md").read_text()
     assert "(h1_deadzone_backlash/mcmc_ridge/ridge.png)" in report
