@@ -1,9 +1,31 @@
-"""Shared fixtures: long closed-loop runs are simulated once per session."""
+"""Shared fixtures, one numba thread per test worker, and the order in which files are handed out."""
 import functools
+import os
 
-import pytest
+# Set before numba is imported: two xdist workers on two cores, each with numba's default of one
+# thread per core, would run four threads on two cores.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from models import CONTROLLER_A, hypothesis, simulate
+import pytest  # noqa: E402
+
+from models import CONTROLLER_A, hypothesis, simulate  # noqa: E402
+
+#: Seconds each of the default suite's longest files takes on one worker (from ``--durations``).
+#: Files are handed out longest first, so that no long file starts last and runs alone at the
+#: end; a file missing here is handed out after these, in collection order.
+FILE_SECONDS = {
+    "test_discover.py": 150,
+    "test_command_replay.py": 120,
+    "test_studies.py": 110,
+    "test_calibration_recovery.py": 90,
+    "test_prediction.py": 70,
+    "test_calibration_mismatch.py": 45,
+    "test_design.py": 45,
+    "test_scenarios.py": 40,
+    "test_discover_ranking_step.py": 35,
+    "test_threads.py": 30,
+}
 
 
 @functools.lru_cache(maxsize=None)
@@ -22,8 +44,12 @@ def cycle_at_a():
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """Files that set ``RUN_FIRST`` (their rough minutes on one core) are collected first, longest
-    first: on two xdist workers (a file each) a long file started last would run alone at the end.
-    Only the two longest set it: xdist gives each worker two files at the start, and a third long
-    one would queue behind the first on the same worker."""
-    items.sort(key=lambda item: -getattr(getattr(item, "module", None), "RUN_FIRST", 0))
+    """Collect the files of :data:`FILE_SECONDS` first, longest first (a stable sort: tests keep
+    their order within a file).
+
+    With ``--dist loadfile --no-loadscope-reorder`` xdist hands out whole files in collection
+    order: one to each worker at the start, then the next file to a worker as soon as it has at
+    most two tests of its files left to run. Handing out the longest files first lets the short
+    ones fill in behind them.
+    """
+    items.sort(key=lambda item: -FILE_SECONDS.get(item.path.name, 0))

@@ -1,63 +1,181 @@
-"""The coverage benchmark's quick run and its command line (a file of their own, so that a
-second test worker runs them beside the quick studies of ``test_studies.py``)."""
-import json
+"""The coverage benchmark (studies.bench_coverage): its quick run on a bundled draw, its summary,
+its command line and its stored record.
 
+Draw 0 of the quick config is bundled under ``data/bench/coverage_draw000`` as the benchmark
+writes it, so that no default test spends two minutes of the reference path making it; a slow
+test rebuilds it byte for byte. The coverage itself is a statistic over many draws: the stored
+record's, checked in a slow test.
+"""
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
 import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BUNDLED = ROOT / "data" / "bench" / "coverage_draw000"
+RECORD = ROOT / "studies" / "records" / "bench_coverage.json"
 
 
 @pytest.fixture(scope="module")
 def quick_dir(tmp_path_factory):
-    """One directory for both likelihoods' quick runs, so that draw 0's recordings (the
-    reference path, most of the time) are made once."""
-    return tmp_path_factory.mktemp("bench_coverage")
+    """One output directory for both likelihoods' quick runs, holding the bundled draw 0 where
+    the benchmark looks for its recordings."""
+    out = tmp_path_factory.mktemp("bench_coverage")
+    shutil.copytree(BUNDLED, out / "data" / "draw000")
+    return out
 
 
-def test_bench_coverage_quick_rows_agree_with_their_summary(quick_dir):
-    """``python -m studies.bench_coverage --quick`` (one draw here): every sampled parameter's row
-    holds ordered quantiles, a rank in [0, 1] and an 'inside' flag that matches them; the summary's
-    coverage and rank histogram are those of the rows. (The coverage itself needs the full run:
-    README, "Known limits".)"""
-    from studies.bench_coverage import RANK_BINS
+@pytest.fixture
+def no_reference_path(monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("the bundled recordings were made again")
+
+    monkeypatch.setattr("studies.scenarios.simulate_reference", refuse)
+
+
+def test_bundled_quick_draw_is_the_generators_own():
+    """The bundled provenance is what the generator draws for the quick config's draw 0 today."""
+    from studies.bench_coverage import QUICK, QUICK_WAVEFORM, coverage_scenario
+    from studies.scenarios import DATA_DT
+
+    stored = json.loads((BUNDLED / "truth" / "scenario.json").read_text())
+    for config in (QUICK, QUICK_WAVEFORM):
+        expected = {**coverage_scenario(0, config).to_dict(), "data_dt": DATA_DT}
+        assert stored == json.loads(json.dumps(expected, default=str))
+
+
+@pytest.mark.slow
+def test_bundled_quick_draw_is_rebuilt_byte_for_byte(tmp_path):
+    """The reference path remakes the bundled recordings exactly (about two minutes)."""
+    from studies.bench_coverage import QUICK, coverage_scenario
+    from studies.scenarios import write_recordings
+
+    for p in write_recordings(coverage_scenario(0, QUICK), tmp_path):
+        for q in (p, p.with_suffix(".json")):
+            assert hashlib.sha256(q.read_bytes()).digest() == \
+                hashlib.sha256((BUNDLED / q.name).read_bytes()).digest(), q.name
+
+
+def _check_row_is_the_draws(row, config, index=0):
+    """The row calibrates draw ``index``'s truth: the parameters its structure has, each with the truth's
+    value and the widened generator range as prior, the draw's design, a chain of the config's
+    length, and a finite 90 % interval inside the prior."""
+    from models.structures import Structure
+    from studies.bench_coverage import SAMPLED, coverage_scenario, priors_for
+
+    scenario = coverage_scenario(index, config)
+    priors = priors_for(Structure.of_params(scenario.truth))
+    assert row["index"] == index and row["seed"] == config.seed + index
+    assert row["structure"] == Structure.of_params(scenario.truth).name
+    assert set(row["parameters"]) == {n for n in SAMPLED if n in priors}
+    assert row["design"] == json.loads(json.dumps([r.__dict__ for r in scenario.recordings]))
+    assert 0 < row["iterations"] <= config.max_steps and row["simulated_seconds"] > 0
+    assert len(row["inflation"]) == len(scenario.recordings)
+    for name, cell in row["parameters"].items():
+        assert cell["truth"] == getattr(scenario.truth, name)
+        assert cell["prior"] == [priors[name].low, priors[name].high]
+        assert priors[name].low <= cell["q05"] < cell["q95"] <= priors[name].high, (name, cell)
+
+
+def test_quick_run_on_the_bundled_draw_calibrates_the_draws_truth(quick_dir, no_reference_path):
+    """``python -m studies.bench_coverage --quick --draws 1`` on the bundled recordings: one row
+    for draw 0 (see :func:`_check_row_is_the_draws`), its summary and the rank figure."""
+    from studies.bench_coverage import QUICK
     from studies.bench_coverage import main as bench_main
 
-    tmp_path = quick_dir
-    assert bench_main(["--quick", "--draws", "1", "--out", str(tmp_path)]) == 0
-    report = json.loads((tmp_path / "bench.json").read_text())
+    assert bench_main(["--quick", "--draws", "1", "--out", str(quick_dir)]) == 0
+    report = json.loads((quick_dir / "bench.json").read_text())
     (row,) = report["rows"]
-    assert row["parameters"] and row["simulated_seconds"] > 0 and len(row["inflation"]) == len(row["design"])
-    assert row["laplace"] is None or 0.0 <= row["laplace"]["share"] <= 1.0  # how the move ran
-    for name, cell in row["parameters"].items():
-        assert cell["q05"] <= cell["q50"] <= cell["q95"] and 0.0 <= cell["rank"] <= 1.0
-        assert cell["inside"] == (cell["q05"] <= cell["truth"] <= cell["q95"])
-        s = report["summary"][name]
-        assert s["coverage"] == float(cell["inside"]) and sum(s["rank_histogram"]) == 1
-        assert s["rank_histogram"][min(int(cell["rank"] * RANK_BINS), RANK_BINS - 1)] == 1
-    infl = report["summary"]["_inflation"]
-    assert infl["records"] == len(row["inflation"]) and infl["max"] == max(row["inflation"])
-    assert (tmp_path / "ranks.png").stat().st_size > 0
+    _check_row_is_the_draws(row, QUICK)
+    assert report["summary"]["_all"]["draws"] == 1
+    assert (quick_dir / "ranks.png").stat().st_size > 0
 
 
-def test_bench_coverage_quick_with_tvcid_fits_default_likelihood(quick_dir):
-    """``--likelihood waveform --quick`` (draw 0: no band-pass loop, so it runs): the row says how
-    each record entered (closed-loop records by their waveform or, fallen back, their features;
-    open-loop ones by their output error), samples the noise sd, and its cells are consistent;
-    draws with the band-pass loop are skipped, not run."""
+@pytest.mark.slow
+def test_quick_run_with_the_waveform_likelihood_enters_each_record_its_own_way(tmp_path):
+    """``--likelihood waveform --quick --indices 3`` (``tvcid fit``'s default likelihood) on the
+    quick config's draw 3 (a limit cycle and two open-loop tests, no band-pass loop; its
+    recordings made here): the closed-loop record enters by its waveform or, fallen back, its
+    features, the open-loop ones by their output error, and the noise sd is sampled; draws with
+    the band-pass loop are skipped, not run."""
     from studies.bench_coverage import QUICK_WAVEFORM, coverage_scenario, runs_with
     from studies.bench_coverage import main as bench_main
 
-    assert bench_main(["--quick", "--likelihood", "waveform", "--draws", "1",
-                       "--out", str(quick_dir)]) == 0
-    report = json.loads((quick_dir / "bench.json").read_text())
+    assert bench_main(["--quick", "--likelihood", "waveform", "--draws", "4", "--indices", "3",
+                       "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "bench.json").read_text())
     assert report["config"]["likelihood"] == "waveform"
     (row,) = report["rows"]
+    _check_row_is_the_draws(row, QUICK_WAVEFORM, index=3)
     kinds = [d["kind"] for d in row["design"]]
+    assert kinds.count("open") == 2 and kinds.count("closed") == 1
     assert len(row["likelihoods"]) == len(kinds)
     for how, kind in zip(row["likelihoods"].values(), kinds):
         assert how == "open" if kind == "open" else how in ("waveform", "features")
-    for cell in row["parameters"].values():
-        assert cell["inside"] == (cell["q05"] <= cell["truth"] <= cell["q95"])
     banded = next(i for i in range(40) if coverage_scenario(i, QUICK_WAVEFORM).structure.bandpass)
-    assert not runs_with(banded, QUICK_WAVEFORM) and runs_with(0, QUICK_WAVEFORM)
+    assert not runs_with(banded, QUICK_WAVEFORM) and runs_with(3, QUICK_WAVEFORM)
+
+
+def test_summary_counts_coverage_ranks_and_inflation_of_known_rows():
+    """Ten rows with one rank in each decile and the truth outside the interval in the first:
+    coverage 0.9 and a flat rank histogram; a parameter some rows lack is counted over the rows
+    that have it; inflation factors are pooled over records."""
+    from studies.bench_coverage import RANK_BINS, summarise
+
+    rows = []
+    for i in range(10):
+        cells = {"dead_zone": {"rank": (i + 0.5) / 10, "inside": i > 0, "relative_width": 0.1 * (i + 1)}}
+        if i < 4:
+            cells["delay"] = {"rank": 0.97, "inside": True, "relative_width": 0.2}
+        rows.append({"parameters": cells, "inflation": [1.0, 4.0] if i == 0 else [1.0],
+                     "converged": i != 3, "commit": "abc" if i < 5 else "def", "wall_s": float(i),
+                     "simulated_seconds": 10.0 * i})
+    s = summarise(rows)
+    assert RANK_BINS == 10
+    assert s["dead_zone"]["coverage"] == pytest.approx(0.9) and s["dead_zone"]["draws"] == 10
+    assert s["dead_zone"]["rank_histogram"] == [1] * 10
+    assert s["dead_zone"]["median_relative_width"] == pytest.approx(0.55)
+    assert s["delay"] == {"draws": 4, "coverage": 1.0, "rank_histogram": [0] * 9 + [4],
+                          "median_relative_width": pytest.approx(0.2)}
+    assert s["_inflation"]["records"] == 11 and s["_inflation"]["max"] == 4.0
+    assert s["_inflation"]["fraction_at_1"] == pytest.approx(10 / 11)
+    assert s["_inflation"]["fraction_within_20_percent"] == pytest.approx(10 / 11)  # sqrt(4) = 2
+    assert s["_all"]["converged"] == 9 and s["_all"]["commits"] == ["abc", "def"]
+
+
+@pytest.mark.slow
+def test_stored_record_covers_the_truth_80_to_97_percent_per_parameter():
+    """The benchmark's claim on its stored record (``studies/records/bench_coverage.json``, the
+    default config over 30 draws): every chain converged, and per parameter the 90 % intervals
+    hold the truth in 80-97 % of the draws that sample it; the stored summary is the rows'."""
+    from studies.bench_coverage import Config, summarise
+
+    record = json.loads(RECORD.read_text())
+    assert record["config"] == json.loads(json.dumps(Config().__dict__))
+    rows = record["rows"]
+    assert sorted(r["index"] for r in rows) == list(range(30))
+    assert all(r["converged"] for r in rows)
+    summary = summarise(rows)
+    assert json.loads(json.dumps(summary)) == record["summary"]
+    for name in ("dead_zone", "backlash", "delay", "friction_offset"):
+        assert 0.80 <= summary[name]["coverage"] <= 0.97, (name, summary[name])
+
+
+@pytest.mark.slow
+def test_a_stored_draw_rerun_gives_its_stored_interval(tmp_path):
+    """The record is what the code gives: its shortest draw (22, about a minute of calibration
+    after its recordings are made) calibrated again reproduces the stored quantiles."""
+    from studies.bench_coverage import Config, run_draw
+
+    stored = next(r for r in json.loads(RECORD.read_text())["rows"] if r["index"] == 22)
+    row = run_draw(22, Config(), tmp_path)
+    assert set(row["parameters"]) == set(stored["parameters"])
+    for name, cell in row["parameters"].items():
+        for q in ("q05", "q50", "q95"):
+            assert cell[q] == pytest.approx(stored["parameters"][name][q], rel=1e-9), (name, q)
 
 
 def test_bench_coverage_indices_select_draws_and_reject_bad_text():

@@ -7,6 +7,7 @@ samples (a hold replay drifts 0.9 ms late by the fifth edge); and 200 Hz samplin
 edge is known only to 5 ms, the size of the delay.
 """
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -221,6 +222,35 @@ def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path, mon
     assert term.refine_at(truth).sim_dt == 2.5e-4
 
 
+#: Noise-free 4 s responses of coverage draws' squares, made by the reference path
+#: (:func:`square_response`, about 20-40 s each) and rebuilt byte for byte by a slow test.
+SQUARES = Path(__file__).resolve().parents[1] / "data" / "bench" / "reference_squares"
+
+
+def square_response(index):
+    """Coverage draw ``index``'s first square (default config), noise-free, 4 s from rest by the
+    reference path at 5e-5 s, sampled at the design's rate: columns and a measured-style sidecar."""
+    from models.reference import simulate_reference
+    from studies.bench_coverage import Config, coverage_scenario
+
+    scenario = coverage_scenario(index, Config())
+    design = next(r for r in scenario.recordings if r.waveform == "square")
+    ref = simulate_reference(scenario.truth, design.experiment(), 4.0, dt=5e-5, rate=design.rate)
+    return ({"t": ref.t - ref.t[0], "u": ref.u, "delta": ref.delta},
+            {"kind": "open", "sample_rate": design.rate, "source": "simulated",
+             "generator": "tests/test_command_replay.py square_response (reference path)"})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", [5, 7, 18])
+def test_bundled_square_responses_are_rebuilt_byte_for_byte(index, tmp_path):
+    from models.recording import save_recording
+
+    path = save_recording(tmp_path / f"draw{index:02d}.csv", *square_response(index))
+    for p in (path, path.with_suffix(".json")):
+        assert p.read_bytes() == (SQUARES / p.name).read_bytes(), p.name
+
+
 @pytest.mark.parametrize("index, hunts", [(5, True), (7, False), (18, True)])
 def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunts):
     """Coverage draw 5's square (band-pass loop, backlash, friction offset): the output hunts on
@@ -234,17 +264,12 @@ def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunt
     Draw 18's 2.56 Hz square at 200 Hz (band-pass loop) hunts too, but its centre edges fall on
     the grid, where both ways are one simulation (loads 0.76 each): the way is chosen at the
     record's own timing, 2.4 ms from the centre (grid 249, its own edges 5.7)."""
-    from models.recording import Recording
-    from models.reference import simulate_reference
-    from studies.bench_coverage import Config, coverage_scenario
     from discovery.calibration.likelihood import OpenLoopTerm
+    from studies.bench_coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(index, Config())
     truth, noise = scenario.truth, scenario.acquisition.noise_sd
-    design = next(r for r in scenario.recordings if r.waveform == "square")
-    ref = simulate_reference(truth, design.experiment(), 4.0, dt=5e-5, rate=design.rate)
-    rec = Recording(columns={"t": ref.t - ref.t[0], "u": ref.u, "delta": ref.delta},
-                    meta={"kind": "open", "sample_rate": design.rate})
+    rec = load_recording(SQUARES / f"draw{index:02d}.csv")  # square_response(index)
     term = OpenLoopTerm(rec, None, 0.0, 5e-4)
     term.sigma_hat = noise  # the noise-free record stands for one with the draw's noise
     term.setup(truth, warm_start=False)

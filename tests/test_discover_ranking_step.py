@@ -7,6 +7,8 @@ search's 5e-4 s the true structure cannot reach the squares as closely as the de
 integrator can (RK4 through the delayed acceleration), at half that step the two fit alike.
 """
 import dataclasses
+import shutil
+from pathlib import Path
 
 import pytest
 
@@ -23,13 +25,32 @@ SEARCH_DT = 5e-4
 OTHER = "dz_velocity+delay_before_integrator"
 
 
-@pytest.fixture(scope="module")
-def squares(tmp_path_factory):
+#: The squares as :func:`squares_scenario` writes them (about 30 s of the reference path),
+#: rebuilt byte for byte by a slow test.
+BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1017_squares"
+
+
+def squares_scenario():
+    """Draw 1017 with its open-loop squares only, each cut to its first 4 s."""
     scenario = draw_scenario(1017)
     opens = tuple(dataclasses.replace(r, duration=4.0) for r in scenario.recordings if r.kind == "open")
-    paths = write_recordings(dataclasses.replace(scenario, recordings=opens),
-                             tmp_path_factory.mktemp("draw1017"))
+    return dataclasses.replace(scenario, recordings=opens)
+
+
+@pytest.fixture(scope="module")
+def squares(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("draw1017")
+    shutil.copytree(BUNDLED, directory, dirs_exist_ok=True)
+    scenario = squares_scenario()
+    paths = write_recordings(scenario, directory, reuse=True)  # the bundled files, if current
     return scenario, [load_recording(p) for p in paths]
+
+
+@pytest.mark.slow
+def test_bundled_squares_are_rebuilt_byte_for_byte(tmp_path):
+    for path in write_recordings(squares_scenario(), tmp_path):
+        for p in (path, path.with_suffix(".json"), tmp_path / "truth" / "scenario.json"):
+            assert p.read_bytes() == (BUNDLED / p.relative_to(tmp_path)).read_bytes(), p.name
 
 
 def _refitted(scenario, recordings, name, dt):

@@ -65,11 +65,14 @@ def test_designs_within_the_stated_ranges():
 
 
 def test_drawn_truth_oscillates_at_every_setting_and_recordings_read_as_measured(tmp_path):
-    sc = shortened(draw_scenario(5), closed=12.0, open_=4.0)
+    """Draw 24 (a 200 Hz cycle and square, sensor offset and quantisation), shortened: the truth
+    oscillates, and the recordings read back as measured ones (no truth in the sidecars)."""
+    sc = shortened(draw_scenario(24), closed=6.0, open_=4.0)
+    assert sc.acquisition.quantisation > 0 and sc.acquisition.offset != 0
     for rd in sc.recordings:
         if rd.kind == "closed":
             assert oscillates(sc.truth, rd.experiment())
-    paths = write_recordings(sc, tmp_path, dt=2e-4)  # the format is tested here, not accuracy
+    paths = write_recordings(sc, tmp_path, dt=5e-4)  # the format is tested here, not accuracy
     assert len(paths) == len(sc.recordings)
     for path, rd in zip(paths, sc.recordings):
         meta = json.loads(path.with_suffix(".json").read_text())
