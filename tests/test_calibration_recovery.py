@@ -1,18 +1,34 @@
-"""Seeded recovery of M002's (backlash, dead_zone, delay, sigma) from one 10 s limit cycle, and the
-``tvcid fit`` command (outputs, resume).
+"""Recovery of (backlash, dead_zone, delay, sigma) from drawn limit cycles, and the ``tvcid fit``
+command (outputs, resume).
 
-Data: M002 at controller A, 20 s simulated at dt = 2e-4, the last 10 s kept, independent Gaussian
-sensor noise of sd 1e-4 rad from ``numpy.random.default_rng(7)`` added to delta. The likelihood
-simulates at dt = 5e-4 (MODELS.md: log-likelihood errors below 0.1). Seed 7 is chosen so that the
-realised noise sd of the window (9.99e-5) is close to 1e-4: the posterior of sigma is so narrow
-(0.7 % sd) that it reports the realised sd, and with seed 1 (realised sd 9.84e-5) sigma's truth
-lies at z = 2.2, outside the 90 % interval although the posterior is right. MODELS.md: over many
-seeds the 90 % intervals covered the truth 89 % of the time, so one seed is also checked against
-|z| < 3.
+Recovery: truths and designs from the shared generator (:func:`studies.scenarios.draw_scenario`)
+with paper 002's placement (dead zone on the error, delay at the output, backlash: the parameters
+sampled); the linear block, thresholds, delay, controller setting and hold, acquisition rate,
+sensor noise, offset and quantisation are drawn. Each draw's first limit cycle is kept at its drawn
+length after the generator's 10 s lead, made by the numba kernel at the generator's 5e-5 s step in
+place of the plain-Python reference path (1-3 s per simulated second) and written as a
+measured-style recording. The calibration gets the true structure and linear block, the coverage
+benchmark's priors (:func:`studies.bench_coverage.priors_for`: the generator's ranges widened
+1.5x) and the record's last 4 s. The truth of sigma is the sd of the noise and the quantisation
+together, ``sqrt(sd^2 + q^2/12)``.
+
+Measured over seeds 0-9 from starts 10 % off the truths (|z| = |posterior mean - truth| /
+posterior sd; relative sd = posterior sd over mean): every truth within 2.15 sd (the delay of draw
+9); the 90 % intervals held the backlash and the dead zone on all ten draws, the noise sd on the
+four the waveform enters and the delay on 7 (draws 3, 8, 9 outside at z = -1.6, 1.7, -2.2); on
+the four cycles the waveform likelihood keeps (0, 1, 3, 4) the backlash's relative sd was
+0.26-4.0 % and the dead zone's 0.13-0.34 %. Draws 2 and 5-9 attract slowly and enter through
+their limit-cycle features (the calibration's fallback, whose 20 s transient made those chains
+1.5-10 min long); they run in the slow test only.
+
+The ``tvcid fit`` tests use paper 002's model at controller A (the command names a hypothesis)
+with sensor noise of sd 1e-4 rad.
 """
 import json
+import math
 import re
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -20,56 +36,146 @@ import pytest
 from discovery.calibration import Calibration, synthetic_recording
 from discovery.calibration.runner import ConvergenceWarning
 from models import CONTROLLER_A, M002
+from models.structures import Structure
 from studies.cli import main
+from studies.scenarios import draw_scenario
 
-NOISE = 1e-4
-SEED = 7
+#: Paper 002's placement: the structure of every drawn truth, with the parameters sampled.
+PLACEMENT = Structure.of_params(M002())
+NAMES = ("backlash", "dead_zone", "delay", "sigma")
+#: The first three draws whose first cycle the waveform likelihood keeps (draw 2 attracts slowly).
+WAVEFORM_SEEDS = (0, 1, 3)
+#: Every truth within this many posterior sd (largest seen over seeds 0-9: 2.15).
+MAX_Z = 3.0
+#: Relative posterior sd on the waveform's cycles: twice the largest seen over seeds 0-9 (the
+#: backlash's 4.0 % on draw 0, the dead zone's 0.34 % on draw 1).
+MAX_RELATIVE_SD = {"backlash": 0.08, "dead_zone": 0.007}
+
+
+def _calibrate(seed, directory, scatter, walkers):
+    """Draw ``seed``'s first limit cycle, calibrated by ``walkers`` walkers from a start
+    ``scatter`` off the truth (log-normal sd); ``(scenario, calibration, truths)``."""
+    from unittest import mock
+
+    from models import simulate
+    from studies import scenarios
+    from studies.bench_coverage import priors_for
+
+    scenario = draw_scenario(seed, structure=PLACEMENT)
+    first = next(r for r in scenario.recordings if r.kind == "closed")
+    scenario = replace(scenario, recordings=(first,))
+    with mock.patch.object(scenarios, "simulate_reference", simulate):
+        paths = scenarios.write_recordings(scenario, directory)
+    truth, acq = scenario.truth, scenario.acquisition
+    priors = {n: p for n, p in priors_for(PLACEMENT).items() if n in NAMES}
+    rng = np.random.default_rng([seed, 1])
+    start = {n: getattr(truth, n) * math.exp(scatter * rng.standard_normal())
+             for n in priors}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        cal = Calibration(truth, params=NAMES, priors=priors, start=start, window=4.0,
+                          n_walkers=walkers, max_steps=2500, seed=seed).fit(paths)
+    truths = {n: getattr(truth, n) for n in NAMES[:3]}
+    truths["sigma"] = math.sqrt(acq.noise_sd**2 + acq.quantisation**2 / 12.0)
+    return scenario, cal, truths
+
+
+def _z_scores(cal, truths):
+    s = cal.posterior_.summary()["parameters"]
+    return {n: (s[n]["mean"] - v) / s[n]["sd"] for n, v in truths.items()}
+
+
+@pytest.mark.parametrize("seed", WAVEFORM_SEEDS)
+def test_drawn_truth_within_three_posterior_sd(tmp_path, seed):
+    """A drawn cycle the waveform likelihood keeps, calibrated from the truth (the maximum a
+    posteriori is searched from there) by 8 walkers, the least for four parameters (measured:
+    |z| up to 1.5, relative sd up to 3.9 % and 0.29 %; 16 walkers gave the same to 0.25 sd): the
+    chain converges, every truth (the noise sd's too) lies within :data:`MAX_Z` posterior sd of
+    the posterior mean, and the waveform pins the thresholds (relative sd under
+    :data:`MAX_RELATIVE_SD`)."""
+    _, cal, truths = _calibrate(seed, tmp_path, scatter=0.0, walkers=8)
+    assert cal.likelihoods_ == {"rec00_closed": "waveform"}, cal.fallbacks_
+    assert cal.report_.converged, cal.report_
+    z = _z_scores(cal, truths)
+    assert all(abs(v) < MAX_Z for v in z.values()), (seed, z)
+    s = cal.posterior_.summary()["parameters"]
+    for name, limit in MAX_RELATIVE_SD.items():
+        assert s[name]["sd"] / s[name]["mean"] < limit, (seed, name, s[name])
+
+
+@pytest.mark.slow
+def test_ninety_percent_intervals_over_ten_drawn_truths(tmp_path):
+    """Seeds 0-9, the slowly attracting cycles (entered through their features) included, each
+    calibrated from a start 10 % off its truth by 16 walkers (``tvcid fit``'s): every chain
+    converges, every physical truth lies within :data:`MAX_Z` posterior sd (and the noise sd's
+    where the waveform enters; the features do not see it), and each parameter's 90 % interval
+    holds its truth in at least 7 of the 10 draws (the coverage test's rule; the delay's held it
+    on exactly 7) (~30 min)."""
+    inside = {n: 0 for n in NAMES[:3]}
+    for seed in range(10):
+        _, cal, truths = _calibrate(seed, tmp_path / f"draw{seed}", scatter=0.1, walkers=16)
+        assert cal.report_.converged, (seed, cal.report_)
+        z = _z_scores(cal, truths)
+        if cal.likelihoods_["rec00_closed"] != "waveform":
+            z.pop("sigma")
+        assert all(abs(v) < MAX_Z for v in z.values()), (seed, z)
+        for n in inside:
+            lo, hi = cal.posterior_.interval(n, 0.90)
+            inside[n] += lo < truths[n] < hi
+    assert all(v >= 7 for v in inside.values()), inside
 
 
 @pytest.fixture(scope="module")
 def limit_cycle(tmp_path_factory):
     path = tmp_path_factory.mktemp("rec") / "m002_A.csv"
-    return synthetic_recording(M002(), CONTROLLER_A, 20.0, NOISE, SEED, path, keep_last=10.0)
+    return synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 7, path, keep_last=10.0)
 
 
-def test_truth_inside_the_90_percent_interval(limit_cycle):
-    cal = Calibration("M002", params=("backlash", "dead_zone", "delay", "sigma"), n_walkers=16,
-                      max_steps=2500, seed=SEED).fit([limit_cycle])
-    post = cal.posterior_
-    assert cal.report_.converged, cal.report_
-    truth = {"backlash": M002().backlash, "dead_zone": M002().dead_zone, "delay": M002().delay,
-             "sigma": NOISE}
-    assert post.truths == truth  # read from the recording's provenance
-    z = post.z_scores()
-    for name, value in truth.items():
-        lo, hi = post.interval(name, 0.90)
-        assert lo < value < hi, f"{name}: truth {value:g} outside [{lo:g}, {hi:g}], z = {z[name]:.2f}"
-        assert abs(z[name]) < 3
-    # the phase-aligned waveform pins the cycle: f and zm to a few tenths of a percent
-    s = post.summary()["parameters"]
-    assert s["backlash"]["sd"] / s["backlash"]["mean"] < 0.02
-    assert s["dead_zone"]["sd"] / s["dead_zone"]["mean"] < 0.01
+#: ``tvcid fit`` on :func:`limit_cycle` (without the record, --max-steps and --out).
+FIT_RUN = ["--hypothesis", "M002", "--params", "backlash,dead_zone", "--walkers", "16",
+           "--window", "3", "--transient", "3", "--seed", "4", "--no-progress"]
 
 
-def test_cli_fit_writes_outputs_and_resumes(tmp_path, limit_cycle, capsys):
+@pytest.fixture(scope="module")
+def straight_fit(tmp_path_factory, limit_cycle):
+    """An uninterrupted 60-step run, made once: ``(DIR, what it printed)``. The outputs test
+    continues a copy of it; every interrupted run is compared with it."""
+    import contextlib
+    import io
+
+    out = tmp_path_factory.mktemp("fit") / "straight"
+    printed = io.StringIO()
+    with warnings.catch_warnings(), contextlib.redirect_stdout(printed):
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        assert main(["fit", str(limit_cycle.path), *FIT_RUN, "--max-steps", "60",
+                     "--out", str(out)]) == 0
+    return out, printed.getvalue()
+
+
+def test_cli_fit_writes_outputs_and_resumes(tmp_path, limit_cycle, straight_fit):
+    """``tvcid fit`` writes its outputs, and run again on the same DIR with a higher step cap
+    continues the chain (60 steps, then on to 80 or to convergence)."""
+    import shutil
+
+    straight, printed = straight_fit
+    # the transient the record was simulated with, chosen by its accuracy, is printed
+    assert re.search(r"transient \S+: [0-9.]+ s", printed)
     out = tmp_path / "fit"
-    args = ["fit", str(limit_cycle.path), "--hypothesis", "m002", "--params", "backlash,dead_zone",
-            "--walkers", "8", "--window", "3", "--transient", "3", "--seed", "2", "--no-progress",
-            "--out", str(out)]
+    shutil.copytree(straight, out)
+    first = json.loads((out / "summary.json").read_text())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        assert main(args + ["--max-steps", "40"]) == 0
-        first = json.loads((out / "summary.json").read_text())
-        # the transient the record was simulated with, chosen by its accuracy, is printed
-        assert re.search(r"transient \S+: [0-9.]+ s", capsys.readouterr().out)
-        assert main(args + ["--max-steps", "80"]) == 0
+        assert main(["fit", str(limit_cycle.path), *FIT_RUN, "--max-steps", "80",
+                     "--out", str(out)]) == 0
     second = json.loads((out / "summary.json").read_text())
     for f in ("chain.h5", "summary.json", "corner.png", "traces.png", "predictive.png", "posterior.nc"):
         assert (out / f).exists(), f
-    assert first["iterations"] == 40 and second["iterations"] == 80
+    assert first["iterations"] == 60 and not first["converged"]
+    assert 60 < second["iterations"] <= 80
+    assert second["iterations"] == 80 or second["converged"]
     # well-formed summaries (ordered quantiles, a correlation matrix with a unit diagonal): these
     # hold by construction and fail only on NaN or a mislabelled field; the numbers themselves
-    # are checked in test_truth_inside_the_90_percent_interval
+    # are checked in test_drawn_truth_within_three_posterior_sd
     for s in (first, second):
         assert set(s["parameters"]) == {"backlash", "dead_zone"}
         for q in s["parameters"].values():
@@ -81,9 +187,10 @@ def test_cli_fit_writes_outputs_and_resumes(tmp_path, limit_cycle, capsys):
 
 
 @pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM", "SIGINT"])
-def test_cli_run_interrupted_resumes_without_losing_a_step(tmp_path, limit_cycle, sig):
+def test_cli_run_interrupted_resumes_without_losing_a_step(tmp_path, limit_cycle, straight_fit,
+                                                            sig):
     """``tvcid fit`` killed (SIGKILL), terminated (SIGTERM: status 130, one line) or stopped by
-    Ctrl-C (SIGINT) mid-run continues from DIR/chain.h5: the finished chain equals an
+    Ctrl-C (SIGINT) mid-run continues from DIR/chain.h5: the finished chain equals the
     uninterrupted run's, step for step (60 steps: the run converges at 70; the independence
     proposal is refitted at step 50, on either side of the kill). The signal may land between two
     10-step chunks, where a default handler's KeyboardInterrupt could be swallowed by a finaliser:
@@ -93,9 +200,7 @@ def test_cli_run_interrupted_resumes_without_losing_a_step(tmp_path, limit_cycle
     import emcee
     from sigkill import kill_once_checkpointed
 
-    args = [str(limit_cycle.path), "--hypothesis", "M002", "--params", "backlash,dead_zone",
-            "--walkers", "16", "--window", "3", "--transient", "3", "--seed", "4",
-            "--max-steps", "60", "--no-progress"]
+    args = [str(limit_cycle.path), *FIT_RUN, "--max-steps", "60"]
     killed = tmp_path / "killed"
     kill_once_checkpointed(["fit", *args, "--out", str(killed)], "chain.h5", killed, min_steps=12,
                            max_steps=60, stderr_path=tmp_path / "stderr.txt", timeout=120,
@@ -105,8 +210,7 @@ def test_cli_run_interrupted_resumes_without_losing_a_step(tmp_path, limit_cycle
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         assert main(["fit", *args, "--out", str(killed)]) == 0
-        assert main(["fit", *args, "--out", str(tmp_path / "straight")]) == 0
     a = emcee.backends.HDFBackend(str(killed / "chain.h5"), read_only=True)
-    b = emcee.backends.HDFBackend(str(tmp_path / "straight" / "chain.h5"), read_only=True)
+    b = emcee.backends.HDFBackend(str(straight_fit[0] / "chain.h5"), read_only=True)
     assert a.iteration == b.iteration == 60
     assert np.array_equal(a.get_chain(), b.get_chain())

@@ -86,17 +86,31 @@ def test_sidecar_hypothesis_and_parameters_are_ignored(tmp_path):
     assert a.omega == b.omega and np.allclose(a.harmonics, b.harmonics)
 
 
-def test_recovers_a_drawn_truth_with_known_positions(tmp_path):
-    """A truth drawn by the benchmark's generator (seed 3, paper-002 placement: dead zone on the
-    error, delay at the output, backlash), data from the reference path with measured-style
-    sidecars; the positions and the absence of the loop are known (--fix), so two structures
-    remain (backlash on/off). The generating one must be in the reported set, and every coordinate
-    the design identifies (the benchmark's rule, studies.bench_discovery) within 5 %."""
-    from models.structures import Structure
+#: Paper 002's placement with its backlash: the structure the known-positions draws are made of.
+KNOWN_POSITIONS = Structure("error", "output", friction=False, backlash=True, bandpass=False)
+#: Largest error allowed on a coordinate the design pins (local spread at the truth under 2 %):
+#: 2 %, over twice the largest seen over seeds 0-5 with kernel data (log K, the only coordinate
+#: these designs pin: 0.84 % on seed 5, at most 0.09 % on the others).
+PINNED_ERROR = 0.02
 
-    s = Structure("error", "output", friction=False, backlash=True, bandpass=False)
-    scenario = shortened(draw_scenario(3, structure=s), closed=12.0, open_=6.0)
-    paths = write_recordings(scenario, tmp_path)
+
+def _recover_known_positions(seed, directory, reference_path):
+    """Discovery with the positions and the absence of the loop fixed on draw ``seed`` of
+    :data:`KNOWN_POSITIONS` (records shortened to 12 s closed, 6 s open): the two structures left
+    (backlash on/off) ranked; the generating one must be in the reported set, and every coordinate
+    the design pins within :data:`PINNED_ERROR`."""
+    from unittest import mock
+
+    from models import simulate
+    from studies import scenarios
+
+    s = KNOWN_POSITIONS
+    scenario = shortened(draw_scenario(seed, structure=s), closed=12.0, open_=6.0)
+    if reference_path:
+        paths = write_recordings(scenario, directory)
+    else:  # the numba kernel at the data's step in place of the plain-Python reference path
+        with mock.patch.object(scenarios, "simulate_reference", simulate):
+            paths = write_recordings(scenario, directory)
     for p in paths:
         side = json.loads(p.with_suffix(".json").read_text())
         assert "parameters" not in side and "hypothesis" not in side and "waveform" not in side
@@ -104,13 +118,32 @@ def test_recovers_a_drawn_truth_with_known_positions(tmp_path):
     disc = StructureDiscovery(fixed=fixed, seed=0, use_sindy=False).fit(paths)
     assert {f.structure for f in disc.ranking_} == {s, s.without("backlash")}
     fit = next(f for f in disc.ranking_ if f.structure == s)
-    assert fit.indistinguishable_from_best
-    # what this design pins (local spread at the truth under 2 %) must come back within 5 %;
-    # two limit cycles alone do not pin the linear block (MODELS.md), so it is not asserted
+    scores = [(f.structure.name, f.score) for f in disc.ranking_]
+    assert fit.indistinguishable_from_best, (seed, scores)
+    # what this design pins (local spread at the truth under 2 %) must come back; two limit
+    # cycles alone do not pin the linear block (MODELS.md), so the rest is not asserted
     errors = coordinate_errors(disc, scenario.truth, s)
     identified = {k: v["error"] for k, v in errors.items() if v["identifiable"]}
     assert identified, errors
-    assert all(e <= 0.05 for e in identified.values()), errors
+    assert all(e <= PINNED_ERROR for e in identified.values()), (seed, errors)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 3])
+def test_recovers_a_drawn_truth_with_known_positions(tmp_path, seed):
+    """Truths and designs drawn by the benchmark's generator (paper 002's placement: dead zone on
+    the error, delay at the output, backlash; the linear block, thresholds, delay, controller
+    settings, open-loop tests, acquisition and sensor drawn), records written with measured-style
+    sidecars, made by the numba kernel (the reference path costs 1-3 s per simulated second; the
+    slow test below uses it)."""
+    _recover_known_positions(seed, tmp_path, reference_path=False)
+
+
+@pytest.mark.slow
+def test_recovers_drawn_truths_with_known_positions_from_reference_data(tmp_path):
+    """As above over seeds 0-9, the records made by the plain-Python reference path (a second
+    implementation of the model) at the generator's 5e-5 s step (~25 CPU-min)."""
+    for seed in range(10):
+        _recover_known_positions(seed, tmp_path / f"draw{seed}", reference_path=True)
 
 
 #: One structure (M000's placement with its band-pass loop fixed) on one record: a discovery of
@@ -130,41 +163,58 @@ def test_never_oscillating_structure_is_one_line_error(tmp_path, capsys):
     assert "no structure reproduces the recordings" in err and len(err.splitlines()) == 1
 
 
+#: ``tvcid discover`` on one structure with a short chain, interrupted or not.
+ONE_STRUCTURE_RUN = [DATA, *ONE_STRUCTURE, "--quick", "--seed", "2", "--max-steps", "60",
+                     "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def straight_discover(tmp_path_factory):
+    """The uninterrupted run every interrupted one is compared with (made once)."""
+    out = tmp_path_factory.mktemp("discover") / "straight"
+    assert main(["discover", *ONE_STRUCTURE_RUN, "--out", str(out)]) == 0
+    return out
+
+
+def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_discover):
+    """One structure given: the set is that structure, every choice is decided, and the chain
+    samples the physical parameters (the noise sd stays at the records' estimate)."""
+    straight = json.loads((straight_discover / "discovery.json").read_text())
+    assert not straight["resumed_ranking"]
+    assert "sigma" not in straight["posterior"]["parameters"]
+    assert {"dead_zone", "delay"} <= set(straight["posterior"]["parameters"])
+    only = Structure.parse(straight["structures"][0]["structure"])
+    assert straight["decided"] == shared_choices([only])
+    assert only.bandpass and None not in straight["decided"].values()
+    report = (straight_discover / "report.md").read_text()
+    assert "## What the recordings decide" in report and "- band-pass loop: decided, on" in report
+
+
 @pytest.mark.parametrize("sig", ["SIGKILL", "SIGINT"])
-def test_killed_discover_resumes_ranking_and_chain(tmp_path, sig):
+def test_killed_discover_resumes_ranking_and_chain(tmp_path, straight_discover, sig):
     """``tvcid discover`` killed by SIGKILL, or stopped by Ctrl-C (SIGINT: status 130, one line),
     during its MCMC: the rerun reuses the ranking (same inputs hash, no new search) and continues
-    the chain; the finished chain equals an uninterrupted run's, step for step."""
+    the chain; the finished chain equals the uninterrupted run's, step for step."""
     import signal
 
     import emcee
     from sigkill import kill_once_checkpointed
 
-    args = [DATA, *ONE_STRUCTURE, "--quick", "--seed", "2", "--max-steps", "60", "--no-progress"]
     killed = tmp_path / "killed"
-    kill_once_checkpointed(["discover", *args, "--out", str(killed)], "chain-*.h5", killed,
-                           min_steps=10, max_steps=60, stderr_path=tmp_path / "stderr.txt",
+    kill_once_checkpointed(["discover", *ONE_STRUCTURE_RUN, "--out", str(killed)], "chain-*.h5",
+                           killed, min_steps=10, max_steps=60, stderr_path=tmp_path / "stderr.txt",
                            timeout=600, sig=getattr(signal, sig))
     ranking = json.loads((killed / "discovery.json").read_text())
     assert "posterior" not in ranking and ranking["structures"]
-    assert main(["discover", *args, "--out", str(killed)]) == 0
-    assert main(["discover", *args, "--out", str(tmp_path / "straight")]) == 0
+    assert main(["discover", *ONE_STRUCTURE_RUN, "--out", str(killed)]) == 0
     resumed = json.loads((killed / "discovery.json").read_text())
-    straight = json.loads((tmp_path / "straight" / "discovery.json").read_text())
+    straight = json.loads((straight_discover / "discovery.json").read_text())
     assert resumed["resumed_ranking"] and not straight["resumed_ranking"]
     assert resumed["structures"][0]["params"] == straight["structures"][0]["params"]
-    # the chain samples the physical parameters; the noise sd stays at the records' estimate
-    assert "sigma" not in straight["posterior"]["parameters"]
-    assert {"dead_zone", "delay"} <= set(straight["posterior"]["parameters"])
-    # one structure given: the set is that structure, and every choice is decided
-    only = Structure.parse(straight["structures"][0]["structure"])
-    assert straight["decided"] == resumed["decided"] == shared_choices([only])
-    assert only.bandpass and None not in straight["decided"].values()
-    report = (tmp_path / "straight" / "report.md").read_text()
-    assert "## What the recordings decide" in report and "- band-pass loop: decided, on" in report
+    assert resumed["decided"] == straight["decided"]
     (chain,) = killed.glob("chain-*.h5")
     a = emcee.backends.HDFBackend(str(chain), read_only=True)
-    b = emcee.backends.HDFBackend(str(tmp_path / "straight" / chain.name), read_only=True)
+    b = emcee.backends.HDFBackend(str(straight_discover / chain.name), read_only=True)
     assert a.iteration == b.iteration == 60
     assert np.array_equal(a.get_chain(), b.get_chain())
 

@@ -1,4 +1,5 @@
 """Spectral analysis as papers 001 and 000 did it (issue 3, items 4-6)."""
+import functools
 import json
 
 import numpy as np
@@ -15,6 +16,7 @@ from models import CONTROLLER_A, InsufficientPeriodsError, hypothesis, simulate
 from models.noise import band_limited_white_noise
 from models.recording import load_recording, recording_from_trajectory, save_recording
 from studies.cli import main
+from studies.scenarios import draw_scenario
 
 RATE = 1000.0
 
@@ -61,33 +63,76 @@ def test_harmonic_table_flags_the_seventh_harmonic_of_m001f(m001f_record):
     assert row["ratio"] == pytest.approx(0.45, abs=0.02)  # MODELS.md: H7/H1 = 0.45
 
 
+@functools.lru_cache(maxsize=None)
+def _drawn(seed):
+    """Draw ``seed`` of the shared generator (:func:`studies.scenarios.draw_scenario`: truths
+    over every structure) at its first limit-cycle setting (controller, hold and acquisition
+    rate): ``(scenario, experiment, rate)``."""
+    scenario = draw_scenario(seed)
+    first = next(r for r in scenario.recordings if r.kind == "closed")
+    return scenario, first.experiment(), first.rate
+
+
+#: Draws without a band-pass loop: those among draws 0-9 (1, 3, 6, 8) but draw 1, whose truth the
+#: generator redraws the most times before it oscillates (0.4 s, the other three 0.3 s together).
+PLAIN_DRAWS = (3, 6, 8)
+
+
 def test_no_raised_harmonic_without_the_bandpass_loop():
-    for params in (hypothesis("M001f", bandpass_gain=0.0), hypothesis("M002")):
-        tr = simulate(params, CONTROLLER_A, 40.0)
+    """Drawn truths without a band-pass loop, 20 s of a 40 s cycle: no harmonic is raised, and
+    the seventh stays below the fifth (the odd harmonics decay; over the eleven draws without the
+    loop among 0-19, H7/H1 reached 0.22 and H5/H1 0.29, both on draw 19)."""
+    for seed in PLAIN_DRAWS:
+        scenario, experiment, rate = _drawn(seed)
+        assert not scenario.structure.bandpass, seed
+        tr = simulate(scenario.truth, experiment, 40.0, rate=rate)
         sl = tr.window(20)
         table = harmonic_table(tr.t[sl], tr.delta[sl])
-        assert table.raised_harmonics == (), params.name
-        assert table.ratio[6] < 0.1
+        assert table.raised_harmonics == (), (seed, scenario.structure.name)
+        assert table.ratio[6] < table.ratio[4], (seed, table.ratio[:7])
 
 
-@pytest.mark.parametrize("power, band", [(1e-11, 500.0), (4e-11, 100.0)])
-def test_noise_floor_recovers_the_injected_power(power, band):
-    """M002 at controller A, last 30 s of 40 s, noise seeds 0-9: every matched power within 10 % of
-    the injected one and their mean within 3 % (measured when this was written: errors within
-    9.3 % and 8.3 %, mean -1.0 % and -0.4 %, sd 6.1 % and 3.6 % over the ten seeds; the
-    discovery.spectral.noise_floor docstring and the README state the same)."""
+#: Noise powers (rad^2/Hz) and bands (Hz) injected.
+NOISE_CASES = [(1e-11, 500.0), (4e-11, 100.0)]
+
+
+def _noise_floor_errors(seeds, power, band):
+    """Relative errors of the matched power and of its root over drawn truths, each at its first
+    controller setting and acquisition rate, the noise injected with seed = draw, the last 30 s
+    of 40 s."""
     errors, std_errors = [], []
-    for seed in range(10):
-        params = hypothesis("M002", noise_power=power, noise_band=band, noise_seed=seed)
-        tr = simulate(params, CONTROLLER_A, 40.0)
+    for seed in seeds:
+        scenario, experiment, rate = _drawn(seed)
+        params = scenario.truth.replace(noise_power=power, noise_band=band, noise_seed=seed)
+        tr = simulate(params, experiment, 40.0, rate=rate)
         sl = tr.window(30)
         floor = noise_floor(tr.t[sl], tr.delta[sl], noise_band=band)
         errors.append(floor.power / power - 1)
         std_errors.append(floor.std / np.sqrt(power * 2 * band) - 1)
-    errors = np.array(errors)
-    assert np.max(np.abs(errors)) < 0.10, errors.round(3)
-    assert abs(np.mean(errors)) < 0.03, errors.round(3)
-    assert np.max(np.abs(std_errors)) < 0.05, np.round(std_errors, 3)  # sqrt of the power
+    return np.array(errors), np.array(std_errors)
+
+
+@pytest.mark.parametrize("power, band", NOISE_CASES)
+def test_noise_floor_recovers_the_injected_power(power, band):
+    """Measured over draws 0-19: every matched power within 12.5 % of the injected one (draw 4,
+    whose band-pass loop answers the noise coherently, as M000's does:
+    discovery.spectral.noise_floor), its root within 6.1 %. Asserted on :data:`PLAIN_DRAWS`:
+    each within 20 % (1.6x the largest) and the root within 10 %."""
+    errors, std_errors = _noise_floor_errors(PLAIN_DRAWS, power, band)
+    assert np.max(np.abs(errors)) < 0.20, errors.round(3)
+    assert np.max(np.abs(std_errors)) < 0.10, std_errors.round(3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("power, band", NOISE_CASES)
+def test_noise_floor_is_unbiased_over_ten_drawn_truths(power, band):
+    """Draws 0-9, band-pass loops included: each matched power within 20 % of the injected one,
+    their mean within 5 % (measured +3.1 % and +0.9 %; one estimate scatters by about 5 %, 4-6 %
+    over noise seeds on M002: 3 standard errors of a mean of ten) and the root within 10 %."""
+    errors, std_errors = _noise_floor_errors(range(10), power, band)
+    assert np.max(np.abs(errors)) < 0.20, errors.round(3)
+    assert abs(np.mean(errors)) < 0.05, errors.round(3)
+    assert np.max(np.abs(std_errors)) < 0.10, std_errors.round(3)
 
 
 def test_noise_floor_of_held_noise_on_a_sine():
