@@ -432,7 +432,8 @@ def coverage_goals(summary) -> list:
 
 
 def widening_goal(result):
-    """Issue 12: the discrepancy term widens a right model's 90 % intervals by at most 20 %."""
+    """The widening goal: the discrepancy term widens a right model's 90 % intervals by at most
+    20 %."""
     return Goal.count("90 % intervals the discrepancy term widens by at most 20 %",
                       result["within_20_percent"], result["intervals"])
 

@@ -539,8 +539,8 @@ def main(argv=None) -> int:
 
 
 def discovery_goals(overall) -> list:
-    """Issue 11's two goals on :func:`summarise`'s ``overall`` row: 90 % of the draws over 30 or
-    more, scaled down to half of them for fewer (CI's handful)."""
+    """The discovery benchmark's two goals on :func:`summarise`'s ``overall`` row: 90 % of the
+    draws over 30 or more, scaled down to half of them for fewer (CI's handful)."""
     n = overall["draws"]
     need = 0.9 if n >= 30 else 0.5
     target = f">= {100 * need:.0f} %" + ("" if n >= 30 else " over fewer than 30 draws")
