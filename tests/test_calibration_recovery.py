@@ -52,7 +52,7 @@ MAX_Z = 3.0
 MAX_RELATIVE_SD = {"backlash": 0.08, "dead_zone": 0.007}
 
 
-def _calibrate(seed, directory, scatter, walkers):
+def _calibrate(seed, directory, scatter, walkers, max_steps):
     """Draw ``seed``'s first limit cycle, calibrated by ``walkers`` walkers from a start
     ``scatter`` off the truth (log-normal sd); ``(scenario, calibration, truths)``."""
     from unittest import mock
@@ -74,7 +74,7 @@ def _calibrate(seed, directory, scatter, walkers):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         cal = Calibration(truth, params=NAMES, priors=priors, start=start, window=4.0,
-                          n_walkers=walkers, max_steps=2500, seed=seed).fit(paths)
+                          n_walkers=walkers, max_steps=max_steps, seed=seed).fit(paths)
     truths = {n: getattr(truth, n) for n in NAMES[:3]}
     truths["sigma"] = math.sqrt(acq.noise_sd**2 + acq.quantisation**2 / 12.0)
     return scenario, cal, truths
@@ -93,7 +93,7 @@ def test_drawn_truth_within_three_posterior_sd(tmp_path, seed):
     chain converges, every truth (the noise sd's too) lies within :data:`MAX_Z` posterior sd of
     the posterior mean, and the waveform pins the thresholds (relative sd under
     :data:`MAX_RELATIVE_SD`)."""
-    _, cal, truths = _calibrate(seed, tmp_path, scatter=0.0, walkers=8)
+    _, cal, truths = _calibrate(seed, tmp_path, scatter=0.0, walkers=8, max_steps=2500)
     assert cal.likelihoods_ == {"rec00_closed": "waveform"}, cal.fallbacks_
     assert cal.report_.converged, cal.report_
     z = _z_scores(cal, truths)
@@ -106,22 +106,27 @@ def test_drawn_truth_within_three_posterior_sd(tmp_path, seed):
 @pytest.mark.slow
 def test_ninety_percent_intervals_over_ten_drawn_truths(tmp_path):
     """Seeds 0-9, the slowly attracting cycles (entered through their features) included, each
-    calibrated from a start 10 % off its truth by 16 walkers (``tvcid fit``'s): every chain
-    converges, every physical truth lies within :data:`MAX_Z` posterior sd (and the noise sd's
-    where the waveform enters; the features do not see it), and each parameter's 90 % interval
-    holds its truth in at least 7 of the 10 draws (the coverage test's rule; the delay's held it
-    on exactly 7) (~30 min)."""
+    calibrated from a start 10 % off its truth by 16 walkers with a cap of 4000 steps (``tvcid
+    fit``'s): every chain converges, every physical truth lies within :data:`MAX_Z` posterior sd
+    (and the noise sd's where the waveform enters; the features do not see it), and each
+    parameter's 90 % interval holds its truth in at least 7 of the 10 draws (the coverage test's
+    rule; the delay's held it on exactly 7) (~30 min)."""
     inside = {n: 0 for n in NAMES[:3]}
+    outside_z, unconverged = {}, {}
     for seed in range(10):
-        _, cal, truths = _calibrate(seed, tmp_path / f"draw{seed}", scatter=0.1, walkers=16)
-        assert cal.report_.converged, (seed, cal.report_)
+        _, cal, truths = _calibrate(seed, tmp_path / f"draw{seed}", scatter=0.1, walkers=16,
+                                    max_steps=4000)
+        if not cal.report_.converged:
+            unconverged[seed] = cal.report_.iterations
         z = _z_scores(cal, truths)
         if cal.likelihoods_["rec00_closed"] != "waveform":
             z.pop("sigma")
-        assert all(abs(v) < MAX_Z for v in z.values()), (seed, z)
+        if not all(abs(v) < MAX_Z for v in z.values()):
+            outside_z[seed] = z
         for n in inside:
             lo, hi = cal.posterior_.interval(n, 0.90)
             inside[n] += lo < truths[n] < hi
+    assert not unconverged and not outside_z, (unconverged, outside_z)
     assert all(v >= 7 for v in inside.values()), inside
 
 
