@@ -35,6 +35,8 @@ __all__ = [
     "hypothesis",
     "gains_from_abc",
     "params_from_dict",
+    "UNITS",
+    "parameter_unit",
 ]
 
 
@@ -90,6 +92,25 @@ _POSITIVE = (
     "bandpass_high_hz",
     "noise_band",
 )
+
+
+#: Unit of each numeric parameter of :class:`ActuatorParams` (the dead zone's depends on its
+#: position: :func:`parameter_unit`).
+UNITS = {
+    "gain": "1/s^3", "damping": "1/s", "stiffness": "1/s^2", "feedback_gain": "1",
+    "dead_zone": "rad", "backlash": "rad", "friction_offset": "rad/s", "delay": "s",
+    "bandpass_gain": "1", "bandpass_saturation": "rad/s", "bandpass_low_hz": "Hz",
+    "bandpass_high_hz": "Hz", "y0": "rad/s", "yd0": "rad/s^2", "x0": "rad",
+    "noise_power": "rad^2/Hz", "noise_band": "Hz", "sigma": "rad",
+}
+
+
+def parameter_unit(name, dead_zone_position="error") -> str:
+    """Unit of parameter ``name``: ``rad/s`` for a dead zone on the velocity signal, else
+    :data:`UNITS` (``""`` for a name it does not know)."""
+    if name == "dead_zone" and str(getattr(dead_zone_position, "value", dead_zone_position)) == "velocity":
+        return "rad/s"
+    return UNITS.get(name, "")
 
 
 @dataclass(frozen=True)

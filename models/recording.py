@@ -25,6 +25,7 @@ __all__ = [
     "RecordingError",
     "Recording",
     "load_recording",
+    "load_recordings",
     "save_recording",
     "recording_from_trajectory",
     "REQUIRED_COLUMNS",
@@ -405,3 +406,14 @@ def recording_from_trajectory(trajectory, seed=None, extra=None):
     if extra:
         meta.update(extra)
     return trajectory.signals(), meta
+
+
+def load_recordings(recordings) -> list:
+    """Recordings from paths or :class:`Recording` objects, one or several (through
+    :func:`load_recording`)."""
+    if isinstance(recordings, (str, Path, Recording)):
+        recordings = [recordings]
+    out = [r if isinstance(r, Recording) else load_recording(r) for r in recordings]
+    if not out:
+        raise ValueError("no recording given")
+    return out

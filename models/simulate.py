@@ -24,7 +24,7 @@ __all__ = [
     "simulate_batch",
 ]
 
-#: Default RK4 step (s). ``studies/bench_simulator.py`` shows the cycle amplitude within 0.1 % of
+#: Default RK4 step (s). ``studies/benchmarks/simulator.py`` shows the cycle amplitude within 0.1 % of
 #: a dt = 1e-5 run at this step.
 DEFAULT_DT = 2e-4
 #: Default output rate (Hz) of a trajectory.

@@ -28,13 +28,15 @@ import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from discovery.calibration import Calibration, compare, synthetic_recording
+from discovery.calibration import Calibration, compare
 from discovery.calibration.ridge import RidgeAnalysis, robust_amplitude
 from discovery.calibration.runner import ConvergenceWarning
 from models import CONTROLLER_A, CONTROLLER_B, M002, OpenLoop
+from models.strict_json import write_json
+from models.synthetic import synthetic_recording
+from tvcid.figures import pyplot
 
-from .common import pyplot, study_main
-from .goals import write_json
+from .common import study_main
 
 NAME = "calibration_ridge"
 PARAMS = ("backlash", "dead_zone", "delay")

@@ -38,9 +38,10 @@ from models import (
     limit_cycle_features,
     simulate_batch,
 )
+from tvcid.figures import pyplot
 
 from . import calibration_ridge
-from .common import pyplot, study_main
+from .common import study_main
 
 NAME = "h1_deadzone_backlash"
 HWIL_A = (4.89e-3, 8.57)  # paper 002 section 6

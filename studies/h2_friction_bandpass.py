@@ -29,8 +29,9 @@ from discovery.spectral import (
 )
 from models import CONTROLLER_A, hypothesis, simulate
 from models.recording import load_recording
+from tvcid.figures import pyplot
 
-from .common import pyplot, study_main
+from .common import study_main
 
 NAME = "h2_friction_bandpass"
 DATA = Path(__file__).resolve().parents[1] / "data"

@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from models import CONTROLLER_A, hypothesis, simulate, simulate_batch
+from tvcid.figures import pyplot
 
-from .common import pyplot, study_main
+from .common import study_main
 
 NAME = "h3_initial_conditions"
 

@@ -29,8 +29,9 @@ from models import (
     simulate_batch,
 )
 from models.recording import load_recording
+from tvcid.figures import pyplot
 
-from .common import pyplot, study_main
+from .common import study_main
 
 NAME = "h4_delay_position"
 DATA = Path(__file__).resolve().parents[1] / "data"

@@ -29,8 +29,9 @@ from discovery.spectral import noise_floor
 from models import CONTROLLER_A, hypothesis, limit_cycle_features, simulate_batch
 from models.noise import noise_std
 from models.recording import load_recording
+from tvcid.figures import pyplot
 
-from .common import pyplot, study_main
+from .common import study_main
 
 NAME = "h5_noise"
 DATA = Path(__file__).resolve().parents[1] / "data"

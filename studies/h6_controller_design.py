@@ -122,8 +122,9 @@ from models import limit_cycle_features, simulate
 from models.controllers import BendingMode
 from models.hypotheses import params_from_dict
 from models.recording import load_recording
+from tvcid.figures import pyplot
 
-from .common import pyplot, study_main
+from .common import study_main
 
 NAME = "h6_controller_design"
 DATA = Path(__file__).resolve().parents[1] / "data"

@@ -32,8 +32,9 @@ from models import (
     simulate,
 )
 from models.hypotheses import gains_from_abc
+from tvcid.figures import pyplot
 
-from .common import pyplot, study_main
+from .common import study_main
 
 NAME = "reference_cycles"
 

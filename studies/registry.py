@@ -7,7 +7,7 @@ start it first.
 from __future__ import annotations
 
 from . import (
-    discover,
+    bundled_discovery,
     h1_deadzone_backlash,
     h2_friction_bandpass,
     h3_initial_conditions,
@@ -17,5 +17,5 @@ from . import (
     reference_cycles,
 )
 
-STUDIES = {module.NAME: module for module in (reference_cycles, h1_deadzone_backlash, h2_friction_bandpass, h3_initial_conditions, h4_delay_position, h5_noise, discover,
+STUDIES = {module.NAME: module for module in (reference_cycles, h1_deadzone_backlash, h2_friction_bandpass, h3_initial_conditions, h4_delay_position, h5_noise, bundled_discovery,
                                           h6_controller_design)}

@@ -391,7 +391,7 @@ def run_cli(argv):
     import contextlib
     import io
 
-    from studies.cli import main
+    from tvcid.cli import main
 
     err, out = io.StringIO(), io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):

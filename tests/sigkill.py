@@ -8,7 +8,7 @@ import time
 
 import emcee
 
-CLI = [sys.executable, "-c", "import sys; from studies.cli import main; sys.exit(main(sys.argv[1:]))"]
+CLI = [sys.executable, "-c", "import sys; from tvcid.cli import main; sys.exit(main(sys.argv[1:]))"]
 
 
 def kill_once_checkpointed(args, chain_glob, directory, min_steps, max_steps, stderr_path, timeout,

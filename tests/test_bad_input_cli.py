@@ -10,9 +10,8 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
-
 import bad_inputs as cat
+import pytest
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -45,7 +44,7 @@ def test_bad_option_or_parameter_is_one_line_naming_it(case, good, tmp_path):
 
 def test_every_command_is_in_the_catalogue():
     """A new command must join the catalogue (recording cases or option cases)."""
-    from studies.cli import build_parser
+    from tvcid.cli import build_parser
 
     parser = build_parser()
     (sub,) = [a for a in parser._actions if a.dest == "command"]
@@ -107,8 +106,8 @@ def test_failing_runs_keep_what_was_written(good, tmp_path):
 def test_internal_error_is_one_line_with_exit_1(monkeypatch, capsys):
     """A bug (an exception no validator raised) still reaches the user as one line, exit 1, with
     the way to see its traceback."""
-    from studies import cli
-    from studies.commands import features
+    from tvcid import cli
+    from tvcid.commands import features
 
     def broken(args):
         raise ZeroDivisionError("division by zero")

@@ -1,6 +1,6 @@
-"""The discovery benchmark (studies.bench_discovery): one bundled draw, its stored rows, its rules.
+"""The discovery benchmark (studies.benchmarks.discovery): one bundled draw, its stored rows, its rules.
 
-The benchmark's first draw (seed 1000, :func:`studies.scenarios.draw_scenario`) is bundled under
+The benchmark's first draw (seed 1000, :func:`studies.benchmarks.scenarios.draw_scenario`) is bundled under
 ``data/bench/draw1000`` as the benchmark writes it (reference path, measured-style sidecars, the
 truth in ``truth/scenario.json``), so that no test spends four minutes of the plain-Python
 reference path making it; a slow test rebuilds it byte for byte. The default suite runs one draw
@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from studies.bench_discovery import main as bench_main
-from studies.scenarios import DATA_DT, draw_scenario, write_recordings
+from studies.benchmarks.discovery import main as bench_main
+from studies.benchmarks.scenarios import DATA_DT, draw_scenario, write_recordings
 
 BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
 
@@ -38,14 +38,14 @@ def _digests(directory):
 
 def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tmp_path, monkeypatch,
                                                                                capsys):
-    """``python -m studies.bench_discovery --quick --draws 1`` on the bundled draw, its search cut
+    """``python -m studies.benchmarks.discovery --quick --draws 1`` on the bundled draw, its search cut
     to the truth's dead-zone and delay positions (8 structures) and to a few generations: the
     recordings are read, not remade; every structure without the band-pass loop costs over 20x
     the best (two 9-10 Hz ringing cycles), so the reported set decides the loop and holds the
     truth, and no structural choice is decided wrong; the row's ranking and the summary are the
     row's own, and the exit status is the goal's verdict."""
-    import studies.bench_discovery as bench
     import discovery.structure.discover as discover
+    import studies.benchmarks.discovery as bench
 
     monkeypatch.setitem(discover.SEARCHES, "standard", discover.SearchSizes(
         pop=3, gens=3, open_pop=3, open_gens=3, nfev=4, rank_nfev=2))
@@ -53,7 +53,7 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
     def no_reference_path(*args, **kwargs):
         raise AssertionError("the bundled recordings were made again")
 
-    monkeypatch.setattr("studies.scenarios.simulate_reference", no_reference_path)
+    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", no_reference_path)
     truth = draw_scenario(1000).structure
     positions = {"dead_zone_position": truth.dead_zone_position.value,
                  "delay_position": truth.delay_position.value}
@@ -88,7 +88,7 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
 
 @pytest.mark.slow
 def test_quick_benchmark_on_its_first_draw_meets_the_scaled_down_goal(tmp_path, capsys):
-    """``python -m studies.bench_discovery --quick --draws 1`` (every structure, the standard
+    """``python -m studies.benchmarks.discovery --quick --draws 1`` (every structure, the standard
     search): the truth the winner or in a set of at most 3 distinct structures, and every
     coordinate the design identifies within 5 %; the exit status says so, and the summary agrees
     with the row. The bundled recordings are read, not remade."""
@@ -130,9 +130,9 @@ def test_a_finished_row_is_rederived_from_its_stored_ranking():
     import json
     from pathlib import Path
 
-    from studies.bench_discovery import rederived
+    from studies.benchmarks.discovery import rederived
 
-    record = Path(__file__).resolve().parents[1] / "studies" / "records" / "bench_discovery_quick.json"
+    record = Path(__file__).resolve().parents[1] / "studies" / "benchmarks" / "records" / "bench_discovery_quick.json"
     row = next(r for r in json.loads(record.read_text())["rows"] if r["seed"] == 1017)
     row = {**row, **row.get("previous", {}), "set_size": 5, "right_or_in_small_set": False,
            "winner": "dz_velocity+delay_before_integrator"}
@@ -153,9 +153,9 @@ def test_floor_scan_weighs_the_set_rule_on_finished_rows():
     floor draw 1017's set grows past 3, and draws 1010, 1020 and 1025 (the three positions of the
     delay fitting within 0.003-0.015 of each other, the folds disagreeing as much) are missed at
     every scale. The truth is never lost by widening the margin."""
-    from studies.bench_discovery import FLOOR_SCALES, floor_scan
+    from studies.benchmarks.discovery import FLOOR_SCALES, floor_scan
 
-    record = Path(__file__).resolve().parents[1] / "studies" / "records" / "bench_discovery_quick.json"
+    record = Path(__file__).resolve().parents[1] / "studies" / "benchmarks" / "records" / "bench_discovery_quick.json"
     seeds = (1003, 1010, 1017, 1020, 1025)
     rows = [r for r in json.loads(record.read_text())["rows"] if r["seed"] in seeds]
     floors = {r["seed"]: [0.1] * len(r["design"]["recordings"]) for r in rows}
@@ -179,9 +179,9 @@ def test_structures_fitting_as_well_as_the_truth_bound_the_set():
     most at the truth's cost; a set of at most 3 cannot hold 1010's truth without excluding a
     structure the data favour as much. The summary counts the ceiling per class."""
     from models.structures import Structure
-    from studies.bench_discovery import as_well_as_truth, summarise
+    from studies.benchmarks.discovery import as_well_as_truth, summarise
 
-    record = Path(__file__).resolve().parents[1] / "studies" / "records" / "bench_discovery_quick.json"
+    record = Path(__file__).resolve().parents[1] / "studies" / "benchmarks" / "records" / "bench_discovery_quick.json"
     rows = {r["seed"]: r for r in json.loads(record.read_text())["rows"]}
     assert as_well_as_truth(rows[1013]) == [rows[1013]["structure"]]
     row = rows[1010]

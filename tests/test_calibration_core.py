@@ -19,7 +19,7 @@ from discovery.calibration.testing import moment_errors, sample_gaussian
 from models import CONTROLLER_A, M002, simulate
 from models.features import limit_cycle_features
 from models.recording import RecordingError
-from studies.cli import main
+from tvcid.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -237,7 +237,7 @@ def test_interrupted_run_resumes_to_the_same_chain(tmp_path, short_record, monke
     file gives, step for step, the chain of an uninterrupted run with the same seed."""
     import warnings
 
-    from discovery.calibration.posterior import LogPosterior
+    from discovery.calibration.log_posterior import LogPosterior
 
     warnings.simplefilter("ignore", ConvergenceWarning)
     straight = _small(backend=tmp_path / "a.h5", stop_when_converged=False).fit([short_record])
@@ -379,8 +379,11 @@ def test_laplace_move_kept_only_if_its_steps_are_accepted(correlated, kept):
     import emcee
 
     from discovery.calibration import Calibration
-    from discovery.calibration.calibration import (LAPLACE_CHECK_STEPS, LAPLACE_MAX_REFITS,
-                                                   _move_weights)
+    from discovery.calibration.calibration import (
+        LAPLACE_CHECK_STEPS,
+        LAPLACE_MAX_REFITS,
+        _move_weights,
+    )
     from discovery.calibration.moves import LaplaceIndependenceMove
 
     mean, sd, cov = _correlated_gaussian()

@@ -6,8 +6,9 @@ Run with ``pytest -m slow tests/test_calibration_coverage.py``.
 """
 import pytest
 
-from discovery.calibration import Calibration, synthetic_recording
+from discovery.calibration import Calibration
 from models import CONTROLLER_A, M002
+from models.synthetic import synthetic_recording
 
 NAMES = ("backlash", "dead_zone", "delay", "sigma")
 
@@ -30,12 +31,12 @@ def test_ridge_case_with_a_drawn_truth_converges_and_covers_it(tmp_path):
     """Issue 12's ridge case (paper 001's placement without the band-pass loop, limit cycles at A
     and B, 40 s at 1 kHz), a truth drawn by the shared generator, calibrated as ``tvcid fit``
     does by default: converged within the step cap and every truth inside its 90 % interval
-    (seed 0 measured by ``studies.bench_calibration --case ridge`` on 2026-11-24 at the 5e-4 s
+    (seed 0 measured by ``studies.benchmarks.calibration --case ridge`` on 2026-11-24 at the 5e-4 s
     default step, the friction offset's jump located inside the step: 260 steps, 27 s; widths
     0.9 % dead zone, 2.8 % backlash, 14 % delay, 1.5 % friction offset; the truth's HPD rank 0.30;
     discrepancy factors 1.0. Before the jump was located the period locked to the 5e-4 s grid and
     every posterior sample beat the truth). About 3 minutes on 2 cores, mostly the data."""
-    from studies.bench_calibration import run_ridge_case
+    from studies.benchmarks.calibration import run_ridge_case
 
     row = run_ridge_case(0, tmp_path)
     assert row["converged"] and row["iterations"] <= row["step_cap"]

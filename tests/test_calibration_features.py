@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from discovery.calibration import synthetic_recording
 from discovery.calibration.likelihood import FeatureTerm
 from models import CONTROLLER_A, CONTROLLER_B, M002
 from models.recording import load_recording
+from models.synthetic import synthetic_recording
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -91,7 +91,7 @@ def test_a_cycle_still_settling_leaves_its_settled_features_inside_the_covarianc
     the settling term the settled features lie within 2 sd of the record's, feature by feature."""
     from models import simulate
     from models.recording import save_recording
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(2, Config())
     design = scenario.recordings[0]
@@ -124,7 +124,7 @@ def test_start_imprint_of_a_slowly_settling_cycle_is_counted(tmp_path):
     1.5), and it must be
     negligible for a run started on its own cycle (periodic M002: the warm start is its own, scaled
     by the record's noisy rms; measured up to 0.06 sd, a 0.4 % wider variance)."""
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     truth = coverage_scenario(20, Config()).truth
     rec = synthetic_recording(truth, CONTROLLER_A, 70.0, 7e-5, 5, tmp_path / "d20.csv", keep_last=10.0,
@@ -162,7 +162,7 @@ def test_solver_error_of_the_features_is_gone_at_its_source_and_the_correction_k
     Since the line delivers the jumps at their own times (b8ce59e) the raw features at 5e-4 s are
     within 0.1 sd of the fine ones (measured 0.053 at most); corrected, still within 0.6 sd. The
     remaining variance is the change itself, not twice it."""
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(16, Config())
     truth = scenario.truth
@@ -184,7 +184,7 @@ def _settling_record(path, index, record=0, lead=10.0, noise=1e-5, seed=5):
     generator's start, ``lead`` seconds dropped, white noise."""
     from models import simulate
     from models.recording import save_recording
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(index, Config())
     design = scenario.recordings[record]

@@ -15,7 +15,6 @@ from discovery.calibration.likelihood import features_inflation, waveform_inflat
 from discovery.calibration.runner import ConvergenceWarning
 
 
-
 def test_white_residuals_are_not_inflated():
     """White noise of the assumed sd: factor 1 in 20 of 20 seeds (each factor triggers beyond
     three standard errors). Standard normal features: factor 1 exactly when their chi-square is
@@ -62,8 +61,8 @@ def test_features_inflation_starts_from_one_at_the_tests_threshold():
 
 @pytest.fixture(scope="module")
 def square(tmp_path_factory):
-    from discovery.calibration import synthetic_recording
     from models import M002, OpenLoop
+    from models.synthetic import synthetic_recording
 
     path = tmp_path_factory.mktemp("mismatch") / "square.csv"
     return synthetic_recording(M002(), OpenLoop.square(0.02, 1.0), 4.0, 2e-5, 5, path)

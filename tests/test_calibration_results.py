@@ -8,7 +8,7 @@ matplotlib.use("Agg")
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from discovery.calibration import Calibration, compare, synthetic_recording  # noqa: E402
+from discovery.calibration import Calibration, compare  # noqa: E402
 from discovery.calibration.ridge import (  # noqa: E402
     PAPER002_FAMILY_A,
     RidgeAnalysis,
@@ -17,6 +17,7 @@ from discovery.calibration.ridge import (  # noqa: E402
 )
 from discovery.calibration.runner import ConvergenceWarning  # noqa: E402
 from models import CONTROLLER_A, M002  # noqa: E402
+from models.synthetic import synthetic_recording  # noqa: E402
 
 
 @pytest.fixture(scope="module")

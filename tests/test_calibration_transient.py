@@ -7,9 +7,10 @@ calibration tries shorter transients and keeps the shortest whose log-likelihood
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration, synthetic_recording
+from discovery.calibration import Calibration
 from discovery.calibration import calibration as calibration_module
 from models import CONTROLLER_A, M002
+from models.synthetic import synthetic_recording
 
 NAMES = ("backlash", "dead_zone", "delay", "sigma")
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from models.recording import save_recording
-from studies.cli import main
+from tvcid.cli import main
 
 
 def test_simulate_then_features_json(tmp_path, capsys):
@@ -49,7 +49,7 @@ def test_controller_option_helpers_parse_into_a_closed_loop():
     import argparse
 
     from models.controllers import TransferFunction
-    from studies.commands._common import add_controller_options, closed_loop_from_args
+    from tvcid.commands._common import add_controller_options, closed_loop_from_args
 
     parser = argparse.ArgumentParser()
     add_controller_options(parser)
@@ -93,7 +93,7 @@ def test_cli_errors_name_the_culprit(tmp_path, capsys, monkeypatch, args, messag
 
 
 def test_every_command_has_help(capsys):
-    from studies.cli import build_parser
+    from tvcid.cli import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
@@ -118,7 +118,7 @@ def _command_paths(parser, prefix=()):
 def test_help_of_every_command_prints_and_exits_0(capsys):
     """``tvcid --help`` and ``tvcid COMMAND [SUBCOMMAND] --help`` over the whole command tree:
     each prints its usage and exits 0 (a help string with a bare ``%`` would raise instead)."""
-    from studies.cli import build_parser
+    from tvcid.cli import build_parser
 
     paths = list(_command_paths(build_parser()))
     assert len(paths) > 5

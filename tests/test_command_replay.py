@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from discovery.calibration import synthetic_recording
-from discovery.calibration.edge_timing import EdgeTiming
 from discovery.calibration.likelihood import make_term
 from models import M002, OpenLoop
 from models.commands import command_from_samples
+from models.edge_timing import EdgeTiming
 from models.recording import load_recording
 from models.simulate import simulate_batch
+from models.synthetic import synthetic_recording
 
 FREQUENCY = 0.31331990500313334
 NOISE = 2.5e-5
@@ -136,7 +136,7 @@ def test_open_loop_step_refined_until_its_error_is_under_the_noise(tmp_path, mon
     (measured 11.9), against 363 at 5e-4 s. A record with 1e-4 rad of noise at 200 Hz keeps the
     5e-4 s step."""
     from discovery.calibration import likelihood
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     truth = coverage_scenario(10, Config()).truth
     path = tmp_path / "square.csv"
@@ -172,7 +172,7 @@ def test_closed_loop_waveform_keeps_the_coarse_step_once_the_friction_jump_is_lo
     both cycles keep 5e-4 s with a load under 1 (measured 0.002 and 0.0) and the log-likelihood at
     the truth is within 1 nat of the 8x finer term's (measured 0.06)."""
     from discovery.calibration import likelihood
-    from studies.scenarios import ridge_scenario
+    from studies.benchmarks.scenarios import ridge_scenario
 
     scenario = ridge_scenario(0)
     truth = scenario.truth
@@ -197,7 +197,7 @@ def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path, mon
     5e-4 s, ``refine_at`` (what Calibration runs at the maximum a posteriori) halves the step at
     the other point, and a later check where the load is small keeps the finer step."""
     from discovery.calibration import likelihood
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     truth = coverage_scenario(10, Config()).truth
     other = truth.replace(backlash=0.7 * truth.backlash)
@@ -231,7 +231,7 @@ def square_response(index):
     """Coverage draw ``index``'s first square (default config), noise-free, 4 s from rest by the
     reference path at 5e-5 s, sampled at the design's rate: columns and a measured-style sidecar."""
     from models.reference import simulate_reference
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(index, Config())
     design = next(r for r in scenario.recordings if r.waveform == "square")
@@ -265,7 +265,7 @@ def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunt
     the grid, where both ways are one simulation (loads 0.76 each): the way is chosen at the
     record's own timing, 2.4 ms from the centre (grid 249, its own edges 5.7)."""
     from discovery.calibration.likelihood import OpenLoopTerm
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(index, Config())
     truth, noise = scenario.truth, scenario.acquisition.noise_sd
@@ -327,7 +327,7 @@ def test_compiled_edge_read_and_normal_equations_equal_numpy(rate):
         y_ref, jac_ref = _numpy_shift_read(timing, theta, tau, t_sim, y_sim)
         np.testing.assert_allclose(y, y_ref, rtol=0, atol=1e-10)
         np.testing.assert_allclose(jac, jac_ref, rtol=0, atol=1e-7)
-    from discovery.calibration.edge_timing import _normal_equations
+    from models.edge_timing import _normal_equations
 
     w = 1.0 / var
     for demean in (True, False):

@@ -10,7 +10,11 @@ import numpy as np
 import pytest
 
 from models import CONTROLLER_A, ClosedLoop, hypothesis, simulate, simulate_batch
-from models.controllers import BendingMode, ImproperTransferFunctionError, TransferFunction
+from models.controllers import (
+    BendingMode,
+    ImproperTransferFunctionError,
+    TransferFunction,
+)
 from models.features import limit_cycle_features
 from models.reference import simulate_reference
 
@@ -119,7 +123,7 @@ def test_batch_pads_compensators_of_different_orders():
 
 
 def test_calibration_batch_simulator_runs_a_compensated_loop():
-    from discovery.calibration.fastsim import BatchSimulator
+    from models.batch import BatchSimulator
 
     experiment = _closed(compensator=LEAD, bending=BENDING)
     params = hypothesis("M002")

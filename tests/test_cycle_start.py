@@ -1,7 +1,7 @@
 """The closed-loop target's start: a model with coexisting cycles must be able to show the record's.
 
 MODELS.md: the initial conditions select the limit cycle. Recordings drawn by the benchmark's
-generator (:func:`studies.scenarios.draw_scenario`) start from MODELS.md's kick, the target's
+generator (:func:`studies.benchmarks.scenarios.draw_scenario`) start from MODELS.md's kick, the target's
 simulations from the recorded cycle's state; on these draws one start alone settled the TRUE model
 on a cycle the record does not show (costs 2001 and 124 at the truth with ``y = x'``, 133841 with
 the threshold-consistent start alone), which no search can repair.
@@ -13,7 +13,7 @@ from discovery.structure.search import Objective
 from discovery.structure.targets import SECOND_START_COST, make_target
 from models.recording import Recording
 from models.simulate import simulate
-from studies.scenarios import draw_scenario
+from studies.benchmarks.scenarios import draw_scenario
 
 
 def _noise_free_record(seed, index):

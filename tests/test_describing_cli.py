@@ -3,7 +3,7 @@ import json
 
 import pytest
 
-from studies.cli import main
+from tvcid.cli import main
 
 
 def test_df_predict_json(capsys):

@@ -10,10 +10,11 @@ that each width shrank within a factor 2 of the prediction (``pytest -m slow -s`
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration, synthetic_recording
+from discovery.calibration import Calibration
 from discovery.prediction import load_posterior_draws
 from discovery.prediction.design import load_candidates, rank_experiments
 from models import CONTROLLER_A, M002
+from models.synthetic import synthetic_recording
 
 NOISE = 1e-4
 SEED = 1

@@ -8,9 +8,9 @@ import pytest
 from discovery.structure import StructureDiscovery
 from models.recording import save_recording
 from models.structures import Structure, shared_choices
-from studies.bench_discovery import coordinate_errors
-from studies.cli import main
-from studies.scenarios import draw_scenario, shortened, write_recordings
+from studies.benchmarks.discovery import coordinate_errors
+from studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
+from tvcid.cli import main
 
 DATA = "data/m000_closed_A.csv"
 
@@ -64,7 +64,7 @@ def test_a_thorough_run_never_reuses_a_standard_ranking():
     """The ranking's reuse key holds the search size (and not ``--quick``, which only shortens
     the chain): ``--thorough`` on a directory of a default run searches again."""
     from models.recording import load_recording
-    from studies.commands.discover import inputs_hash
+    from tvcid.pipeline import inputs_hash
 
     recs = [load_recording(DATA)]
     assert inputs_hash(recs, {}, 0, "standard") != inputs_hash(recs, {}, 0, "thorough")
@@ -103,7 +103,7 @@ def _recover_known_positions(seed, directory, reference_path):
     from unittest import mock
 
     from models import simulate
-    from studies import scenarios
+    from studies.benchmarks import scenarios
 
     s = KNOWN_POSITIONS
     scenario = shortened(draw_scenario(seed, structure=s), closed=12.0, open_=6.0)
@@ -288,10 +288,14 @@ def test_delay_moved_matches_the_frequency_response_of_drawn_blocks():
     is within 1 % in gain and 0.01 rad in phase (measured <= 0.75 %), where the first-order match
     alone misses by over 5 % in some (it did on benchmark draw 1019: 29 %, and its refit stopped
     at cost 133 against the truth's 0.72)."""
-    from discovery.structure.discover import MATCHED_BAND, _first_order_moved, delay_moved
+    from discovery.structure.discover import (
+        MATCHED_BAND,
+        _first_order_moved,
+        delay_moved,
+    )
     from models.hypotheses import DelayPosition
     from models.linear import second_order_response
-    from studies.scenarios import draw_truth
+    from studies.benchmarks.scenarios import draw_truth
 
     rng = np.random.default_rng(11)
     inner = DelayPosition.BEFORE_FIRST_INTEGRATOR
@@ -348,7 +352,7 @@ def test_benchmark_counts_a_coordinate_moved_by_an_equally_good_fit_as_undecided
     """The discovery benchmark's identifiability rule: a coordinate sharp at the truth but moved
     by over 5 % in a fit of the truth's structure that costs no more than the truth is left open
     by the recordings (not a discovery error); the same miss with a worse fit is an error."""
-    from studies.bench_discovery import undecided_marked
+    from studies.benchmarks.discovery import undecided_marked
 
     def row(own_cost):
         return {"truth_structure_cost": own_cost, "cost_at_truth": 0.78,
@@ -366,7 +370,7 @@ def test_benchmark_scores_each_structural_choice_the_reported_set_decides():
     positions and disagrees on the backlash decides two choices right, leaves two open, and
     decides the friction offset (absent in every member, present in the truth) wrong; a failed
     draw decides nothing."""
-    from studies.bench_discovery import choice_verdicts
+    from studies.benchmarks.discovery import choice_verdicts
 
     row = {"structure": "dz_velocity+delay_output+friction+bandpass",
            "set": ["dz_velocity+delay_output+bandpass", "dz_velocity+delay_before_integrator+bandpass",
@@ -511,8 +515,12 @@ def test_wandering_cycles_raise_the_margin_floor(tmp_path):
     the default floor (its window cost 0.08, from the pieces' ends at sampled crossings)."""
     from pathlib import Path
 
-    from discovery.structure.discover import (TOL_ABS, StructureFit, indistinguishable_set,
-                                              margin_floors)
+    from discovery.structure.discover import (
+        TOL_ABS,
+        StructureFit,
+        indistinguishable_set,
+        margin_floors,
+    )
     from discovery.structure.targets import make_target
     from models import ClosedLoop, simulate
     from models.recording import load_recording, recording_from_trajectory
@@ -548,7 +556,8 @@ def _held_m000_records(tmp_path):
     from models import hypothesis
     from models.recording import load_recording
     from models.simulate import simulate
-    from studies.scenarios import CONTROLLERS, Acquisition, RecordingDesign
+    from models.synthetic import Acquisition
+    from studies.benchmarks.scenarios import CONTROLLERS, RecordingDesign
 
     truth, acq, recs = hypothesis("M000"), Acquisition(2e-5, 1.5e-4, 2e-5), []
     for i, (kp, kd, mu) in enumerate(CONTROLLERS):

@@ -13,13 +13,17 @@ from pathlib import Path
 import pytest
 
 from discovery.structure.coordinates import SearchSpace
-from discovery.structure.discover import RANK_OPEN_LOOP_REFINEMENT, TEMPLATE, transferred
+from discovery.structure.discover import (
+    RANK_OPEN_LOOP_REFINEMENT,
+    TEMPLATE,
+    transferred,
+)
 from discovery.structure.search import Objective, refine
 from discovery.structure.targets import make_target
 from models.hypotheses import ActuatorParams
 from models.recording import load_recording
 from models.structures import Structure
-from studies.scenarios import draw_scenario, write_recordings
+from studies.benchmarks.scenarios import draw_scenario, write_recordings
 
 SEARCH_DT = 5e-4
 OTHER = "dz_velocity+delay_before_integrator"

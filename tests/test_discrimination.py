@@ -3,8 +3,12 @@ import numpy as np
 import pytest
 
 from discovery.prediction.design import Candidate
-from discovery.structure.discrimination import DECIDES, default_candidates, discriminating_tests
-from models import M001i, M002
+from discovery.structure.discrimination import (
+    DECIDES,
+    default_candidates,
+    discriminating_tests,
+)
+from models import M002, M001i
 from models.experiments import CONTROLLER_A, OpenLoop
 
 MENU = [Candidate("sine 10 mrad 1 Hz", OpenLoop.sine(10e-3, 1.0), 6.0),
@@ -47,8 +51,8 @@ def test_refitted_members_are_weighed_on_the_best_candidates_only(tmp_path):
     refitted to that cycle and the other's record of the test: a refit starts from the fixed
     comparison and only lowers it (within the two records' noise), and the other candidates
     keep their fixed verdicts."""
-    from discovery.calibration.synthetic import synthetic_recording
     from discovery.structure.targets import make_target
+    from models.synthetic import synthetic_recording
 
     rec = synthetic_recording(M002(), CONTROLLER_A, 30.0, 2e-5, 4, tmp_path / "cycle.csv",
                               keep_last=20.0)
@@ -87,9 +91,10 @@ def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     members are weighed on the default menu at the recordings' rate and median noise, and the
     report gives the best test and its verdict with the figure; a set of one gives ``None``
     and no section."""
-    from models import M001i, M002
+    from models import M002, M001i
     from models.recording import load_recording
-    from studies.commands.discover import _next_test_lines, next_test
+    from tvcid.pipeline import next_test
+    from tvcid.report import _next_test_lines
 
     def entry(params, inside=True, merged=None):
         return {"params": params.to_dict(), "indistinguishable_from_best": inside,

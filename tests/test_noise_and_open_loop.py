@@ -54,7 +54,7 @@ def test_open_loop_step_stops_where_the_velocity_enters_the_dead_zone():
 
 
 def test_benchmark_script_runs_and_reports(tmp_path):
-    from studies.bench_simulator import main
+    from studies.benchmarks.simulator import main
 
     result = main(["--quick", "--out", str(tmp_path)])
     saved = json.loads((tmp_path / "bench.json").read_text())

@@ -1,11 +1,11 @@
 """Limit-cycle prediction under other controllers from a calibrated posterior (issue 13).
 
-The case is the prediction benchmark's (:func:`studies.bench_prediction.prediction_case`): a truth
+The case is the prediction benchmark's (:func:`studies.benchmarks.prediction.prediction_case`): a truth
 drawn by the shared scenario generator (seeded), calibrated on closed-loop records at two
 controller settings (made at dt = 2e-4, sensor noise 5e-5 rad, features likelihood), and its cycle
 predicted at a third setting never used in the fit.
 The band must bracket the generating model's own cycle, measured the same way; the tolerance
-``SHORTCUT_TOL`` is the largest shortcut error ``studies.bench_prediction`` measured against
+``SHORTCUT_TOL`` is the largest shortcut error ``studies.benchmarks.prediction`` measured against
 full-length runs (0.4 % in amplitude; see the README), doubled.
 """
 import json
@@ -29,9 +29,9 @@ from discovery.prediction.design import (
     weighted_covariance,
 )
 from models import ClosedLoop, SimulationDiverged, simulate
-from studies.bench_prediction import THIRD as BENCH_THIRD
-from studies.bench_prediction import measured_cycle, prediction_case
-from studies.cli import main
+from studies.benchmarks.prediction import THIRD as BENCH_THIRD
+from studies.benchmarks.prediction import measured_cycle, prediction_case
+from tvcid.cli import main
 
 SEED = 11
 THIRD = ControllerSetting(*BENCH_THIRD)
@@ -181,7 +181,7 @@ def test_posterior_draws_helpers():
 def test_shortcut_agrees_with_full_length_runs(posterior_dir):
     """The shortcut (pilot on the median model's cycle, 3 s transient) against 30 s transients
     from the hypothesis' own initial state: same outcome for every draw, quantiles within 0.5 %."""
-    from studies.bench_prediction import shortcut_accuracy
+    from studies.benchmarks.prediction import shortcut_accuracy
 
     directory, _ = posterior_dir
     draws = load_posterior_draws(directory, n_draws=30, seed=3)

@@ -22,7 +22,7 @@ Recording format (:mod:`models.recording`)
 Simulator (:func:`models.simulate`, :func:`models.simulate_batch`)
     For parameters in their declared ranges the simulator returns a trajectory whose every signal
     is finite, or raises :class:`models.SimulationDiverged`; never any other exception. The
-    ranges are those of the seeded scenario generator (:mod:`studies.scenarios`): its own
+    ranges are those of the seeded scenario generator (:mod:`studies.benchmarks.scenarios`): its own
     :func:`draw_truth` and :func:`draw_design` are called with a stand-in random generator whose
     every draw is made by ``hypothesis`` within the bounds the generator asks for, so the ranges
     are the generator's, not copies (every kept structure of :func:`models.structures.structure_space`,
@@ -79,20 +79,33 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from hypothesis import Phase, event, given, settings, strategies as st
+from hypothesis import Phase, event, given, settings
+from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from models import (HYPOTHESES, ClosedLoop, OpenLoop, SimulationDiverged, limit_cycle_features,
-                    simulate, simulate_batch)
+from models import (
+    HYPOTHESES,
+    ClosedLoop,
+    OpenLoop,
+    SimulationDiverged,
+    limit_cycle_features,
+    simulate,
+    simulate_batch,
+)
 from models import hypothesis as make_hypothesis
 from models.kernel import _dead_zone as kernel_dead_zone
 from models.nonlinearities import dead_zone, play_operator, play_step, saturation
-from models.recording import (DEFAULT_UNITS, RecordingError, load_recording, save_recording,
-                              sidecar_path)
+from models.recording import (
+    DEFAULT_UNITS,
+    RecordingError,
+    load_recording,
+    save_recording,
+    sidecar_path,
+)
 from models.simulate import DEFAULT_BOUND
 from models.structures import Structure
+from studies.benchmarks.scenarios import draw_design, draw_truth
 from studies.h3_initial_conditions import Config as BasinConfig
-from studies.scenarios import draw_design, draw_truth
 
 FINITE = dict(allow_nan=False, allow_infinity=False)
 
@@ -212,7 +225,7 @@ def test_any_non_finite_table_is_refused_naming_column_and_row(table, data):
 
 
 class DrawnGenerator:
-    """Stands in for the ``numpy.random.Generator`` of :mod:`studies.scenarios`.
+    """Stands in for the ``numpy.random.Generator`` of :mod:`studies.benchmarks.scenarios`.
 
     Every draw the generator asks for (``uniform(low, high)``, ``integers``, ``choice``,
     ``permutation``) is made by ``hypothesis`` within the same bounds, so the scenario code keeps

@@ -1,5 +1,5 @@
-"""``docs/results.md`` and what the benchmarks share at their end (studies.results_table,
-studies.goals): the table is the rendering of the stored records, a changed record changes it,
+"""``docs/results.md`` and what the benchmarks share at their end (studies.benchmarks.results_table,
+studies.benchmarks.goals): the table is the rendering of the stored records, a changed record changes it,
 every claim names a real test, goal lines say met or NOT met on the right side of a target, and
 the JSON written is strict."""
 import json
@@ -10,14 +10,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from studies.goals import Goal, report, write_json
-from studies.results_table import (CLAIMS, OUT, RECORDS, Claim, commits_text, find_test,
-                                   load_records, main, render)
+from models.strict_json import write_json
+from studies.benchmarks.goals import Goal, report
+from studies.benchmarks.results_table import (
+    CLAIMS,
+    OUT,
+    RECORDS,
+    Claim,
+    commits_text,
+    find_test,
+    load_records,
+    main,
+    render,
+)
 
 
 def test_docs_results_md_is_the_rendering_of_the_current_records(capsys):
-    """The committed table equals the rendering of ``studies/records`` by the current code
-    (``python -m studies.results_table --check`` exits 0), so a quoted number cannot drift from
+    """The committed table equals the rendering of ``studies/benchmarks/records`` by the current code
+    (``python -m studies.benchmarks.results_table --check`` exits 0), so a quoted number cannot drift from
     its record."""
     assert OUT.read_text() == render()
     assert main(["--check"]) == 0
@@ -72,7 +82,7 @@ def test_a_range_is_met_inside_it_only(value, met):
 def test_speed_goals_are_judged_in_reference_seconds_not_seconds():
     """The same 900 s meet a 600 s goal on a machine whose reference runs 3x slower than the
     nominal one, and miss it on a nominal machine; the line prints both seconds and the ratio."""
-    from studies.goals import NOMINAL_REFERENCE
+    from studies.benchmarks.goals import NOMINAL_REFERENCE
 
     slow = Goal.speed("discover", 900.0, 3 * NOMINAL_REFERENCE, 600.0)
     nominal = Goal.speed("discover", 900.0, NOMINAL_REFERENCE, 600.0)

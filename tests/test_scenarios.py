@@ -1,4 +1,4 @@
-"""The shared generator of truths and designs (studies/scenarios.py): seeded, in its stated ranges,
+"""The shared generator of truths and designs (studies/benchmarks/scenarios.py): seeded, in its stated ranges,
 over the whole structure space, and its recordings read as measured data."""
 import json
 import math
@@ -9,8 +9,14 @@ import pytest
 from models.hypotheses import DeadZonePosition
 from models.recording import load_recording
 from models.structures import structure_space
-from studies.scenarios import (draw_design, draw_scenario, draw_truth, oscillates, shortened,
-                               write_recordings)
+from studies.benchmarks.scenarios import (
+    draw_design,
+    draw_scenario,
+    draw_truth,
+    oscillates,
+    shortened,
+    write_recordings,
+)
 
 
 def test_same_seed_same_scenario_other_seed_other():
@@ -96,8 +102,8 @@ def test_the_data_step_keeps_the_solver_error_under_the_smallest_noise():
     generator's smallest sensor noise (1e-5 rad), or a right model's fit reads it as a misfit
     (coverage draw 8's 1 kHz square: rms 1.36e-5 at 2e-4, discrepancy factor 12.8 at the truth)."""
     from models.simulate import simulate_batch
-    from studies.bench_coverage import Config, coverage_scenario
-    from studies.scenarios import DATA_DT
+    from studies.benchmarks.coverage import Config, coverage_scenario
+    from studies.benchmarks.scenarios import DATA_DT
 
     sc = coverage_scenario(8, Config())
     rd = next(r for r in sc.recordings if r.kind == "open" and r.waveform == "square")
@@ -113,11 +119,11 @@ def test_the_data_step_keeps_the_solver_error_under_the_smallest_noise():
 
 
 def test_issue11_cases_are_the_reported_placements_and_oscillate():
-    """``studies.issue11_cases``: the three recordings sets issue 11 reported, each truth a
+    """``studies.benchmarks.heldout_cases``: the three recordings sets issue 11 reported, each truth a
     paper's placement that oscillates at every closed-loop setting of its design (else the
     script would fail after minutes of the reference path), and the comparison of a fit with
     the truth reads 0 on the truth itself."""
-    from studies.issue11_cases import cases, compared
+    from studies.benchmarks.heldout_cases import cases, compared
 
     expected = {
         "m001f_no_bandpass": "dz_velocity+delay_before_integrator+friction+backlash",

@@ -18,7 +18,7 @@ from discovery.sindy.weak import prepare_signals, weak_integrals
 from models import OpenLoop, hypothesis, simulate
 from models.nonlinearities import dead_zone, play_operator
 from models.recording import load_recording, recording_from_trajectory, save_recording
-from studies.cli import main
+from tvcid.cli import main
 
 
 def test_play_along_matches_the_models_play_operator():

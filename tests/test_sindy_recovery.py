@@ -1,7 +1,7 @@
 """Weak-form SINDy recovers drawn actuators of paper 002's placement (dead zone on the error,
 delay at the output, backlash).
 
-Truths and sensors come from the shared generator (:func:`studies.scenarios.draw_scenario` with
+Truths and sensors come from the shared generator (:func:`studies.benchmarks.scenarios.draw_scenario` with
 paper 002's structure: the linear block, thresholds, delay, sensor noise, quantisation drawn), the
 records are made by the numba kernel at the generator's 5e-5 s step in place of the plain-Python
 reference path and written as measured-style recordings. The open-loop tests are the specified
@@ -38,11 +38,11 @@ from unittest import mock
 import pytest
 
 from discovery.sindy import WeakSINDyActuator, rank_by_simulation
-from models import ActuatorParams, M002, simulate
+from models import M002, ActuatorParams, simulate
 from models.recording import load_recording
 from models.structures import Structure
-from studies import scenarios
-from studies.scenarios import RecordingDesign, draw_scenario
+from studies.benchmarks import scenarios
+from studies.benchmarks.scenarios import RecordingDesign, draw_scenario
 
 DZ_TERM = "DZ_z(u(t-Td)-K*play_r(delta))"
 TERMS = {"delta''", "delta'", DZ_TERM}

@@ -15,8 +15,8 @@ from discovery.spectral import (
 from models import CONTROLLER_A, InsufficientPeriodsError, hypothesis, simulate
 from models.noise import band_limited_white_noise
 from models.recording import load_recording, recording_from_trajectory, save_recording
-from studies.cli import main
-from studies.scenarios import draw_scenario
+from studies.benchmarks.scenarios import draw_scenario
+from tvcid.cli import main
 
 RATE = 1000.0
 
@@ -65,7 +65,7 @@ def test_harmonic_table_flags_the_seventh_harmonic_of_m001f(m001f_record):
 
 @functools.lru_cache(maxsize=None)
 def _drawn(seed):
-    """Draw ``seed`` of the shared generator (:func:`studies.scenarios.draw_scenario`: truths
+    """Draw ``seed`` of the shared generator (:func:`studies.benchmarks.scenarios.draw_scenario`: truths
     over every structure) at its first limit-cycle setting (controller, hold and acquisition
     rate): ``(scenario, experiment, rate)``."""
     scenario = draw_scenario(seed)

@@ -4,9 +4,8 @@ import json
 
 import pytest
 
-from studies.cli import main
 from studies.registry import STUDIES
-
+from tvcid.cli import main
 
 
 @pytest.fixture(scope="session")

@@ -29,7 +29,7 @@ def test_sign_switch_average_is_the_mean_sign_along_the_step():
 def locked_cycle():
     """Coverage draw 2, second limit cycle: friction offset at a velocity dead zone; before the
     jump was located its frequency was identical at 5e-4 and 2.5e-4 s and flat in the offset."""
-    from studies.bench_coverage import Config, coverage_scenario
+    from studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(2, Config())
     design = [d for d in scenario.recordings if d.kind == "closed"][1]

@@ -7,7 +7,7 @@ import discovery.structure.search as search
 from discovery.structure import StructureDiscovery
 from discovery.threads import one_blas_thread
 from models.structures import Structure
-from studies.scenarios import draw_scenario, shortened, write_recordings
+from studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
 
 
 def _blas_threads():

@@ -5,8 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from discovery.calibration.fastsim import BatchSimulator, warm_start_state
-from models import CONTROLLER_A, M000, M001f, M002, simulate
+from models import CONTROLLER_A, M000, M002, M001f, simulate
+from models.batch import BatchSimulator, warm_start_state
 
 DT = 5e-4
 
@@ -60,7 +60,7 @@ def test_a_run_continued_from_its_own_end_state_follows_it():
 
 
 def test_continuation_returns_the_nearest_stored_state_within_its_radius():
-    from discovery.calibration.fastsim import Continuation
+    from models.batch import Continuation
 
     base = M002()
     store = Continuation(radius=0.01, capacity=2)
@@ -80,7 +80,8 @@ def test_continued_runs_cut_the_worst_transient_error_of_proposals_near_their_wa
     """M002's 10 s record, a 3 s transient: proposals 0.3 % from walkers 0.5-2 % off the truth,
     log-likelihood against a 12 s transient. Measured: worst 121 nats from the shared start,
     8 continued (median 0.40 and 0.59: the transient cannot shrink much)."""
-    from discovery.calibration import Calibration, synthetic_recording
+    from discovery.calibration import Calibration
+    from models.synthetic import synthetic_recording
 
     rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 0, tmp_path / "m002.csv",
                               keep_last=10.0)

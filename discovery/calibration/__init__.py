@@ -9,8 +9,10 @@
   predictive plots, ArviZ export, WAIC and BIC;
 * :mod:`.ridge` -- the dead-zone/backlash ridge of a single limit cycle and its shrinkage.
 """
+from models.recording import load_recordings
+
 from .backend import CheckpointBackend
-from .calibration import Calibration, load_recordings
+from .calibration import Calibration
 from .checks import PredictiveCheck, predictive_check
 from .likelihood import (
     DEFAULT_FEATURES,
@@ -19,10 +21,9 @@ from .likelihood import (
     cycle_features,
     estimate_noise,
 )
+from .posterior import ModelComparison, Posterior, PosteriorPredictive, compare
 from .priors import SIGMA, LogUniform, Prior, Uniform, default_prior, parse_prior
-from .results import ModelComparison, Posterior, PosteriorPredictive, compare
 from .runner import ConvergenceReport, ConvergenceWarning, default_moves, run_ensemble
-from .synthetic import synthetic_recording
 
 __all__ = [
     "PredictiveCheck",
@@ -49,5 +50,4 @@ __all__ = [
     "load_recordings",
     "parse_prior",
     "run_ensemble",
-    "synthetic_recording",
 ]

@@ -15,30 +15,27 @@ import numpy as np
 
 from models.hypotheses import ActuatorParams
 from models.hypotheses import hypothesis as get_hypothesis
-from models.recording import Recording, load_recording
+from models.recording import load_recordings
 
 from ..threads import one_blas_thread
 from .backend import CheckpointBackend
-from .likelihood import (DEFAULT_FEATURES, LIKELIHOODS, SETTLING_PERTURBATION, FeatureTerm,
-                         IllPosedLikelihoodWarning, WaveformTerm, make_term)
-from .posterior import LogPosterior, check_parameter_names
+from .likelihood import (
+    DEFAULT_FEATURES,
+    LIKELIHOODS,
+    SETTLING_PERTURBATION,
+    FeatureTerm,
+    IllPosedLikelihoodWarning,
+    WaveformTerm,
+    make_term,
+)
+from .log_posterior import LogPosterior, check_parameter_names
+from .posterior import Posterior
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates
-from .results import Posterior
 from .runner import run_ensemble
 
-__all__ = ["Calibration", "load_recordings", "truths_from_recordings"]
+__all__ = ["Calibration", "truths_from_recordings"]
 
 _H5_GROUP = "tvcid"
-
-
-def load_recordings(recordings):
-    """Paths or :class:`Recording` objects -> list of Recording (through ``load_recording``)."""
-    if isinstance(recordings, (str, Path, Recording)):
-        recordings = [recordings]
-    out = [r if isinstance(r, Recording) else load_recording(r) for r in recordings]
-    if not out:
-        raise ValueError("no recording given")
-    return out
 
 
 def truths_from_recordings(recordings, names, hypothesis_name):
@@ -136,7 +133,7 @@ class Calibration:
         the truth, against a 12 s transient) from 121 to 8 nats at a 3 s transient and from 9.9
         to 0.9 at 6 s, but not the median (0.40 and 0.22 nats shared, 0.59 and 0.10 continued:
         a nearby cycle is approached slowly). Over the calibration benchmark's seven M002 seeds
-        (``studies.bench_calibration --continuation``; 99.6 % of the runs continued) the
+        (``studies.benchmarks.calibration --continuation``; 99.6 % of the runs continued) the
         posteriors sit within 0.10 half-widths of a 12 s transient's at 6 s and at 3 s (0.15 and
         0.08 without it) and the cost to convergence does not drop (median simulated seconds
         35,729 at 6 s against 38,740 without; 35,794 at 3 s against 24,359 without, chains of

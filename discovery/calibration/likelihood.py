@@ -24,19 +24,18 @@ import warnings
 
 import numpy as np
 
-from models.features import (
-    InsufficientPeriodsError,
-    crossing_hysteresis,
-    limit_cycle_features,
-    upward_mean_crossings,
-)
-
-from .fastsim import (
+from models.batch import (
     CONTINUATION_RADIUS,
     BatchSimulator,
     Continuation,
     output_rate_for,
     warm_start_state,
+)
+from models.features import (
+    InsufficientPeriodsError,
+    crossing_hysteresis,
+    limit_cycle_features,
+    upward_mean_crossings,
 )
 
 __all__ = [
@@ -1127,7 +1126,7 @@ class OpenLoopTerm(_WaveformSolverError):
 
     def _time_edges(self, dt):
         """The edge timing and the simulated experiment, edges on the grid of step ``dt``."""
-        from .edge_timing import edge_timing_for
+        from models.edge_timing import edge_timing_for
 
         exp = self._recorded_experiment
         self.timing = edge_timing_for(exp, self.recording.t, self.recording.u, dt,
@@ -1223,7 +1222,7 @@ class OpenLoopTerm(_WaveformSolverError):
         truth; 249 against 5.7 for its own edges), its right model's discrepancy factor 6.1 and
         its dead zone and delay outside intervals 0.2 % wide.
         """
-        from .edge_timing import EdgeTiming
+        from models.edge_timing import EdgeTiming
 
         end = float(self.tau[-1])
         failed = {"grid": 0.0, "centre": math.inf, "grid_at_timing": 0.0,

@@ -9,7 +9,7 @@ draws is the band. The describing function of the median model is given beside i
 
 The shortcut (issue 13 item 5): a pilot run of the median model at each setting, ``pilot``
 seconds long, gives the state on its cycle; every draw starts there and runs a short ``transient``
-before the measured ``window``. ``benchmark`` in :mod:`studies.bench_prediction` measures how far
+before the measured ``window``. ``benchmark`` in :mod:`studies.benchmarks.prediction` measures how far
 it lands from full-length runs.
 """
 from __future__ import annotations
@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.kernel import SIGNALS
 from models.features import InsufficientPeriodsError, limit_cycle_features
+from models.kernel import SIGNALS
 from models.simulate import simulate_batch
 
 from .settings import ControllerSetting

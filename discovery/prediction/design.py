@@ -280,8 +280,9 @@ def rank_experiments(draws, candidates, params=None, noise=None, seed=0, n_truth
     ValueError
         For a parameter that was not sampled, or no noise level to assume.
     """
+    from models.synthetic import synthetic_recording
+
     from ..calibration.likelihood import make_term
-    from ..calibration.synthetic import synthetic_recording
 
     names = list(draws.names)
     chosen = list(params) if params else [n for n in names if n != SIGMA]

@@ -15,12 +15,14 @@ Pipeline stages, one module each:
 
 :func:`discover_structure` runs the whole pipeline.
 """
+from models.recording import load_recordings
+
 from .candidates import Candidate
 from .estimator import DEFAULT_FORMS, WeakSINDyActuator
 from .forms import FORMS, StructureForm, UnknownFormError, form_by_name
 from .library import ACTUATOR_TERMS, ActuatorLibrary, play_along
 from .ranking import rank_by_simulation
-from .simulation import load_recordings, replay_experiment, waveform_distance
+from .simulation import replay_experiment, waveform_distance
 from .weak import BumpTestFunctions, RecordingTooShortError
 
 __all__ = [

@@ -26,10 +26,11 @@ from scipy.optimize import minimize
 from sklearn.base import BaseEstimator
 
 from models.features import crossing_hysteresis, upward_mean_crossings
+from models.recording import load_recordings
 
 from .candidates import Candidate
 from .forms import MOVING_FRACTION, TARGET, form_by_name
-from .simulation import load_recordings, score_on_recordings
+from .simulation import score_on_recordings
 from .weak import BumpTestFunctions, prepare_signals
 
 __all__ = ["WeakSINDyActuator", "DEFAULT_FORMS"]

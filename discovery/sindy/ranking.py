@@ -12,7 +12,9 @@ import math
 
 import numpy as np
 
-from .simulation import MAX_SIMULATED, load_recordings, score_on_recordings
+from models.recording import load_recordings
+
+from .simulation import MAX_SIMULATED, score_on_recordings
 
 __all__ = ["rank_by_simulation"]
 

@@ -8,19 +8,17 @@ from __future__ import annotations
 
 import math
 import weakref
-from pathlib import Path
 
 import numpy as np
 
 from models.features import InsufficientPeriodsError, limit_cycle_features
-from models.recording import Recording, load_recording
+from models.recording import Recording
 from models.simulate import DEFAULT_DT, simulate_batch
 
 from .library import command_jumps
 
 __all__ = [
     "MAX_SIMULATED",
-    "load_recordings",
     "replay_experiment",
     "waveform_distance",
     "simulation_score",
@@ -30,16 +28,6 @@ __all__ = [
 
 #: Longest stretch (s) of a recording simulated for a score.
 MAX_SIMULATED = 30.0
-
-
-def load_recordings(recordings):
-    """Recordings from :class:`models.recording.Recording` objects or paths (one or several)."""
-    if isinstance(recordings, (str, Path, Recording)):
-        recordings = [recordings]
-    out = [rec if isinstance(rec, Recording) else load_recording(rec) for rec in recordings]
-    if not out:
-        raise ValueError("no recording given")
-    return out
 
 
 def replay_experiment(recording, t_end=None):

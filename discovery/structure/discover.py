@@ -48,8 +48,15 @@ from models.structures import Structure, shared_choices, structure_space
 
 from ..threads import one_blas_thread
 from .coordinates import SearchSpace, UnknownParameterError
-from .search import (Objective, concurrent_map, distinct_members, global_search, local_sd, refine,
-                     refine_all)
+from .search import (
+    Objective,
+    concurrent_map,
+    distinct_members,
+    global_search,
+    local_sd,
+    refine,
+    refine_all,
+)
 from .targets import make_target
 
 __all__ = ["StructureDiscovery", "StructureFit", "SearchSizes", "SEARCHES", "validate_recordings",
@@ -126,7 +133,7 @@ class SearchSizes:
     rank_nfev: int
 
 
-#: ``standard`` is what the discovery benchmark measures (``studies.bench_discovery``) and what
+#: ``standard`` is what the discovery benchmark measures (``studies.benchmarks.discovery``) and what
 #: ``tvcid discover`` runs by default; ``thorough`` searches about 1.8x as many parameter sets
 #: (M000's four records: 123,000 against 69,000 simulations, 816 s against 507 s on 2 idle cores)
 #: and is not covered by the benchmark.

@@ -201,8 +201,8 @@ def discriminating_tests(members, candidates=None, noise_sd=1e-5, dt=5e-4, seed=
 def _target_of(params, cand, noise_sd, dt, seed, path):
     """The discovery's target of ``params``' synthetic record of ``cand`` (a closed-loop record
     after ``CLOSED_LEAD`` s), or the reason there is none (no cycle, a diverging run)."""
-    from ..calibration.synthetic import synthetic_recording
     from models.simulate import SimulationDiverged
+    from models.synthetic import synthetic_recording
 
     closed = cand.kind == "closed"
     try:

@@ -32,9 +32,9 @@ import threading
 
 import numpy as np
 
-from discovery.calibration.fastsim import BatchSimulator, output_rate_for
-from discovery.calibration.edge_timing import edge_timing_for
 from discovery.calibration.likelihood import estimate_noise
+from models.batch import BatchSimulator, output_rate_for
+from models.edge_timing import edge_timing_for
 from models.features import crossing_hysteresis, upward_mean_crossings
 from models.hypotheses import DeadZonePosition
 
@@ -446,7 +446,7 @@ class OutputTarget(_Target):
 
     A piecewise-constant command known only as samples (a square wave, a step) is simulated once
     with its edges on the solver's grid and read at each parameter set's best edge timing among
-    those its samples allow (:class:`discovery.calibration.edge_timing.EdgeTiming`, the same
+    those its samples allow (:class:`models.edge_timing.EdgeTiming`, the same
     nuisance the calibration integrates out): no replay's choice is read as a delay.
     """
 

@@ -1,15 +1,15 @@
 """``docs/results.md``: the claims the benchmark records hold, rendered from the records.
 
-``python -m studies.results_table [--check] [--records DIR] [--out FILE]``
+``python -m studies.benchmarks.results_table [--check] [--records DIR] [--out FILE]``
 
-Reads the stored benchmark rows (``studies/records/*.json``, :data:`CLAIMS`) and writes one
+Reads the stored benchmark rows (``studies/benchmarks/records/*.json``, :data:`CLAIMS`) and writes one
 table, a row per claim: the claim; its current value, computed from the record's rows by the
 benchmark's own functions, with the benchmark's goal met or NOT met where it has one; the command
 that produces the record; the test that checks that computation (it must exist in ``tests/``:
 :func:`find_test`); and the commits the rows were made at, "rows at N commits" where they
 come from several. ``--check`` writes nothing and exits 1 when the file differs from the
 rendering (so a quoted number cannot drift from its record). A record must be strict JSON (no
-``NaN`` or ``Infinity`` tokens: the benchmarks write ``null``, :func:`studies.goals.write_json`).
+``NaN`` or ``Infinity`` tokens: the benchmarks write ``null``, :func:`models.strict_json.write_json`).
 """
 from __future__ import annotations
 
@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-ROOT = Path(__file__).resolve().parents[1]
-RECORDS = ROOT / "studies" / "records"
+ROOT = Path(__file__).resolve().parents[2]
+RECORDS = ROOT / "studies" / "benchmarks" / "records"
 OUT = ROOT / "docs" / "results.md"
 
 
@@ -84,7 +84,7 @@ def _pct(x) -> str:
 # -- the claims: each a value from the records and the rows whose commits it shows ------------
 
 def _coverage_value(record):
-    from .bench_coverage import coverage_goals, summarise
+    from .coverage import coverage_goals, summarise
 
     s = summarise(record["rows"])
     cells = [v for k, v in s.items() if not k.startswith("_")]
@@ -106,7 +106,7 @@ def coverage_waveform(records):
 
 
 def coverage_chains(records):
-    from .bench_coverage import summarise
+    from .coverage import summarise
 
     rows = records["bench_coverage"]["rows"]
     s = summarise(rows)
@@ -119,7 +119,7 @@ def coverage_chains(records):
 
 
 def _widening(records):
-    from .bench_coverage import widening
+    from .coverage import widening
 
     plain = records["bench_coverage_widening"]["plain_rows"]
     result = widening(records["bench_coverage"]["rows"], plain)
@@ -129,7 +129,7 @@ def _widening(records):
 
 
 def coverage_widening(records):
-    from .bench_coverage import widening_goal
+    from .coverage import widening_goal
 
     result, _ = _widening(records)
     draws = ", ".join(str(d["index"]) for d in result["draws"])
@@ -138,7 +138,7 @@ def coverage_widening(records):
 
 
 def _discovery_rates(rows):
-    from .bench_discovery import discovery_goals, summarise
+    from .discovery import discovery_goals, summarise
 
     o = summarise(rows)["overall"]
     n = o["draws"]
@@ -205,7 +205,7 @@ class Claim:
     command : str
         The command that produces the record.
     record : str
-        The record's stem in ``studies/records``.
+        The record's stem in ``studies/benchmarks/records``.
     test : str
         ``tests/FILE.py::test_name`` of the test that checks the value's computation.
     """
@@ -222,58 +222,58 @@ CLAIMS = (
     Claim("calibration coverage, features likelihood (true structure given, seeded draws): the "
           "truth inside its 90 % interval, per parameter (goal 80-97 %)",
           coverage_features, lambda r: r["bench_coverage"]["rows"],
-          "python -m studies.bench_coverage --jobs 2", "bench_coverage",
+          "python -m studies.benchmarks.coverage --jobs 2", "bench_coverage",
           "tests/test_bench_coverage.py::"
           "test_stored_record_covers_the_truth_80_to_97_percent_per_parameter"),
     Claim("calibration coverage draws: chains converged, discrepancy factor",
           coverage_chains, lambda r: r["bench_coverage"]["rows"],
-          "python -m studies.bench_coverage --jobs 2", "bench_coverage",
+          "python -m studies.benchmarks.coverage --jobs 2", "bench_coverage",
           "tests/test_bench_coverage.py::"
           "test_summary_counts_coverage_ranks_and_inflation_of_known_rows"),
     Claim("calibration coverage, waveform likelihood (`tvcid fit`'s default): the truth inside "
           "its 90 % interval, per parameter (goal 80-97 %)",
           coverage_waveform, lambda r: r["bench_coverage_waveform"]["rows"],
-          "python -m studies.bench_coverage --likelihood waveform --jobs 2",
+          "python -m studies.benchmarks.coverage --likelihood waveform --jobs 2",
           "bench_coverage_waveform",
           "tests/test_bench_coverage.py::"
           "test_quick_run_with_the_waveform_likelihood_enters_each_record_its_own_way"),
     Claim("the discrepancy term widens right models' 90 % intervals by at most 20 % (rows with "
           "the term from `bench_coverage.json`)",
           coverage_widening, lambda r: _widening(r)[1],
-          "python -m studies.bench_coverage --widening --indices 13,15,18,25 --jobs 2",
+          "python -m studies.benchmarks.coverage --widening --indices 13,15,18,25 --jobs 2",
           "bench_coverage_widening",
           "tests/test_bench_coverage.py::"
           "test_widening_compares_interval_widths_with_and_without_the_discrepancy_term"),
     Claim("discovery on random truths and designs (quick searches, seeds 1000-1029)",
           discovery_quick, lambda r: r["bench_discovery_quick"]["rows"],
-          "python -m studies.bench_discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
+          "python -m studies.benchmarks.discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
           "tests/test_bench_discovery.py::"
           "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
     Claim("discovery's fit ceiling: draws where at most 3 minimal structures fit the recordings "
           "as well as the truth itself (what a fit-based set rule can reach)",
           discovery_ceiling, lambda r: r["bench_discovery_quick"]["rows"],
-          "python -m studies.bench_discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
+          "python -m studies.benchmarks.discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
           "tests/test_bench_discovery.py::test_structures_fitting_as_well_as_the_truth_bound_the_set"),
     Claim("discovery on fresh draws the set rule was never weighed on",
           discovery_fresh, lambda r: r["bench_discovery_fresh"]["rows"],
-          "python -m studies.bench_discovery --quick --seed 1030 --draws 10 --jobs 2",
+          "python -m studies.benchmarks.discovery --quick --seed 1030 --draws 10 --jobs 2",
           "bench_discovery_fresh",
           "tests/test_bench_discovery.py::"
           "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
     Claim("the next test `tvcid discover` names, recorded from the truth, on the discovery "
           "benchmark's misses: the set after the discovery runs again",
           next_test, lambda r: r["bench_next_test"]["rows"],
-          "python -m studies.bench_next_test --seeds 1004,1009,1016", "bench_next_test",
+          "python -m studies.benchmarks.next_test --seeds 1004,1009,1016", "bench_next_test",
           "tests/test_discrimination.py::test_discover_names_the_test_that_would_decide_its_set"),
 )
 
 HEADER = """# Results
 
-<!-- Written by `python -m studies.results_table` from studies/records/*.json: do not edit. -->
+<!-- Written by `python -m studies.benchmarks.results_table` from studies/benchmarks/records/*.json: do not edit. -->
 
-Each value is computed from a benchmark's stored rows (`studies/records/`, described in its
+Each value is computed from a benchmark's stored rows (`studies/benchmarks/records/`, described in its
 `README.md`) by the benchmark's own functions, with the benchmark's goal met or NOT met where it
-has one; the rows' commits are in the last column. `python -m studies.results_table --check`
+has one; the rows' commits are in the last column. `python -m studies.benchmarks.results_table --check`
 exits 1 when this file differs from that rendering (`tests/test_results_table.py`).
 
 | claim | current value | the command that produces it | the test that checks it | record commit(s) |
@@ -294,7 +294,7 @@ def render(records=None, claims=CLAIMS, root=ROOT) -> str:
         definition = find_test(c.test, root)
         if definition is None:
             raise ValueError(f"claim {c.claim!r}: no test {c.test}")
-        command = f"`{c.command}` (`studies/records/{c.record}.json`)"
+        command = f"`{c.command}` (`studies/benchmarks/records/{c.record}.json`)"
         test = f"`{c.test}`" + (" (slow: `pytest -m slow`)" if is_slow(definition) else "")
         lines.append("| " + " | ".join(_cell(x) for x in (
             c.claim, c.value(records), command, test, commits_text(c.rows(records)))) + " |")
@@ -313,7 +313,7 @@ def main(argv=None) -> int:
     if args.check:
         same = out.is_file() and out.read_text() == text
         print(f"{out}: " + ("up to date" if same else
-                            "differs from the records' rendering: python -m studies.results_table"))
+                            "differs from the records' rendering: python -m studies.benchmarks.results_table"))
         return 0 if same else 1
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)

@@ -1,6 +1,6 @@
 """Does the suggested test decide what the recordings could not? The next-test check.
 
-``python -m studies.bench_next_test [--seeds 1004,1009,1016,1010,1020,1025] [--out DIR]``
+``python -m studies.benchmarks.next_test [--seeds 1004,1009,1016,1010,1020,1025] [--out DIR]``
 
 Hypothesis: where the discovery leaves several structures indistinguishable,
 :func:`discovery.structure.discrimination.discriminating_tests` (the default menu, at the
@@ -12,14 +12,14 @@ fact when the second set holds one of its two structures and not the other. Deci
 per draw, the set before and after (size, truth inside, right winner), the pairs predicted
 decided against the pairs decided in fact, and the pairs on which they agree.
 
-The default seeds are the discovery benchmark's six misses (studies/records), sets of 6-10
+The default seeds are the discovery benchmark's six misses (studies/benchmarks/records), sets of 6-10
 structures that hold the truth. Each draw runs two discoveries with the benchmark's quick settings
 (no SINDy seeds) and the suggestion's refits: about 15-25 minutes a draw on two cores. Rows are
 written to ``DIR/bench.json`` as they finish, each with the commit of the code that ran it
 (non-finite numbers as ``null``); a rerun keeps finished draws.
 
 Goals: none (a hypothesis checked by its deciding numbers); the run ends by saying so
-(:func:`studies.goals.report`) and exits 0.
+(:func:`studies.benchmarks.goals.report`) and exits 0.
 """
 from __future__ import annotations
 
@@ -35,10 +35,10 @@ import numpy as np
 from discovery.structure import StructureDiscovery
 from discovery.structure.discrimination import default_candidates, discriminating_tests
 
-from .bench_discovery import set_verdict
-from .common import code_commit
+from .discovery import set_verdict
+from ..common import code_commit
 from .goals import report as goal_report
-from .goals import write_json
+from models.strict_json import write_json
 from .scenarios import RecordingDesign, draw_scenario, write_recording, write_recordings
 
 DEFAULT_SEEDS = (1004, 1009, 1016, 1010, 1020, 1025)

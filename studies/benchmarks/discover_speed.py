@@ -1,6 +1,6 @@
 """Speed of ``tvcid discover`` on issue 11's four recordings (deliverable 7: <= 10 minutes on 2 cores).
 
-``python -m studies.bench_discover_speed [--search standard|thorough] [--out DIR]``
+``python -m studies.benchmarks.discover_speed [--search standard|thorough] [--out DIR]``
 
 The recordings are M000's (the bundled set's model and noise, ``data/generate.py``) at the issue's
 lengths: limit cycles at controllers A and B of 40 s, an open-loop square (+-20 mrad, 1 Hz) and
@@ -9,10 +9,10 @@ parameters, the commands only as samples). ``tvcid discover`` runs on them as a 
 (default options: SINDy, the searches, the ranking, the MCMC to convergence) and the wall time of
 every stage is written to ``DIR/bench.json`` beside the goal (600 s), the machine's cores, its
 load average before and after, the commit of the code, and a reference measured in the same run:
-the batch kernel's wall time per simulated second (:func:`studies.goals.kernel_reference`: 64
+the batch kernel's wall time per simulated second (:func:`studies.benchmarks.goals.kernel_reference`: 64
 closed-loop runs of M000 at the search's 5e-4 s step), so that a slower machine can be told from
 a slower discovery (``discovery_in_kernel_seconds``: the discovery's wall time over that
-reference). The goal is judged on that ratio (:meth:`studies.goals.Goal.speed`); the last line
+reference). The goal is judged on that ratio (:meth:`studies.benchmarks.goals.Goal.speed`); the last line
 printed is the goal, met or NOT met, and so is the exit status (0 met, 1 not). Non-finite
 numbers are written as ``null``. Other jobs inflate the times; run it on an idle machine.
 """
@@ -28,8 +28,10 @@ from discovery.structure.discover import SEARCHES
 from models import CONTROLLER_A, CONTROLLER_B, OpenLoop, hypothesis, simulate
 from models.recording import recording_from_trajectory, save_recording
 
-from .common import code_commit
-from .goals import Goal, kernel_reference, write_json
+from ..common import code_commit
+from models.strict_json import write_json
+
+from .goals import Goal, kernel_reference
 from .goals import report as goal_report
 
 OUT = Path("results/bench_discover_speed")
@@ -63,7 +65,7 @@ def write_recordings(out_dir: Path) -> list:
 
 
 def main(argv=None) -> int:
-    from .commands.discover import discover
+    from tvcid.pipeline import discover
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--search", default="standard", choices=tuple(SEARCHES))
@@ -81,7 +83,7 @@ def main(argv=None) -> int:
         for f in run_dir.iterdir():
             f.unlink()
     t0 = time.perf_counter()
-    summary = discover(paths, run_dir, seed=args.seed, search=args.search, progress=False)
+    summary = discover(paths, run_dir, seed=args.seed, search=args.search, progress=False).summary
     wall = time.perf_counter() - t0
     report.update({
         "wall_seconds": wall,

@@ -1,7 +1,9 @@
-"""The ``tvcid`` command line: one subcommand module per capability under ``studies/commands``.
+"""The ``tvcid`` command line: one subcommand module per capability under ``tvcid/commands``.
 
 Each command module exposes ``register(subparsers)``, which adds its parser and sets
-``func(args) -> int`` as the handler.
+``func(args) -> int`` as the handler. Packages above tvcid add commands through the
+``tvcid.commands`` entry-point group (the studies add ``tvcid study``), so that the application
+never imports them.
 
 Errors reach the user as one line on stderr: exit status 2 for bad input (a file, an option, a
 parameter; the line names it), 130 for an interruption (Ctrl-C or SIGTERM; long commands resume
@@ -44,9 +46,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
-    for module in COMMAND_MODULES:
+    for module in COMMAND_MODULES + plugin_commands():
         module.register(sub)
     return parser
+
+
+def plugin_commands() -> tuple:
+    """Command modules that installed packages add through the ``tvcid.commands`` entry points."""
+    from importlib.metadata import entry_points
+
+    return tuple(ep.load() for ep in sorted(entry_points(group="tvcid.commands"), key=lambda e: e.name))
 
 
 def main(argv=None) -> int:

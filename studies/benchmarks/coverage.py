@@ -1,6 +1,6 @@
 """Coverage benchmark of the calibration: do the 90 % intervals hold the truth 90 % of the time?
 
-``python -m studies.bench_coverage [--quick] [--likelihood features|waveform] [--draws N] [--seed S]
+``python -m studies.benchmarks.coverage [--quick] [--likelihood features|waveform] [--draws N] [--seed S]
 [--jobs J] [--indices I] [--widening] [--out DIR]``
 
 Hypothesis: with the right structure, :class:`discovery.calibration.Calibration` returns 90 %
@@ -10,7 +10,7 @@ among the posterior samples is uniform (simulation-based calibration). Deciding 
 a hump is underconfident) and the coverage table in ``DIR/bench.json``.
 
 Each draw comes from the generator shared with the discovery benchmark
-(:func:`studies.scenarios.draw_scenario`: a truth over every structure, an experiment design with
+(:func:`studies.benchmarks.scenarios.draw_scenario`: a truth over every structure, an experiment design with
 limit cycles at 1-3 controller settings, open-loop tests or none, 200 Hz or 1 kHz acquisition,
 noise, sensor offset, quantisation); every third draw is forced onto a structure with a friction
 offset and a dead zone on the velocity signal (the ridge the limit cycle leaves between them).
@@ -38,7 +38,7 @@ whose factor is over 1 are calibrated again without the term (same seed, start a
 settings) and ``DIR/widening.json`` gives, per draw and parameter, the ratio of the 90 %
 intervals' widths with and without it (issue 12: at most about 20 %).
 
-The run ends with its goals, one line each (:mod:`studies.goals`), and exits 0 when all are met,
+The run ends with its goals, one line each (:mod:`studies.benchmarks.goals`), and exits 0 when all are met,
 1 otherwise: no draw failed; per parameter, the truth inside its 90 % interval in 80-97 % of the
 finished draws (not judged on ``--quick``'s short chains); with ``--widening``, every interval
 widened by at most 20 %. Every row names the commit of the code that ran it; ``widening.json``
@@ -58,8 +58,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import code_commit
-from .goals import Goal, write_json
+from ..common import code_commit
+from models.strict_json import write_json
+
+from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import (BACKLASH_CENTRE, DEAD_ZONE_CENTRE, DELAY_RANGE, RANGE_FACTOR, draw_scenario,
                         shortened, write_recordings)
@@ -91,7 +93,7 @@ class Config:
 
 
 QUICK = Config(draws=2, walkers=16, max_steps=40, transient=6.0, closed_seconds=16.0, open_seconds=6.0)
-#: ``tvcid fit``'s defaults (:mod:`studies.commands.fit`): walkers, step cap, transient, spread.
+#: ``tvcid fit``'s defaults (:mod:`tvcid.commands.fit`): walkers, step cap, transient, spread.
 WAVEFORM = Config(walkers=16, max_steps=4000, transient=6.0, spread="axes", likelihood="waveform")
 QUICK_WAVEFORM = Config(**{**asdict(QUICK), "likelihood": "waveform", "spread": "axes"})
 
@@ -216,7 +218,7 @@ def run_draws(todo, config: Config, workdir: Path, jobs: int, record, discrepanc
     if jobs > 1 and len(todo) > 1:
         from concurrent.futures import as_completed
 
-        from .common import process_pool
+        from discovery.parallel import process_pool
 
         with process_pool(jobs) as pool:
             futures = {pool.submit(run_draw, i, config, workdir, discrepancy): i for i in todo}
@@ -479,6 +481,6 @@ def write_widening(path, plain, result, rows):
 
 
 if __name__ == "__main__":
-    from .common import run_interruptible  # Ctrl-C, SIGTERM: workers stopped, one line, 130
+    from discovery.parallel import run_interruptible  # Ctrl-C, SIGTERM: workers stopped, one line, 130
 
     sys.exit(run_interruptible(main))

@@ -16,14 +16,10 @@ The JSON a benchmark writes is strict: :func:`write_json` writes NaN and infinit
 """
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
-
-import numpy as np
 
 #: The reference's cost (wall seconds per simulated second, :func:`kernel_reference`) at which a
 #: speed goal's seconds are read, a definition rather than a measurement: a goal of ``S``
@@ -162,35 +158,3 @@ def report(goals, file=None) -> int:
     for g in goals:
         print(g.line(), file=file, flush=True)
     return 0 if all(g.met for g in goals) else 1
-
-
-def jsonable(obj, default=None):
-    """``obj`` with NaN and infinities as ``None``, numpy scalars and arrays as Python ones,
-    tuples as lists; any other object through ``default`` (else ``TypeError``)."""
-    if obj is None or isinstance(obj, (str, bool)):
-        return obj
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, dict):
-        return {k: jsonable(v, default) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, np.ndarray)):
-        return [jsonable(v, default) for v in obj]
-    if default is None:
-        raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-    return jsonable(default(obj))
-
-
-def dumps(obj, default=None, indent=2) -> str:
-    """Strict JSON of ``obj`` (:func:`jsonable`: non-finite numbers as ``null``)."""
-    return json.dumps(jsonable(obj, default), indent=indent, allow_nan=False)
-
-
-def write_json(path, obj, default=None) -> Path:
-    """Write ``obj`` to ``path`` as strict JSON (:func:`dumps`), with a final newline."""
-    path = Path(path)
-    path.write_text(dumps(obj, default) + "\n")
-    return path

@@ -18,7 +18,7 @@ log-likelihood error of the dt = 5e-4 likelihood (against dt = 2e-4) and of the 
 steps; ``simulated_seconds_at_5e-4`` is the same cost in seconds at the 5e-4 s step the goal was
 set at, since a finer step costs more per simulated second).
 
-Ridge case (issue 12): :func:`studies.scenarios.ridge_scenario` (paper 001's placement without the
+Ridge case (issue 12): :func:`studies.benchmarks.scenarios.ridge_scenario` (paper 001's placement without the
 band-pass loop, a drawn truth, limit cycles at A and B of 40 s at 1 kHz, data from the reference
 path read back as measured), calibrated as ``tvcid fit`` does by default (waveform likelihood,
 16 walkers, 4000-step cap) on (dead zone, backlash, delay, friction offset) from a start 20 %
@@ -33,12 +33,12 @@ interval and widths 0.89-1.17 of it, median 30,699 simulated s, 7 of 7 seeds wit
 ``--continuation`` continues each run from the nearest stored run's cycle
 (``Calibration(continuation=True)``; 2026-11-26 at a fixed 6 s: within 0.10, median 35,729 s).
 
-Usage: ``python -m studies.bench_calibration [--case m002|ridge|all] [--seeds 1,2,3,4,5,6,7]
+Usage: ``python -m studies.benchmarks.calibration [--case m002|ridge|all] [--seeds 1,2,3,4,5,6,7]
 [--ridge-seeds 0] [--walkers 10] [--transient T] [--continuation] [--reference-transient 12]``;
 writes
 ``results/bench_calibration/bench.json`` and corner/trace plots. Other jobs on the machine inflate the wall time; the load average is recorded.
 The wall-time goals are judged against the batch kernel's reference measured in the same run
-(:meth:`studies.goals.Goal.speed`). The run ends with the goals of the cases it ran, one line each
+(:meth:`studies.benchmarks.goals.Goal.speed`). The run ends with the goals of the cases it ran, one line each
 (M002: every seed converged, every seed within 40,000 simulated seconds, the slowest seed's wall
 time; ridge, per seed: converged within the step cap, every truth inside its 90 % interval, the
 wall time), and its exit status is 0 when all are met, 1 otherwise. Each case's numbers carry the
@@ -56,11 +56,14 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.calibration import Calibration, synthetic_recording
+from discovery.calibration import Calibration
+from models.synthetic import synthetic_recording
 from models import CONTROLLER_A, M002
 
-from .common import code_commit
-from .goals import Goal, kernel_reference, write_json
+from ..common import code_commit
+from models.strict_json import write_json
+
+from .goals import Goal, kernel_reference
 from .goals import report as goal_report
 
 OUT = Path("results/bench_calibration")
@@ -152,7 +155,7 @@ def run_ridge_case(seed, workdir):
     """The ridge case for one drawn truth (see the module docstring)."""
     import math
 
-    from studies.scenarios import RIDGE_PARAMETERS, ridge_scenario, write_recordings
+    from studies.benchmarks.scenarios import RIDGE_PARAMETERS, ridge_scenario, write_recordings
 
     scenario = ridge_scenario(seed)
     paths = write_recordings(scenario, workdir / f"ridge_{seed}")

@@ -64,8 +64,9 @@ def register(sub):
 
 def run(args) -> int:
     from discovery.calibration import Calibration, ConvergenceWarning, parse_prior
+    from discovery.parallel import map_pool
 
-    from ..common import map_pool, write_posterior_figures
+    from ..figures import write_posterior_figures
 
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     priors = dict(parse_prior(text) for text in args.prior)

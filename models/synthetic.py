@@ -1,12 +1,14 @@
-"""Synthetic recordings with known truth for tests, benchmarks and studies.
+"""The sensor, and synthetic recordings with a known truth for tests, benchmarks and studies.
 
-A hypothesis is simulated with :func:`models.simulate` (no in-loop noise), independent Gaussian
-sensor noise of sd ``noise`` is added to the recorded ``delta`` from a seeded
-``numpy.random.Generator``, and the result is written with :func:`models.recording.save_recording`
-and read back with :func:`models.recording.load_recording` (the only way tvcid reads recordings).
+:class:`Acquisition` is the sensor model: white noise, a constant offset and quantisation applied
+to the simulated ``delta``. :func:`synthetic_recording` simulates a hypothesis with
+:func:`models.simulate` (no in-loop noise), measures it with a white-noise sensor drawn from a
+seeded ``numpy.random.Generator``, writes it with :func:`models.recording.save_recording` and reads
+it back with :func:`models.recording.load_recording` (the only way tvcid reads recordings).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +16,24 @@ import numpy as np
 from models import simulate
 from models.recording import load_recording, recording_from_trajectory, save_recording
 
-__all__ = ["synthetic_recording"]
+__all__ = ["Acquisition", "synthetic_recording"]
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """Sensor: white noise sd (rad), constant offset (rad), quantisation step (rad, 0 = none)."""
+
+    noise_sd: float
+    offset: float
+    quantisation: float
+
+    def measure(self, delta, rng):
+        """``delta`` (rad) as this sensor records it: plus white noise drawn from ``rng`` and the
+        offset, then quantised."""
+        out = np.asarray(delta) + self.noise_sd * rng.standard_normal(np.size(delta)) + self.offset
+        if self.quantisation > 0:
+            out = self.quantisation * np.round(out / self.quantisation)
+        return out
 
 
 def synthetic_recording(params, experiment, t_end, noise, seed, path, keep_last=None, dt=None,
@@ -45,7 +64,7 @@ def synthetic_recording(params, experiment, t_end, noise, seed, path, keep_last=
     )
     rng = np.random.default_rng(seed)
     columns = {k: np.asarray(v, dtype=float).copy() for k, v in columns.items()}
-    columns["delta"] = columns["delta"] + noise * rng.standard_normal(columns["delta"].size)
+    columns["delta"] = Acquisition(float(noise), 0.0, 0.0).measure(columns["delta"], rng)
     if keep_last is not None:
         sel = columns["t"] >= columns["t"][-1] - keep_last - 1e-9
         columns = {k: v[sel] for k, v in columns.items()}

@@ -1,15 +1,15 @@
 """Issue 11's reported failures, rerun as the user ran them: does ``tvcid discover`` now get them?
 
-``python -m studies.issue11_cases [--case NAME ...] [--seed N] [--quick] [--no-mcmc] [--out DIR]``
+``python -m studies.benchmarks.heldout_cases [--case NAME ...] [--seed N] [--quick] [--no-mcmc] [--out DIR]``
 
 Hypothesis: the discovery that picked the wrong structure or a wrong linear block on these three
 recordings sets (issue 11's opening list) now names the generating structure, or reports a set of
 structures it cannot tell apart with the truth inside, and fits the coordinates the recordings pin
 within 5 %. Deciding numbers: per case, ``truth_in_set``, ``right_winner`` and the relative errors
-of the truth structure's fit in ``results/issue11_cases/summary.json``.
+of the truth structure's fit in ``results/heldout_cases/summary.json``.
 
 The cases are the papers' models with the issue's designs; the recordings are made by the
-plain-Python reference path (:func:`studies.scenarios.write_recordings`, a second implementation
+plain-Python reference path (:func:`studies.benchmarks.scenarios.write_recordings`, a second implementation
 at 5e-5 s) and written with measured-style sidecars (no hypothesis, no parameters, commands only as
 samples); 2e-5 rad of white sensor noise where the issue gives none:
 
@@ -23,7 +23,7 @@ samples); 2e-5 rad of white sensor noise where the issue gives none:
   off 2-4x and the delay 0).
 
 This is a check on three cases, not the measure of the method: the discovery benchmark
-(:mod:`studies.bench_discovery`) draws truths and designs at random.
+(:mod:`studies.benchmarks.discovery`) draws truths and designs at random.
 """
 from __future__ import annotations
 
@@ -37,10 +37,12 @@ from pathlib import Path
 from models import hypothesis
 from models.structures import Structure
 
-from .common import code_commit
-from .scenarios import CONTROLLERS, Acquisition, RecordingDesign, Scenario, write_recordings
+from ..common import code_commit
+from models.synthetic import Acquisition
 
-OUT = Path("results/issue11_cases")
+from .scenarios import CONTROLLERS, RecordingDesign, Scenario, write_recordings
+
+OUT = Path("results/heldout_cases")
 #: Coordinates compared with the truth (the natural parameters; the friction split is shown as
 #: the threshold ``dead_zone - friction_offset`` the limit cycle pins, MODELS.md).
 COMPARED = ("gain", "damping", "stiffness", "feedback_gain", "dead_zone", "backlash", "delay",
@@ -93,12 +95,12 @@ def compared(fit_params: dict, truth) -> dict:
 
 
 def run_case(name, scenario, out_dir, seed, quick, mcmc):
-    from .commands.discover import discover
+    from tvcid.pipeline import discover
 
     paths = write_recordings(scenario, out_dir / name / "recordings", reuse=True)
     t0 = time.perf_counter()
     summary = discover(paths, out_dir / name / "discover", seed=seed, quick=quick, mcmc=mcmc,
-                       progress=False)
+                       progress=False).summary
     wall = time.perf_counter() - t0
     truth_s = scenario.structure.name
     structures = summary["structures"]

@@ -1,6 +1,6 @@
 """One seeded generator of random truths and experiment designs, shared by benchmarks and tests.
 
-Used by :mod:`studies.bench_discovery` and the discovery tests (and meant for the coverage
+Used by :mod:`studies.benchmarks.discovery` and the discovery tests (and meant for the coverage
 benchmark of issue 12). Ranges (issue 11, item 6: parameters within a factor 2-3 of the papers'
 values, the linear block within +-30 % of paper 001's):
 
@@ -34,6 +34,7 @@ from models import ClosedLoop, OpenLoop, SimulationDiverged, simulate
 from models.features import InsufficientPeriodsError
 from models.hypotheses import KICK_X0, ActuatorParams
 from models.recording import save_recording
+from models.synthetic import Acquisition
 from models.reference import simulate_reference
 from models.structures import Structure, structure_space
 
@@ -74,23 +75,6 @@ class RecordingDesign:
         if self.kind == "closed":
             return ClosedLoop(self.kp, self.kd, self.mu, sample_rate=self.controller_rate)
         return getattr(OpenLoop, self.waveform)(self.amplitude, self.frequency)
-
-
-@dataclass(frozen=True)
-class Acquisition:
-    """Sensor: white noise sd (rad), constant offset (rad), quantisation step (rad, 0 = none)."""
-
-    noise_sd: float
-    offset: float
-    quantisation: float
-
-    def measure(self, delta, rng):
-        """``delta`` (rad) as this sensor records it: plus white noise drawn from ``rng`` and the
-        offset, then quantised."""
-        out = np.asarray(delta) + self.noise_sd * rng.standard_normal(np.size(delta)) + self.offset
-        if self.quantisation > 0:
-            out = self.quantisation * np.round(out / self.quantisation)
-        return out
 
 
 @dataclass(frozen=True)
@@ -255,7 +239,7 @@ def write_recording(scenario: Scenario, index, path, dt=None):
     rng = np.random.default_rng([scenario.seed, index])
     delta = scenario.acquisition.measure(tr.delta[keep], rng)
     meta = {"kind": rd.kind, "source": "simulated",
-            "generator": "studies/scenarios.py (reference path)"}
+            "generator": "studies/benchmarks/scenarios.py (reference path)"}
     if rd.kind == "closed":
         meta.update(kp=rd.kp, kd=rd.kd, mu=rd.mu, controller_rate=rd.controller_rate)
     save_recording(path, {"t": t, "u": tr.u[keep], "delta": delta}, meta)

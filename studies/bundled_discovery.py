@@ -15,7 +15,7 @@ block's own loop) and before the integrator (after the block) differ only by how
 effective K1, K2, K3 read; with the linear block free both fit these four recordings about equally
 (the default search scores them 1.65 and 1.67, inside one margin), so the study reports both.
 
-This is the same function as ``tvcid discover`` (:func:`studies.commands.discover.discover`); the
+This is the same function as ``tvcid discover`` (:func:`tvcid.pipeline.discover`); the
 sidecars' ``hypothesis``/``parameters`` keys are ignored by it and used here only to score.
 
 Deciding figures: ``report.md`` (ranking table), ``corner.png`` (posterior of the winner),
@@ -32,7 +32,7 @@ from pathlib import Path
 from models.recording import load_recording
 from models.structures import Structure
 
-from .commands.discover import discover
+from tvcid.pipeline import discover
 from .common import study_main
 
 NAME = "discover"
@@ -74,7 +74,7 @@ def within_tolerances(errors):
 def run(config: Config, seed: int, out_dir: Path) -> dict:
     files = [DATA / f"{name}.csv" for name in config.recordings]
     result = discover(files, out_dir, seed=seed, quick=config.quick, max_steps=config.max_steps,
-                      progress=False)
+                      progress=False).summary
     truth = load_recording(files[0]).meta["parameters"]
     from models import params_from_dict
 

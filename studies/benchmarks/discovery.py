@@ -1,9 +1,9 @@
 """Discovery benchmark: random truths and designs, data from the reference path, read as measured.
 
-``python -m studies.bench_discovery [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]
+``python -m studies.benchmarks.discovery [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]
 [--rederive] [--floor-scan]``
 
-Each draw (:func:`studies.scenarios.draw_scenario`, seeded) is a truth over every structure of the
+Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded) is a truth over every structure of the
 grammar and an experiment design (limit cycles at 1-3 controller settings, open-loop squares and
 sines or none, 200 Hz or 1 kHz, noise, sensor offset, quantisation). Its recordings are made by
 the plain-Python reference simulator (a second implementation), written with measured-style
@@ -66,8 +66,10 @@ from discovery.structure.search import local_sd
 
 from models.structures import CHOICES, Structure, shared_choices
 
-from .common import code_commit
-from .goals import Goal, write_json
+from ..common import code_commit
+from models.strict_json import write_json
+
+from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
 
@@ -413,7 +415,7 @@ class FloorScan:
     def plot(self, ax=None):
         """Both rates and the goal (90 %) against the floors' scale; the rule's scale 1 marked."""
         if ax is None:
-            from .common import pyplot
+            from tvcid.figures import pyplot
 
             ax = pyplot().subplots(figsize=(6, 3.6))[1]
         ax.plot(self.scales, self.right_or_in_set_le3, "o-", label="winner, or in a set of at most 3")
@@ -516,7 +518,7 @@ def main(argv=None) -> int:
              else [s for s in range(args.seed, args.seed + n) if s not in done])
     n = len(seeds)
     if args.jobs > 1 and len(seeds) > 1:
-        from .common import process_pool
+        from discovery.parallel import process_pool
 
         with process_pool(args.jobs) as pool:
             for seed, row in zip(seeds, pool.map(guarded_draw, seeds, [out] * n, [args.quick] * n)):
@@ -552,6 +554,6 @@ def discovery_goals(overall) -> list:
 
 
 if __name__ == "__main__":
-    from .common import run_interruptible  # Ctrl-C, SIGTERM: workers stopped, one line, 130
+    from discovery.parallel import run_interruptible  # Ctrl-C, SIGTERM: workers stopped, one line, 130
 
     sys.exit(run_interruptible(main))

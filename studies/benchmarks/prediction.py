@@ -1,6 +1,6 @@
 """Benchmark of the limit-cycle prediction (issue 13 item 5): speed, shortcut accuracy, coverage.
 
-Cases are drawn by the shared scenario generator (:func:`studies.scenarios.draw_truth`): a truth
+Cases are drawn by the shared scenario generator (:func:`studies.benchmarks.scenarios.draw_truth`): a truth
 with the dead zone on the error and no band-pass loop that oscillates at controllers A and B and at
 a third setting (Kp 7.5, Kd 0.075, mu 8), calibrated (dead zone, backlash and delay where present,
 and sigma; features likelihood, 16 walkers, 700 steps) on 12 s closed-loop records at A and B made
@@ -22,10 +22,10 @@ Measured:
   solver's step-doubling error at the median model) brackets the generating model's cycle
   (amplitude and frequency measured the same way, at the simulator's default step).
 
-Usage: ``python -m studies.bench_prediction [--quick] [--seed N]``; writes
+Usage: ``python -m studies.benchmarks.prediction [--quick] [--seed N]``; writes
 ``results/bench_prediction/bench.json`` (with the commit of the code; non-finite numbers as
 ``null``). The load average is recorded (other jobs inflate times). The speed goal is judged
-against the batch kernel's reference measured in the same run (:meth:`studies.goals.Goal.speed`),
+against the batch kernel's reference measured in the same run (:meth:`studies.benchmarks.goals.Goal.speed`),
 scaled to the map's runs (300 s per 80,000; ``--quick``'s small map gets its share); the run
 ends with that goal, met or NOT met, and exits 0 when it is met, 1 otherwise.
 """
@@ -40,7 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.calibration import Calibration, synthetic_recording
+from discovery.calibration import Calibration
+from models.synthetic import synthetic_recording
 from discovery.prediction import (
     ControllerSetting,
     PredictionConfig,
@@ -52,8 +53,10 @@ from discovery.prediction import (
 from models import ClosedLoop, simulate
 from models.structures import Structure, structure_space
 
-from .common import code_commit
-from .goals import Goal, kernel_reference, write_json
+from ..common import code_commit
+from models.strict_json import write_json
+
+from .goals import Goal, kernel_reference
 from .goals import report as goal_report
 from .scenarios import draw_truth, oscillates
 

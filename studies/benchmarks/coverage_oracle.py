@@ -1,9 +1,9 @@
 """Is a coverage miss the data's own noise, or the method? An exact-edge oracle on a draw's open-loop records.
 
-``python -m studies.coverage_oracle INDEX [--renoise K] [--out DIR]``  (5-15 minutes a draw)
-``python -m studies.coverage_oracle INDEX [INDEX ...] --replay-only``
+``python -m studies.benchmarks.coverage_oracle INDEX [--renoise K] [--out DIR]``  (5-15 minutes a draw)
+``python -m studies.benchmarks.coverage_oracle INDEX [INDEX ...] --replay-only``
 
-Hypothesis: when the coverage benchmark (:mod:`studies.bench_coverage`) puts a truth outside its
+Hypothesis: when the coverage benchmark (:mod:`studies.benchmarks.coverage`) puts a truth outside its
 90 % interval because an open-loop record prefers another point, either the likelihood term is
 biased (the command's replay from 200 Hz samples, its edge-timing nuisance, the solver's step) or
 that record's noise realisation happens to favour the other point. An oracle separates the two:
@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 #: Step (s) of the oracle's simulations: 10x finer than the features' 5e-4 s and the data's
-#: generator step (:data:`studies.scenarios.DATA_DT`) apart by the same factor.
+#: generator step (:data:`studies.benchmarks.scenarios.DATA_DT`) apart by the same factor.
 ORACLE_DT = 5e-5
 #: Relative size of the Nelder-Mead start simplex around the truth.
 SIMPLEX = 0.03
@@ -75,7 +75,7 @@ def oracle_check(index, renoise=6, workdir=Path("results/bench_coverage/data")):
     from models.reference import simulate_reference
     from models.structures import Structure
 
-    from .bench_coverage import SAMPLED, Config, coverage_scenario, priors_for
+    from .coverage import SAMPLED, Config, coverage_scenario, priors_for
     from .scenarios import DATA_DT, write_recordings
 
     config = Config()
@@ -164,7 +164,7 @@ def replay_table(indices, workdir=Path("results/bench_coverage/data")):
     """``replay_chi_square`` of every open-loop record of the draws ``indices``."""
     from models.recording import load_recording
 
-    from .bench_coverage import Config, coverage_scenario
+    from .coverage import Config, coverage_scenario
     from .scenarios import write_recordings
 
     rows = []
@@ -188,7 +188,7 @@ def step_ladder(truth, names, path, config, levels=4):
     from discovery.calibration import Calibration
     from models.structures import Structure
 
-    from .bench_coverage import priors_for
+    from .coverage import priors_for
 
     priors = priors_for(Structure.of_params(truth))
     ladder = []

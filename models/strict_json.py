@@ -1,0 +1,47 @@
+"""Strict JSON: what every file tvcid writes uses, so that any JSON reader opens it.
+
+Python's ``json`` writes ``NaN`` and ``Infinity`` tokens, which are not JSON; here a non-finite
+number is written as ``null`` (a missing or undefined value: a cost that diverged, a bound that is
+open), numpy scalars and arrays as plain numbers and lists.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["jsonable", "dumps", "write_json"]
+
+
+def jsonable(obj, default=None):
+    """``obj`` with NaN and infinities as ``None``, numpy scalars and arrays as Python ones,
+    tuples as lists; any other object through ``default`` (else ``TypeError``)."""
+    if obj is None or isinstance(obj, (str, bool)):
+        return obj
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, dict):
+        return {k: jsonable(v, default) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [jsonable(v, default) for v in obj]
+    if default is None:
+        raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+    return jsonable(default(obj))
+
+
+def dumps(obj, default=None, indent=2) -> str:
+    """Strict JSON of ``obj`` (:func:`jsonable`: non-finite numbers as ``null``)."""
+    return json.dumps(jsonable(obj, default), indent=indent, allow_nan=False)
+
+
+def write_json(path, obj, default=None, indent=2) -> Path:
+    """Write ``obj`` to ``path`` as strict JSON (:func:`dumps`), with a final newline."""
+    path = Path(path)
+    path.write_text(dumps(obj, default, indent) + "\n")
+    return path

@@ -1,4 +1,0 @@
-"""Subcommands of ``tvcid``; add a module here and to :data:`COMMAND_MODULES`."""
-from . import design, df, discover, features, fit, predict, simulate, sindy, spectrum, study
-
-COMMAND_MODULES = (simulate, features, study, fit, sindy, discover, df, spectrum, predict, design)

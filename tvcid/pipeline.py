@@ -1,0 +1,355 @@
+"""The end-to-end discovery behind ``tvcid discover``: structure and parameters from the user's
+own recordings, then MCMC.
+
+Screening (SINDy seeds), fitting every structure by closed- and open-loop simulation, ranking by
+two-fold out-of-sample error (:class:`discovery.structure.StructureDiscovery`), then the MCMC
+calibration of the winner on all recordings (:class:`discovery.calibration.Calibration`); where
+the recordings leave several structures, the test that would tell them apart (:func:`next_test`).
+Nothing is lost to a killed run: ``discovery.json`` is written as soon as the ranking is done and
+carries a hash of the inputs, so a rerun with the same recordings and options reuses it instead of
+searching again, and the chain is checkpointed, so the MCMC resumes where it stopped.
+:func:`discover` returns a :class:`DiscoveryResult` and writes ``discovery.json`` and
+``report.md`` with the figures beside them (docs/methods/discovery.md).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from models.strict_json import jsonable, write_json
+
+__all__ = ["DiscoveryResult", "discover", "next_test", "inputs_hash"]
+
+#: Parameters the MCMC samples when the winner has them (the linear block stays at its fit).
+CALIBRATED = ("dead_zone", "friction_offset", "backlash", "delay")
+
+
+def _json_default(v):
+    """Enums as their value, anything else as its text."""
+    if hasattr(v, "value"):
+        return v.value
+    return str(v)
+
+
+@dataclass
+class DiscoveryResult:
+    """What :func:`discover` found: the content of ``discovery.json``, with its readers.
+
+    Attributes
+    ----------
+    summary : dict
+        The ranking (``structures``, best first), the set the recordings cannot tell apart
+        (``indistinguishable``), the structural choices they decide (``decided``), the sensor
+        offsets and noise, the next test and the posterior of the winner.
+    out : Path or None
+        The directory it was written to.
+    """
+
+    summary: dict
+    out: Path | None = None
+
+    @classmethod
+    def load(cls, path) -> "DiscoveryResult":
+        """A result from its ``discovery.json`` (or the directory holding it)."""
+        path = Path(path)
+        if path.is_dir():
+            path = path / "discovery.json"
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{path}: not a discovery.json ({exc})") from None
+        if not isinstance(summary, dict) or "structures" not in summary:
+            raise ValueError(f"{path}: not a discovery.json (no 'structures')")
+        return cls(summary, path.parent)
+
+    @property
+    def best(self) -> dict:
+        """The winner's row: ``structure``, ``score``, ``params``, ``coordinate_sd``, ..."""
+        return self.summary["structures"][0]
+
+    @property
+    def indistinguishable(self) -> list:
+        """Names of the structures the recordings cannot tell from the winner (merged ones too)."""
+        return list(self.summary["indistinguishable"])
+
+    @property
+    def decided(self) -> dict:
+        """Each structural choice: its value where the set agrees on it, else ``None``."""
+        return dict(self.summary["decided"])
+
+    @property
+    def posterior(self):
+        """The MCMC summary of the winner (``parameters``: q05, q50, q95 each), or ``None``."""
+        return self.summary.get("posterior")
+
+    def to_dict(self) -> dict:
+        """The summary as strict JSON values (non-finite numbers as ``None``)."""
+        return jsonable(self.summary, _json_default)
+
+    def report(self) -> str:
+        """``report.md``'s text (:func:`tvcid.report.discovery_report`)."""
+        from .report import discovery_report
+
+        return discovery_report(self.to_dict())
+
+    def save(self, out=None) -> Path:
+        """Write ``discovery.json`` and ``report.md`` into ``out`` (default: where it came from)."""
+        out = Path(out if out is not None else self.out)
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "discovery.json", self.summary, default=_json_default)
+        (out / "report.md").write_text(self.report())
+        self.out = out
+        return out
+
+    def plot(self, ax=None):
+        """The ranking: each structure's out-of-sample score, the set the recordings cannot tell
+        apart in colour; returns the axes."""
+        import matplotlib.pyplot as plt
+
+        rows = self.summary["structures"][:20]
+        if ax is None:
+            ax = plt.subplots(figsize=(7, 0.3 * len(rows) + 1.2))[1]
+        scores = [s["score"] if s["score"] is not None else np.nan for s in rows]
+        colours = ["C0" if s["indistinguishable_from_best"] else "0.7" for s in rows]
+        y = np.arange(len(rows))[::-1]
+        ax.barh(y, scores, color=colours)
+        ax.set_yticks(y, [s["structure"] for s in rows], fontsize=7)
+        ax.set_xscale("log")
+        ax.set_xlabel(f"score ({rows[0]['criterion']}); in colour: the set left open")
+        return ax
+
+
+def _corrected(recordings, offsets):
+    """The recordings with their estimated sensor offset removed from ``delta``."""
+    from models.recording import Recording
+
+    out = []
+    for r in recordings:
+        name = r.path.stem if r.path else "recording"
+        cols = dict(r.columns)
+        cols["delta"] = r.delta - offsets.get(name, 0.0)
+        out.append(Recording(columns=cols, meta=r.meta, path=r.path))
+    return out
+
+
+def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=True,
+             progress=True, search="standard") -> DiscoveryResult:
+    """Run the whole discovery on ``files`` into ``out``: ``tvcid discover``'s pipeline.
+
+    Parameters
+    ----------
+    files : sequence of str or Path
+        Recordings (``NAME.csv`` with its ``NAME.json`` sidecar; :doc:`docs/recordings.md`).
+    out : str or Path
+        Output directory: ``discovery.json``, ``report.md``, the chain and the figures.
+    fixed : dict, optional
+        Known parameters or structural choices (``{"gain": 305500, "delay_position": "output"}``).
+    seed : int
+        Seed of every random draw.
+    quick : bool
+        A short chain (150 steps).
+    max_steps : int, optional
+        MCMC step cap (default 2000, 150 with ``quick``).
+    mcmc : bool
+        Calibrate the winner after the ranking.
+    search : {"standard", "thorough", ...}
+        Search sizes (:data:`discovery.structure.discover.SEARCHES`).
+
+    Returns
+    -------
+    DiscoveryResult
+
+    ``search`` names the search sizes (:data:`discovery.structure.discover.SEARCHES`); ``quick``
+    only shortens the chain.
+
+    A finished ranking of the same inputs already in ``out`` is reused (``resumed_ranking``), and
+    an interrupted chain resumes from its checkpoint.
+    """
+    from discovery.structure import validate_recordings
+    from discovery.structure.targets import make_target
+    from models import params_from_dict
+    from models.structures import Structure, shared_choices
+
+    out = Path(out)
+    recs = validate_recordings(files)
+    out.mkdir(parents=True, exist_ok=True)
+    inputs = inputs_hash(recs, fixed, seed, search)
+    previous = _previous_ranking(out, inputs)
+    if previous is not None:
+        summary = previous
+        summary["resumed_ranking"] = True
+        best_params = params_from_dict("custom", summary["structures"][0]["params"])
+        best_structure = Structure.parse(summary["structures"][0]["structure"])
+        closed = [make_target(r, 5e-4) for r in recs if r.kind == "closed"][:1]
+        offsets = summary["sensor_offset"]
+        t_disc = summary["timings"].get("discovery", 0.0)
+        summary.setdefault("decided", shared_choices(summary["indistinguishable"]))
+    else:
+        summary, best_params, best_structure, closed, offsets, t_disc = _rank_structures(
+            recs, fixed, seed, search, progress, inputs)
+        _write(out, summary)  # the ranking survives whatever happens to the chain
+    if "next_test" not in summary:
+        t0 = time.perf_counter()
+        summary["next_test"] = next_test(summary, recs, seed, out)
+        summary["timings"]["next_test"] = time.perf_counter() - t0
+        _write(out, summary)
+    if mcmc:
+        summary = _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixed,
+                             seed, quick, max_steps, progress, out)
+    summary["timings"]["discovery"] = t_disc
+    _write(out, summary)
+    return DiscoveryResult(summary, out)
+
+
+def next_test(summary, recs, seed, out):
+    """The test that would tell apart the structures the recordings cannot
+    (:func:`discovery.structure.discrimination.discriminating_tests` on the set's unmerged
+    members at their fitted parameters, refitted to the recordings for the best
+    candidates; the default menu acquired at the recordings' highest rate, the recordings'
+    median noise); writes ``next_test.png``. ``None`` for a set of one."""
+    from discovery.structure.discrimination import (
+        default_candidates,
+        discriminating_tests,
+    )
+    from discovery.structure.targets import make_target
+    from models import params_from_dict
+
+    members = [params_from_dict("custom", s["params"]) for s in summary["structures"]
+               if s["indistinguishable_from_best"] and s["merged_into"] is None]
+    if len(members) < 2:
+        return None
+    noises = [float(v) for v in summary["sensor_noise"].values()
+              if isinstance(v, (int, float)) and math.isfinite(v) and v > 0]
+    if not noises:  # noise-free recordings: the code's own tolerance sets the units
+        noises = [1e-6]
+    noise = float(np.median(noises))
+    rate = max(r.sample_rate for r in recs)
+    recorded = [make_target(r, 5e-4) for r in recs]  # the targets ignore a constant offset
+    ranking = discriminating_tests(members, default_candidates(rate), noise_sd=noise, seed=seed,
+                                   recorded=recorded)
+    from .figures import pyplot
+
+    plt = pyplot()
+    ax = ranking.plot()
+    ax.figure.tight_layout()
+    ax.figure.savefig(out / "next_test.png", dpi=90)
+    plt.close(ax.figure)
+    result = ranking.to_dict()
+    result["tests"] = result["tests"][:8]  # the best few; the figure shows twelve
+    return result
+
+
+def inputs_hash(recs, fixed, seed, search) -> str:
+    """Hash of what determines the ranking: every recording's data and sidecar, the options."""
+    h = hashlib.sha256()
+    for r in recs:
+        for name in sorted(r.columns):
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(r.columns[name], dtype=float).tobytes())
+        h.update(json.dumps(r.meta, sort_keys=True, default=str).encode())
+    h.update(json.dumps([{k: getattr(v, "value", v) for k, v in (fixed or {}).items()}, seed,
+                         str(search)], sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def _previous_ranking(out, inputs):
+    """A finished ranking of the same inputs in ``out``, or ``None``."""
+    path = out / "discovery.json"
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if summary.get("inputs") != inputs or not summary.get("structures"):
+        return None
+    return summary
+
+
+def _rank_structures(recs, fixed, seed, search, progress, inputs):
+    from discovery.structure import StructureDiscovery
+
+    t0 = time.perf_counter()
+    disc = StructureDiscovery(fixed=fixed, seed=seed, search=search, progress=progress).fit(recs)
+    t_disc = time.perf_counter() - t0
+    summary = {
+        "recordings": [str(r.path) for r in recs],
+        "targets": [t.describe() for t in disc.targets_],
+        "fixed": {k: (v if not hasattr(v, "value") else v.value) for k, v in (fixed or {}).items()},
+        "structures": [f.to_dict() for f in disc.ranking_],
+        "indistinguishable": [f.structure.name for f in disc.indistinguishable_],
+        "decided": disc.decided_,
+        "pruned": disc.pruned_,
+        "sindy": disc.sindy_,
+        "sensor_offset": disc.offsets_,
+        "sensor_noise": disc.noise_,
+        "estimated": {"sensor_offset": "per recording, profiled (least squares) at the best fit",
+                      "sensor_noise": "open loop: rms output error at the best fit; closed loop: "
+                                      "second differences"},
+        "simulations": disc.n_simulations_,
+        "searches": dict(disc.searches_),
+        "timings": {**disc.timings_},
+        "seed": seed,
+        "search": search,
+        "inputs": inputs,
+        "resumed_ranking": False,
+    }
+    summary["timings"]["discovery"] = t_disc
+    closed = [t for t in disc.targets_ if t.kind == "closed"]
+    return summary, disc.best_.params, disc.best_.structure, closed, disc.offsets_, t_disc
+
+
+def _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixed, seed, quick,
+               max_steps, progress, out):
+    """MCMC of the winner on all recordings (offsets removed), checkpointed; adds ``posterior``."""
+    from discovery.calibration import Calibration
+    from discovery.calibration.priors import Uniform
+    from discovery.calibration.runner import ConvergenceWarning
+
+    t0 = time.perf_counter()
+    # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
+    p = best_params.replace(**closed[0].initial_conditions(best_params)) if closed else best_params
+    names = [n for n in CALIBRATED
+             if n in best_structure.parameter_names() and n not in (fixed or {})]
+    c = p.dead_zone - p.friction_offset
+    priors, start = {}, {}
+    if "delay" in names:
+        priors["delay"] = Uniform(1.2e-3 if p.delay > 1.2e-3 else 6e-4, max(3 * p.delay, 0.01))
+        start["delay"] = min(max(p.delay, priors["delay"].low * 1.05), priors["delay"].high * 0.95)
+    if "friction_offset" in names:
+        priors["friction_offset"] = Uniform(-1.5 * c, 0.3 * c)
+    # sigma is not sampled: the records' own noise estimate sets it. Sampled, it mixed 5x slower
+    # than the physical parameters (tau 40 against 6-9 on the M000 records), so the chain ran to
+    # the 2000-step cap (13 min); without it the same chain converges in 100-110 steps (112 s).
+    # A misfit beyond the noise is the discrepancy factor's business, not sigma's.
+    sampled = tuple(names) or ("sigma",)
+    tag = hashlib.sha256(json.dumps([summary["structures"][0]["params"], sampled, "sigma fixed"
+                                     if "sigma" not in sampled else "", quick, seed],
+                                    sort_keys=True, default=str).encode()).hexdigest()[:10]
+    steps = max_steps or (150 if quick else 2000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        cal = Calibration(p, params=sampled, priors=priors, start=start,
+                          likelihood="features", window=10.0, n_walkers=max(16, 4 * len(names) + 4),
+                          max_steps=steps, seed=seed, backend=out / f"chain-{tag}.h5",
+                          progress=progress, global_search=False).fit(_corrected(recs, offsets))
+    post = cal.posterior_
+    s = post.summary()
+    summary["posterior"] = {k: s[k] for k in ("parameters", "converged", "tau", "correlation",
+                                             "iterations", "acceptance", "n_over_tau")}
+    summary["posterior"]["structure"] = best_structure.name
+    summary["posterior"]["chain"] = f"chain-{tag}.h5"
+    summary["timings"]["mcmc"] = time.perf_counter() - t0
+    from .figures import write_posterior_figures
+
+    write_posterior_figures(post, out, seed=seed)
+    return summary
+
+
+def _write(out, summary):
+    DiscoveryResult(summary, out).save()

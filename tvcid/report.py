@@ -1,0 +1,182 @@
+"""``report.md`` of ``tvcid discover``: what a user opens first.
+
+It starts with a one-screen summary (what the recordings decided, the structures left open, each
+physical parameter with its unit and 90 % interval, the next test), then the details: the ranking,
+the decided choices, the test that would decide, the parameters, what was fixed or estimated, the
+posterior and its figures. Numbers are printed to 4 significant digits.
+"""
+from __future__ import annotations
+
+import math
+
+from models.hypotheses import parameter_unit
+
+__all__ = ["discovery_report", "summary_lines"]
+
+#: Parameters the summary lists, in this order, when the winner has them.
+PHYSICAL = ("dead_zone", "backlash", "delay", "friction_offset", "gain", "damping", "stiffness",
+            "feedback_gain", "bandpass_gain")
+
+
+def _num(value, digits=4) -> str:
+    """``value`` to ``digits`` significant digits; ``-`` for a missing or non-finite number."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return f"{value:.{digits}g}"
+
+
+def summary_lines(summary) -> list:
+    """The report's first screen: verdict, open structures, parameters with units, next test."""
+    best = summary["structures"][0]
+    members = [s for s in summary["structures"] if s["indistinguishable_from_best"]]
+    distinct = [s for s in members if s["merged_into"] is None]
+    lines = ["## Summary", ""]
+    if len(distinct) <= 1:
+        lines.append(f"The recordings name one structure: `{best['structure']}`.")
+    else:
+        lines.append(f"The recordings leave {len(distinct)} structures open; best `{best['structure']}`, "
+                     "also " + ", ".join(f"`{s['structure']}`" for s in distinct[1:]) + ".")
+    decided = [f"{CHOICE_LABELS[c]} {_shown(v)}" for c, v in summary["decided"].items() if v is not None]
+    open_ = [CHOICE_LABELS[c] for c, v in summary["decided"].items() if v is None]
+    lines.append("Decided: " + (", ".join(decided) or "no structural choice") + ". Not decided: "
+                 + (", ".join(open_) or "nothing") + ".")
+    lines += ["", "| parameter | value | 90 % interval | unit | from |", "|---|---|---|---|---|"]
+    post = summary.get("posterior") or {}
+    sampled = post.get("parameters", {})
+    position = best["params"].get("dead_zone_position", "error")
+    for name in PHYSICAL:
+        if name not in best["params"]:
+            continue
+        unit = parameter_unit(name, position)
+        if name in sampled:
+            q = sampled[name]
+            lines.append(f"| {name} | {_num(q['q50'])} | [{_num(q['q05'])}, {_num(q['q95'])}] | "
+                         f"{unit} | MCMC of the best structure |")
+        else:
+            lines.append(f"| {name} | {_num(best['params'][name])} | not sampled | {unit} | "
+                         "fit of the best structure |")
+    nt = summary.get("next_test")
+    lines.append("")
+    if not nt:
+        lines.append("Next test: none needed (one structure left)." if len(distinct) <= 1
+                     else "Next test: not computed.")
+    elif nt.get("best") is None:
+        lines.append("Next test: no candidate ran (no cycle at the candidate settings).")
+    elif nt["best"]["pairs_decided"] == 0:
+        lines.append("Next test: no candidate of the menu decides any pair (see below).")
+    else:
+        lines.append(f"Next test: **{nt['best']['name']}**, deciding {nt['best']['pairs_decided']} "
+                     f"of {nt['n_pairs']} pairs.")
+    return lines + [""]
+
+
+CHOICE_LABELS = {"dead_zone_position": "dead zone on", "delay_position": "delay position",
+                 "friction": "friction offset", "backlash": "backlash", "bandpass": "band-pass loop"}
+
+
+def _shown(value):
+    return value if isinstance(value, str) else ("on" if value else "off")
+
+
+def _next_test_lines(nt):
+    """The report's section on the test that would tell the set's structures apart."""
+    if not nt:
+        return []
+    lines = ["", "## A test that would decide", "",
+             f"The {len(nt['members'])} structures the recordings cannot tell apart, "
+             f"{', '.join(f'`{m}`' for m in nt['members'])}, simulated through candidate tests "
+             f"as the discovery would see them (sensor noise {nt['noise_sd']:.2g} rad). A pair is "
+             f"decided when the cost one would add on the new recording if the other were the "
+             f"truth is at least {nt['decides']:g} (the margin's floor is 0.1 a recording). The "
+             "whole menu is compared at the fitted parameters; the best candidates again with "
+             "every member refitted to all the recordings and the other's record of the test "
+             "(what a rerun would do: a refit absorbs most of a difference at fixed parameters).",
+             ""]
+    best = nt.get("best")
+    if best is None:
+        return lines + ["No candidate test ran (the best structure shows no cycle at the candidate "
+                        "controller settings).", ""]
+    if best["pairs_decided"] == 0:
+        lines += [f"**No candidate decides any pair**: refitted, these structures reproduce each "
+                  f"other's responses to the best tests of the menu (closest to deciding: "
+                  f"{best['name']}, {best['closest_separation']:.3g} for "
+                  f"`{best['closest_pair'][0]}` against `{best['closest_pair'][1]}`). At this "
+                  "noise they are one model for such tests; a lower-noise or faster test, or a "
+                  "known part (`--fix`), is what could separate them.", ""]
+    else:
+        lines += [f"Best: **{best['name']}**, deciding {best['pairs_decided']} of {nt['n_pairs']} "
+                  "pairs" + ("." if not best["undecided"] else "; still open: " + "; ".join(
+                      f"`{a}` / `{b}`" for a, b in best["undecided"]) + "."), ""]
+    lines += ["| test | pairs decided | at fixed parameters | closest pair's cost difference |",
+              "|---|---|---|---|"]
+    for t in nt["tests"]:
+        if "skipped" in t:
+            continue
+        refit = f"{t['pairs_decided']} of {nt['n_pairs']}" if t.get("refitted") else "(not refitted)"
+        lines.append(f"| {t['name']} | {refit} | {t['pairs_decided_fixed']} of {nt['n_pairs']} | "
+                     f"{_num(t['closest_separation'])} |")
+    return lines + ["", "![next test](next_test.png)", ""]
+
+
+def discovery_report(summary) -> str:
+    """``report.md``: a one-screen summary, then the ranking table, what the recordings decide,
+    the next test, the best structure's parameters, what was fixed or estimated, the posterior
+    and the figures."""
+    lines = ["# tvcid discover", ""] + summary_lines(summary)
+    lines += ["## Recordings", "", ", ".join(summary["recordings"]), ""]
+    lines += ["## Ranking", "",
+              f"Criterion: {summary['structures'][0]['criterion']}. Indistinguishable: score within "
+              "twice the standard error of the difference from the best (from the disagreement of "
+              "the two folds; at least 0.1 per recording); a structure that only adds a component "
+              "to one of those without beating it by that margin is merged into it.", "",
+              "| rank | structure | score | in-sample cost | indistinguishable | merged into |",
+              "|---|---|---|---|---|---|"]
+    for i, s in enumerate(summary["structures"], 1):
+        lines.append(f"| {i} | `{s['structure']}` | {_num(s['score'])} | {_num(s['cost'])} | "
+                     f"{'yes' if s['indistinguishable_from_best'] else ''} | {s['merged_into'] or ''} |")
+    lines += ["", "## What the recordings decide", "",
+              "Each structural choice, over the structures the recordings cannot tell apart "
+              "(the indistinguishable ones, merged ones included):", ""]
+    members = [s for s in summary["structures"] if s["indistinguishable_from_best"]]
+    for choice, value in summary["decided"].items():
+        label = CHOICE_LABELS[choice]
+        if value is None:
+            seen = sorted({_shown(m["components"][choice]) for m in members})
+            lines.append(f"- {label}: **not decided** ({' or '.join(seen)})")
+        else:
+            lines.append(f"- {label}: decided, {_shown(value)}")
+    if all(v is None for v in summary["decided"].values()):
+        lines += ["", "The recordings decide no structural choice."]
+    lines += _next_test_lines(summary.get("next_test"))
+    best = summary["structures"][0]
+    lines += ["", "## Best structure's parameters", "", "| parameter | value | local spread (coordinate) |",
+              "|---|---|---|"]
+    for k, v in best["params"].items():
+        lines.append(f"| {k} | {_num(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v} | |")
+    for k, v in best["coordinate_sd"].items():
+        lines.append(f"| ({k}) | | {_num(v)} |")
+    lines += ["", "## Fixed and estimated", "",
+              "Fixed: " + (", ".join(f"{k} = {v}" for k, v in summary["fixed"].items()) or "nothing"), ""]
+    for name, off in summary["sensor_offset"].items():
+        lines.append(f"- {name}: sensor offset {off:.3g} rad, noise sd {summary['sensor_noise'][name]:.3g} rad")
+    lines += ["", f"Estimated: {summary['estimated']['sensor_offset']}; noise: "
+              f"{summary['estimated']['sensor_noise']}.", ""]
+    if summary.get("pruned"):
+        lines += ["Pruned structures: " + "; ".join(f"`{k}`: {v}" for k, v in summary["pruned"].items()), ""]
+    post = summary.get("posterior")
+    if post:
+        lines += ["## MCMC calibration of the best structure", "",
+                  f"Converged: {post['converged']} ({post['iterations']} steps, acceptance "
+                  f"{post['acceptance']:.2f}). Sampled: the winner's thresholds, friction offset and "
+                  "delay; its linear block and band-pass loop stay at their fit, the sensor noise "
+                  "sd at the records' noise estimate (second differences, rms over the records).", "",
+                  "| parameter | median | 90 % interval |", "|---|---|---|"]
+        for n, q in post["parameters"].items():
+            lines.append(f"| {n} | {_num(q['q50'])} | [{_num(q['q05'])}, {_num(q['q95'])}] |")
+        lines += ["", "![corner](corner.png)", "", "![posterior predictive](predictive.png)", "",
+                  "![traces](traces.png)", ""]
+    lines += ["## Time", "", f"Search sizes: {summary.get('search', 'standard')}.", "",
+              ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()
+                        if isinstance(v, (int, float))), ""]
+    return "\n".join(lines)
+
