@@ -2,8 +2,8 @@
 
 One place defines what a user can get wrong and what tvcid must answer: ``tests/test_bad_input_cli.py``
 runs every entry through the real command line, and ``python tests/bad_inputs.py --readme`` renders
-the README's table "Bad input -> what tvcid says" from the answers the commands actually give (the
-test fails when the README's table and the rendered one differ).
+docs/cli.md's table "Bad input, and what tvcid says" from the answers the commands actually give (the
+test fails when that table and the rendered one differ).
 
 Two kinds of entries:
 
@@ -78,7 +78,7 @@ class RecordingCase:
     ----------
     key : str
     title : str
-        The bad input, as the README's table names it.
+        The bad input, as docs/cli.md's table names it.
     make : callable
         ``make(good, directory) -> Path`` writes the broken record and returns its CSV path.
     expect : str
@@ -433,7 +433,7 @@ def render_table(rows) -> str:
     return "\n".join(lines)
 
 
-#: The command whose answer the README shows for each recording case.
+#: The command whose answer docs/cli.md shows for each recording case.
 TABLE_COMMAND = {"constant": "features", "one_period": "features", "too_short": "features"}
 
 
@@ -485,7 +485,7 @@ def main(argv=None) -> int:
                 print(f"{'OK ' if ok else 'BAD'} {case.key:20s} {status} {err.strip()[:300]}")
             return 0
         table = render_table(table_rows(tmp))
-    readme = Path(__file__).resolve().parents[1] / "README.md"
+    readme = Path(__file__).resolve().parents[1] / "docs" / "cli.md"
     if args.readme:
         text = readme.read_text()
         span = readme_table_span(text)

@@ -1,6 +1,6 @@
 """Every ``tvcid`` command, fed the catalogue of bad inputs (``tests/bad_inputs.py``), ends with
 exit status 2 and one line on stderr naming the file, column/row, option or parameter at fault;
-no traceback; a failing run leaves what an earlier run wrote untouched; the README's table is
+no traceback; a failing run leaves what an earlier run wrote untouched; docs/cli.md's table is
 the catalogue's answers, rendered."""
 import hashlib
 import re
@@ -13,7 +13,7 @@ from pathlib import Path
 import bad_inputs as cat
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+CLI_DOC = Path(__file__).resolve().parents[1] / "docs" / "cli.md"
 
 
 @pytest.fixture(scope="module")
@@ -143,12 +143,12 @@ def test_sigterm_during_discovery_ranking_exits_cleanly(good, tmp_path):
     assert not (out / "discovery.json").exists()
 
 
-def test_readme_table_is_the_catalogues_answers(tmp_path):
-    """README.md's "Bad input" table equals the one rendered from the commands' answers now
+def test_cli_doc_table_is_the_catalogues_answers(tmp_path):
+    """docs/cli.md's "Bad input" table equals the one rendered from the commands' answers now
     (regenerate with ``python tests/bad_inputs.py --readme``)."""
-    text = README.read_text()
+    text = CLI_DOC.read_text()
     span = cat.readme_table_span(text)
-    assert span is not None, "README.md lacks the bad-input table markers"
+    assert span is not None, "docs/cli.md lacks the bad-input table markers"
     assert text[span[0]:span[1]] == cat.render_table(cat.table_rows(tmp_path))
 
 

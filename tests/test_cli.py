@@ -128,3 +128,15 @@ def test_help_of_every_command_prints_and_exits_0(capsys):
         assert exit_.value.code == 0, path
         out = capsys.readouterr().out
         assert out.startswith("usage: tvcid" + "".join(f" {p}" for p in path)), (path, out[:80])
+
+
+def test_docs_cli_md_is_the_rendering_of_the_parsers():
+    """docs/cli.md's command reference is every command's ``--help`` as the parsers print it now
+    (``python -m tvcid.cli_docs`` rewrites it; ``--check`` is this test)."""
+    from tvcid import cli_docs
+
+    text = cli_docs.DOC.read_text()
+    begin, end = cli_docs._span(text)
+    assert text[begin:end] == cli_docs.render()
+    paths = [" ".join(("tvcid",) + p) for p, _ in cli_docs.command_paths(cli_docs.build_parser())]
+    assert all(f"### `{p}`" in text for p in paths) and len(paths) > 10

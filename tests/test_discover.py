@@ -51,7 +51,8 @@ def test_unknown_search_size_names_the_choices():
     are ordered (``thorough`` searches more than ``standard`` at every stage)."""
     from dataclasses import astuple
 
-    from discovery.structure.discover import SEARCHES, StructureDiscovery
+    from discovery.structure.estimator import StructureDiscovery
+    from discovery.structure.structure_search import SEARCHES
 
     with pytest.raises(ValueError, match="unknown search size 'huge'.*standard, thorough"):
         StructureDiscovery(search="huge").fit([DATA])
@@ -201,6 +202,39 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
     assert "## What the recordings decide" in report and "- band-pass loop: decided, on" in report
 
 
+def test_discovery_result_reads_saves_reports_and_plots(straight_discover, tmp_path):
+    """``tvcid.DiscoveryResult`` of a finished run: loads its ``discovery.json``, which is strict
+    JSON (no NaN/Infinity tokens); saves the same summary elsewhere; its report starts with the
+    one-screen summary (the structure, every physical parameter of the winner with its unit and
+    90 % interval, the next test) with 4 significant digits; plots the ranking."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import tvcid
+
+    text = (straight_discover / "discovery.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    result = tvcid.DiscoveryResult.load(straight_discover)
+    assert result.best["structure"] == result.summary["structures"][0]["structure"]
+    assert json.loads(json.dumps(result.to_dict(), allow_nan=False)) == json.loads(text)
+    copy = tvcid.DiscoveryResult.load(result.save(tmp_path / "copy"))
+    assert copy.to_dict() == result.to_dict()
+    report = (tmp_path / "copy" / "report.md").read_text()
+    assert report == (straight_discover / "report.md").read_text()
+    head = report.split("## Recordings")[0]
+    assert head.startswith("# tvcid discover\n\n## Summary\n")
+    assert f"The recordings name one structure: `{result.best['structure']}`." in head
+    q = result.posterior["parameters"]["dead_zone"]
+    assert f"| dead_zone | {q['q50']:.4g} | [{q['q05']:.4g}, {q['q95']:.4g}] | rad/s |" in head
+    assert "| delay | " in head and "| s | MCMC of the best structure |" in head
+    assert "| gain | " in head and "| 1/s^3 | fit of the best structure |" in head
+    assert "Next test: none needed (one structure left)." in head
+    ax = result.plot()
+    assert len(ax.patches) == len(result.summary["structures"])
+    with pytest.raises(ValueError, match="not a discovery.json"):
+        tvcid.DiscoveryResult.load(tmp_path / "missing.json")
+
+
 @pytest.mark.parametrize("sig", ["SIGKILL", "SIGINT"])
 def test_killed_discover_resumes_ranking_and_chain(tmp_path, straight_discover, sig):
     """``tvcid discover`` killed by SIGKILL, or stopped by Ctrl-C (SIGINT: status 130, one line),
@@ -263,7 +297,7 @@ def test_delay_moved_into_the_block_keeps_the_cycle():
     at controllers A and B agree within 0.3 % in amplitude and 0.05 % in frequency (measured
     0.12 % and 0.011 %; moving the delay alone changes the amplitude 3.6 % at A); this is why the
     ranking may leave the two positions undecided."""
-    from discovery.structure.discover import delay_moved
+    from discovery.structure.structure_search import delay_moved
     from models import ClosedLoop, hypothesis, simulate
     from models.hypotheses import DelayPosition
 
@@ -288,7 +322,7 @@ def test_delay_moved_matches_the_frequency_response_of_drawn_blocks():
     is within 1 % in gain and 0.01 rad in phase (measured <= 0.75 %), where the first-order match
     alone misses by over 5 % in some (it did on benchmark draw 1019: 29 %, and its refit stopped
     at cost 133 against the truth's 0.72)."""
-    from discovery.structure.discover import (
+    from discovery.structure.structure_search import (
         MATCHED_BAND,
         _first_order_moved,
         delay_moved,
@@ -326,7 +360,7 @@ def test_transferred_start_is_valid_for_every_structure_and_keeps_the_threshold(
     valid parameter object of the target structure for every pair of the space; the threshold
     keeps its size in rad of error across dead-zone positions (z_error = (z - off) / g0) and a
     round trip velocity -> error -> velocity keeps the moving threshold z - off."""
-    from discovery.structure.discover import transferred
+    from discovery.structure.structure_search import transferred
     from models import hypothesis
     from models.hypotheses import DeadZonePosition
     from models.structures import Structure, structure_space
@@ -392,15 +426,19 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
     import math
 
     from discovery.structure.coordinates import SearchSpace
-    from discovery.structure.discover import SEARCHES, TEMPLATE, _fixed_for
     from discovery.structure.search import Objective, local_sd
+    from discovery.structure.structure_search import (
+        SEARCHES,
+        TEMPLATE,
+        StructureSearch,
+        _fixed_for,
+    )
     from discovery.structure.targets import make_target
     from models.hypotheses import ActuatorParams
 
     scenario = shortened(draw_scenario(1002), closed=12.0, open_=6.0)
     paths = write_recordings(scenario, tmp_path)
     disc = StructureDiscovery(seed=0, use_sindy=False)
-    disc.sizes_ = SEARCHES["standard"]
     targets = [make_target(load, disc.dt) for load in _loaded(paths)]
     open_targets = [t for t in targets if t.kind == "open"]
     objective = Objective(targets)
@@ -412,7 +450,8 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
     pinned = [j for j, n in enumerate(space.names) if n.startswith("log_") and sd[j] < 0.02]
     assert {"log_g0", "log_K"} <= {space.names[j] for j in pinned}
     for seed in range(3):
-        fit = disc._fit_open_loop(space, objective, np.random.default_rng(seed), open_targets, [])
+        search = StructureSearch(objective, SEARCHES["standard"], np.random.default_rng(seed))
+        fit = search.fit_open_loop(space, open_targets, [])
         assert fit.cost <= at_truth + 0.3 * len(open_targets)
         for j in pinned:
             assert abs(math.expm1(fit.theta[j] - truth[j])) < 0.05, space.names[j]
@@ -432,7 +471,7 @@ def test_a_seed_with_an_unphysical_linear_block_starts_at_the_box_edge(bad):
     paper 002's two limit cycles). Its coordinates are finite, inside the box, and those that do
     not involve the bad value are the valid seed's."""
     from discovery.structure.coordinates import SearchSpace
-    from discovery.structure.discover import TEMPLATE, _fixed_for
+    from discovery.structure.structure_search import TEMPLATE, _fixed_for
     from models import hypothesis
     from models.hypotheses import ActuatorParams
     from models.structures import structure_space
@@ -452,12 +491,13 @@ def test_a_seed_with_an_unphysical_linear_block_starts_at_the_box_edge(bad):
 
 
 def test_a_superset_of_a_member_joins_the_set_merged_whatever_its_own_fit_scored():
-    """The set rule (:func:`discovery.structure.discover.indistinguishable_set`): the best and a
+    """The set rule (:func:`discovery.structure.indistinguishable.indistinguishable_set`): the best and a
     structure within the floor's margin are members; the best's backlash superset, whose fit
     scored far worse (a search failure: at zero backlash it is the best), is merged into it and
     so is an unranked friction superset; a structure with another delay position that scored
     worse than the margin stays out, and the winner is the best unmerged structure."""
-    from discovery.structure.discover import StructureFit, indistinguishable_set
+    from discovery.structure.indistinguishable import indistinguishable_set
+    from discovery.structure.ranking import StructureFit
 
     def fit(name, score):
         folds = np.full((2, 2), score / 2.0)
@@ -483,13 +523,13 @@ def test_a_superset_of_a_member_joins_the_set_merged_whatever_its_own_fit_scored
 
 
 def test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature():
-    """The margin's floors add like independent errors (:func:`.discover.indistinguishable_margin`):
+    """The margin's floors add like independent errors (:func:`.indistinguishable.indistinguishable_margin`):
     a structure worse by 0.07 on every one of five recordings, the two folds agreeing (benchmark
     draw 1017's dead zone on the error: +0.02 to +0.14 on each, 0.35 in all), is outside the
     margin of ``2 sqrt(5) TOL_ABS / 2`` = 0.224 (a linear sum of the floors, 0.5, kept it inside);
     the same 0.07 on one recording alone is inside; one recording's margin is the larger of its
     folds' disagreement and its floor."""
-    from discovery.structure.discover import TOL_ABS, indistinguishable_margin
+    from discovery.structure.indistinguishable import TOL_ABS, indistinguishable_margin
 
     best = np.zeros((2, 5))
     everywhere = np.full((2, 5), 0.07)
@@ -515,12 +555,12 @@ def test_wandering_cycles_raise_the_margin_floor(tmp_path):
     the default floor (its window cost 0.08, from the pieces' ends at sampled crossings)."""
     from pathlib import Path
 
-    from discovery.structure.discover import (
+    from discovery.structure.indistinguishable import (
         TOL_ABS,
-        StructureFit,
         indistinguishable_set,
         margin_floors,
     )
+    from discovery.structure.ranking import StructureFit
     from discovery.structure.targets import make_target
     from models import ClosedLoop, simulate
     from models.recording import load_recording, recording_from_trajectory
@@ -619,7 +659,7 @@ class _ScriptedSearch:
 ])
 def test_restarted_searches_stop_when_the_best_two_agree(costs, n_recordings, least, most, calls,
                                                           best):
-    from discovery.structure.discover import best_of_restarts
+    from discovery.structure.structure_search import best_of_restarts
 
     search = _ScriptedSearch(costs)
     fit = best_of_restarts(search, n_recordings, least, most)
@@ -628,7 +668,7 @@ def test_restarted_searches_stop_when_the_best_two_agree(costs, n_recordings, le
 
 
 def test_restarts_out_of_order_are_an_error():
-    from discovery.structure.discover import best_of_restarts
+    from discovery.structure.structure_search import best_of_restarts
 
     with pytest.raises(ValueError, match="min"):
         best_of_restarts(_ScriptedSearch([1.0]), 1, 3, 2)

@@ -1,0 +1,59 @@
+"""tvcid: discover and calibrate the nonlinear model of a thrust-vector-control electro-hydraulic
+actuator from the limit cycle it shows in closed loop.
+
+The public API, for scripts and notebooks (the ``tvcid`` command line runs the same functions)::
+
+    import tvcid
+
+    result = tvcid.discover(["cycle_A.csv", "square.csv"], "out")   # -> DiscoveryResult
+    print(result.best["structure"], result.indistinguishable)
+    truth = tvcid.hypothesis("M000")
+    trajectory = tvcid.simulate(truth, tvcid.CONTROLLER_A, 20.0)
+
+Names are imported on first use, so that ``import tvcid`` (and ``tvcid --help``) stays fast.
+"""
+from __future__ import annotations
+
+import importlib
+
+#: Public name -> the module that defines it.
+_EXPORTS = {
+    # the end-to-end pipeline and its result
+    "discover": "tvcid.pipeline",
+    "DiscoveryResult": "tvcid.pipeline",
+    # models: hypotheses, experiments, simulation, recordings
+    "hypothesis": "models.hypotheses",
+    "HYPOTHESES": "models.hypotheses",
+    "ActuatorParams": "models.hypotheses",
+    "Structure": "models.structures",
+    "ClosedLoop": "models.experiments",
+    "OpenLoop": "models.experiments",
+    "CONTROLLER_A": "models.experiments",
+    "CONTROLLER_B": "models.experiments",
+    "simulate": "models.simulate",
+    "limit_cycle_features": "models.features",
+    "load_recording": "models.recording",
+    "load_recordings": "models.recording",
+    "save_recording": "models.recording",
+    "synthetic_recording": "models.synthetic",
+    "Acquisition": "models.synthetic",
+    # discovery: the estimators
+    "StructureDiscovery": "discovery.structure",
+    "Calibration": "discovery.calibration",
+    "predict_limit_cycles": "discovery.describing",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'tvcid' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(list(globals()) + __all__)
