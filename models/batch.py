@@ -6,23 +6,23 @@ experiment, the command and the time grid once and calls :func:`models.kernel.si
 directly. Each row still goes through :meth:`models.ActuatorParams.replace` and the models' own
 packing, so every check and convention of :mod:`models` applies (nothing is re-implemented here).
 
-Warm start (MODELS.md, "Calibration facts"): the dead zone, the play operator and the linear parts
-are positively homogeneous, so a cycle state taken from one reference run and scaled lands a
-walker's run near its own cycle and a short transient (6 s at controller A) suffices. The scale
-brings the reference cycle to the recorded cycle's size (rms), which is the size of every walker
-that fits; scaling by ``dead_zone / dead_zone_ref`` instead (the fallback) ignores the other
-parameters that set the size: a drawn truth's cycle started 73 % too large from a start 30 % off in
-the delay, settled with a ~5 s time constant, and 20 s later its features still missed the data
-by 1.6 %, which moved the posterior along the dead zone / friction ridge past the truth. In-loop
-output noise is never simulated here: the sensor noise of a calibration is a likelihood parameter
-(``sigma``), not a forcing.
+Warm start: the dead zone, the play operator and the linear parts are positively homogeneous, so a
+cycle state taken from one reference run and scaled lands a walker's run near its own cycle and a
+short transient (6 s at controller A) suffices. The scale brings the reference cycle to the recorded
+cycle's size (rms), which is the size of every walker that fits; scaling by
+``dead_zone / dead_zone_ref`` instead (the fallback) ignores the other parameters that set the size:
+from a start 30 % off in the delay a drawn truth's cycle starts 73 % too large and settles with a
+~5 s time constant, so that 20 s later its features still miss the data by 1.6 %, which moves the
+posterior along the dead zone / friction ridge past the truth. In-loop output noise is never
+simulated here: the sensor noise of a calibration is a likelihood parameter (``sigma``), not a
+forcing.
 
-Continuation (issue 12, item 4): :class:`Continuation` keeps the cycle state each run ended on,
-keyed by its parameters; a later run whose parameters are within a small relative distance of a
-stored run's starts from that run's state instead of the shared reference cycle, so a sampler's
-proposal starts near its own cycle. Measured, it cuts the worst transient errors but not the
-typical one (a nearby cycle is approached slowly), so it is off by default
-(:class:`discovery.calibration.Calibration`'s ``continuation``).
+Continuation: :class:`Continuation` keeps the cycle state each run ended on, keyed by its
+parameters; a later run whose parameters are within a small relative distance of a stored run's
+starts from that run's state instead of the shared reference cycle, so a sampler's proposal starts
+near its own cycle. It cuts the worst transient errors but not the typical one (a nearby cycle is
+approached slowly), so it is off by default (:class:`discovery.calibration.Calibration`'s
+``continuation``).
 """
 from __future__ import annotations
 

@@ -2,8 +2,8 @@
 
 A bench test's command is a square wave, a step or a smooth signal (a sine). Replayed by linear
 interpolation, a sampled square wave ramps over one sample before each edge: at 1 kHz that moves
-the edge by about half a sample, at 200 Hz by 2.5 ms, the size of the delay being identified
-(MODELS.md, "Identifiability facts"). So:
+the edge by about half a sample, at 200 Hz by 2.5 ms, the size of the delay being identified.
+So:
 
 * a **piecewise-constant** command (few samples where it changes) is replayed as levels and edges
   (:meth:`OpenLoop.piecewise`). Each observed edge lies in ``(t[k-1], t[k]]``, where ``k`` is the
@@ -15,8 +15,8 @@ the edge by about half a sample, at 200 Hz by 2.5 ms, the size of the delay bein
   usual generator started on a sample. Irregular edges are held at their samples.
 * anything else is a smooth command, read between samples by a cubic spline (not-a-knot). Linear
   interpolation lowers a sine by its chords: ``(2 pi f h)^2 / 12`` of the amplitude on average,
-  5.5e-4 for a 2.6 Hz sine sampled at 200 Hz, which at 23 mrad added a chi-square of 90 to a
-  noise of 4e-5 rad at the truth and put coverage draw 17's delay outside its 90 % interval; the
+  5.5e-4 for a 2.6 Hz sine sampled at 200 Hz, which at 23 mrad adds a chi-square of 90 to a
+  noise of 4e-5 rad at the truth and puts coverage draw 17's delay outside its 90 % interval; the
   spline's error is of order ``(2 pi f h)^4`` (chi-square 1e-6 there).
 """
 from __future__ import annotations

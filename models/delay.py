@@ -1,6 +1,6 @@
 """Pure transport delay with the project's convention: output 0 before ``t = Td``, linear
-interpolation between samples (MODELS.md "Conventions"); the step-by-step line ramps a jump at
-``t = 0`` in over the step before ``Td`` so that its output is continuous in the delay.
+interpolation between samples (``docs/models.md#conventions``); the step-by-step line ramps a jump
+at ``t = 0`` in over the step before ``Td`` so that its output is continuous in the delay.
 
 Papers 002 (7 ms at the output), 001 (5.6 ms at the output, then 1.7 ms before the integrator) and
 000 (before the first integrator, section 4.2) all use it; the numba kernel inlines the same rule.
@@ -38,14 +38,14 @@ class DelayLine:
     ``read(t)`` returns the written signal at ``t - delay``, linearly interpolated between the
     written samples and a 0 one step before the first (the line is empty before ``t = 0``), so
     that the output is continuous in the delay (a jump at ``t = 0`` reaches the output over the
-    step before ``t = delay``; read at the first stage after ``t = delay``, as before, it moved in
-    jumps of half a step, and with it the likelihood of an open-loop test). Reading needs the samples up to
+    step before ``t = delay``; read at the first stage after ``t = delay`` it would move in jumps of
+    half a step, and with it the likelihood of an open-loop test). Reading needs the samples up to
     ``t - delay``, so a step-by-step integrator requires ``delay >= dt``.
 
     A signal that jumps at a grid point (a controller held at 200 Hz, seen before the first
     integrator) is written with its value just before the jump (``left``): the line then
     interpolates towards that value and jumps at the point's delayed time, instead of spreading
-    the jump over the step before it (half a step early in effect: M000 held at 200 Hz read a
+    the jump over the step before it (half a step early in effect: M000 held at 200 Hz would read a
     cycle 2 % small at 5e-4 s). ``read(t, share)`` also averages the jump over ``[t - share,
     t + share]``, an RK4 stage's share of the step (``dt/6`` at a node, ``dt/3`` at the midpoint),
     so that the integral of the delayed jump is exact wherever it falls in the step (as

@@ -1,15 +1,14 @@
 """The edge timing of a command known only as samples, marginalised as a nuisance.
 
-A square wave (or a step) recorded at 200 Hz says only that each edge lies between the last
-sample at the old level and the first at the new one: a window of 5 ms, the size of the delay
-being identified. Over several edges of a regular square the common phase and the half period
-are narrowed (:func:`models.commands._edge_polygon`), but rarely below a fraction of a sample.
-In open loop that timing trades one for one with the delay, so any single replay (the samples,
-the hold, the centre) biases the delay, and a Gaussian approximation of the response's spread
-over the timings (the previous remedy) still pulled a drawn truth's delay by 10-17 us, 2.4 nats
-(coverage draw 1). Here the timing is what it is, a nuisance ``theta = (phase, half period)``
-uniform over every value the samples allow, and the likelihood is its integral over them.
-
+A square wave (or a step) recorded at 200 Hz says only that each edge lies between the last sample
+at the old level and the first at the new one: a window of 5 ms, the size of the delay being
+identified. Over several edges of a regular square the common phase and the half period are narrowed
+(:func:`models.commands._edge_polygon`), but rarely below a fraction of a sample. In open loop that
+timing trades one for one with the delay, so any single replay (the samples, the hold, the centre)
+biases the delay, and a Gaussian approximation of the response's spread over the timings still pulls
+a drawn truth's delay by 10-17 us, 2.4 nats (coverage draw 1). Here the timing is what it is, a
+nuisance ``theta = (phase, half period)`` uniform over every value the samples allow, and the
+likelihood is its integral over them.
 How (one simulation per parameter set, no more):
 
 * the command is simulated once with its edges rounded to the solver's step grid (an edge

@@ -286,8 +286,7 @@ class OpenLoop:
         stages, an edge between them would move to the next stage (up to half a step late: 0.25 ms
         at 5e-4 s, several noise units of a square-wave response); averaged, the input's
         integral is exact and the edge's effect lands within a small fraction of a step of its
-        time. The average is the command's integral over the share, exact (it was a mean of 32
-        points per stage, 18 s of the ``discover`` calibration's set-up in fine-step checks).
+        time. The average is the command's integral over the share, exact.
         Both the kernel (:mod:`models.simulate`) and the reference path use this.
         """
         t = np.asarray(t, dtype=float)

@@ -1,10 +1,10 @@
 """Limit-cycle features of a sampled output: what the papers measured, and a little more.
 
-Amplitude is ``(max - min)/2`` and frequency comes from mean crossings, as MODELS.md measures its
-reference numbers (a Schmitt trigger whose hysteresis also clears the sensor noise). Harmonics are
-Fourier coefficients over the whole periods between the first and last upward mean crossing; those
-of ``delta'`` are ``k*w0`` times those of ``delta`` (no numerical differentiation; paper 001
-section 3 analyses the derivative's spectrum).
+Amplitude is ``(max - min)/2`` and frequency comes from mean crossings, as
+``docs/models.md#conventions`` defines them for its reference cycles (a Schmitt trigger whose
+hysteresis also clears the sensor noise). Harmonics are Fourier coefficients over the whole periods
+between the first and last upward mean crossing; those of ``delta'`` are ``k*w0`` times those of
+``delta`` (no numerical differentiation; paper 001 section 3 analyses the derivative's spectrum).
 """
 from __future__ import annotations
 
@@ -142,7 +142,7 @@ def limit_cycle_features(t, delta, n_harmonics=11) -> LimitCycleFeatures:
     delta : array_like
         Output (rad).
     n_harmonics : int
-        Number of harmonics reported (default 11, as issue 2 asks).
+        Number of harmonics reported (default 11).
 
     Raises
     ------

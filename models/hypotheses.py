@@ -1,6 +1,6 @@
 """The actuator hypotheses of the three papers as frozen parameter dataclasses.
 
-All four share one structure (MODELS.md, "The four hypotheses")::
+All four share one structure (``docs/models.md#the-actuator``)::
 
     e  = u - K * play_r(x)                         actuator error, backlash in the feedback
     y'' + K2 y' + K3 y = K1 * g(e)                 second-order block K1/(s^2 + K2 s + K3)
@@ -288,8 +288,8 @@ class M002(ActuatorParams):
 
     ``v'' + 370 v' + 34100 v = 37*34100 * DZ_zm(e)``, ``x' = v``, ``delta(t) = x(t - 7 ms)``.
     Dead zone ``zm = 1.2e-3`` rad and backlash printed as ``f = 4.364e-4`` rad (section 6), read as
-    the full width, so the play half width is ``r = 2.182e-4`` rad (MODELS.md: this reading gives
-    5.0e-3 rad at 8.6 rad/s as the paper's simulation).
+    the full width, so the play half width is ``r = 2.182e-4`` rad (``docs/models.md#errata``: this
+    reading gives 5.0e-3 rad at 8.6 rad/s as the paper's simulation).
     """
 
     name: ClassVar[str] = "M002"
@@ -311,7 +311,7 @@ class M001i(ActuatorParams):
 
     ``y'' + 202.1 y' + 14520 y = 305500 e``, ``x' = DZ_0.0092(y)``, ``K = 326800/305500 = 1.0697``,
     ``r = 1.1625e-4`` rad, ``delta(t) = x(t - 5.6 ms)``. The dead zone acts on the velocity-level
-    signal (MODELS.md: at the transfer-function input 0.0092 gives a 0.15 rad cycle).
+    signal (``docs/models.md#m001i``: at the transfer-function input 0.0092 gives a 0.15 rad cycle).
     """
 
     name: ClassVar[str] = "M001i"

@@ -1,7 +1,7 @@
 """The fixed-step numba kernel: classic RK4 with an exact transport delay and a play operator.
 
 The kernel is a pure function of packed arrays; :mod:`models.simulate` packs the dataclasses and
-unpacks the result. Conventions are those of MODELS.md:
+unpacks the result. Conventions are those of ``docs/models.md#conventions``:
 
 * the transport delay outputs 0 before ``t = Td - dt`` and interpolates its stored input linearly
   between grid points and a 0 one step before ``t = 0`` (continuous in ``Td``; the input is
@@ -87,7 +87,8 @@ def _dead_zone(q, z):
 
 @njit(cache=True)
 def _acceleration(u, b, kfb, dz_vel, z, k1g, k2, k3, y, yd):
-    """``y''`` of the second-order block for command ``u`` and play output ``b`` (MODELS.md)."""
+    """``y''`` of the second-order block for command ``u`` and play output ``b``
+    (``docs/models.md#the-actuator``)."""
     e = u - kfb * b
     g = e if dz_vel else _dead_zone(e, z)
     return k1g * g - k2 * yd - k3 * y

@@ -2,7 +2,8 @@
 frequency response of the second-order block with its delay.
 
 Paper 001 section 4 ("a 4th order Butterworth design, with frequencies between 9 and 10 Hz");
-MODELS.md fixes it as ``scipy.signal.butter(2, [2*pi*9, 2*pi*10], 'bandpass', analog=True)``.
+``docs/models.md#conventions`` fixes it as
+``scipy.signal.butter(2, [2*pi*9, 2*pi*10], 'bandpass', analog=True)``.
 """
 from __future__ import annotations
 
@@ -46,7 +47,8 @@ def bandpass_state_space(low_hz, high_hz, order=2):
 
 
 def second_order_response(gain, damping, stiffness, delay, inside, omega):
-    """Frequency response of the second-order block and its transport delay (MODELS.md).
+    """Frequency response of the second-order block and its transport delay
+    (``docs/models.md#the-actuator``).
 
     ``inside`` (the delay before the first integrator, ``y'' = [K1 e - K2 y' - K3 y](t - Td)``):
     ``K1 / (s^2 e^{s Td} + K2 s + K3)``; otherwise (the delay before the integrator or at the

@@ -23,7 +23,7 @@ __all__ = [
 def dead_zone(q, half_width):
     """Dead zone ``DZ_z(q)``: 0 where ``|q| <= z``, else ``q - z*sign(q)``.
 
-    Paper 002 eq. 3 (its describing function); MODELS.md "Conventions".
+    Paper 002 eq. 3 (its describing function); ``docs/models.md#conventions``.
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 """The grammar of actuator structures: every combination of the model's named structural choices.
 
-The general model (:class:`models.ActuatorParams`, MODELS.md "The four hypotheses") has five
+The general model (:class:`models.ActuatorParams`, ``docs/models.md#the-actuator``) has five
 structural choices:
 
 * where the dead zone acts: on the error ``e`` or on the velocity-level signal (``DeadZonePosition``);

@@ -1,6 +1,6 @@
 """Study ``calibration_ridge``: what one limit cycle does and does not pin down, and model choice.
 
-Hypothesis (issue 5, paper 002): one limit cycle's amplitude and frequency leave the backlash f and
+Hypothesis (paper 002): one limit cycle's amplitude and frequency leave the backlash f and
 the dead zone zm on a ridge (with the delay Td free) along paper 002's describing-function family;
 the waveform, a second controller setting (B) and open-loop tests break it. And on the same data,
 the posterior predictive and WAIC/BIC tell the true hypothesis from a wrong one.
@@ -14,8 +14,8 @@ Model comparison: M002 and M001i, each with (backlash, dead_zone, delay, sigma),
 
 Deciding figures: ``ridge.png`` (samples in (f, zm) over the DF family), ``comparison.png``
 (posterior predictive bands of both hypotheses); ``summary.json`` holds corr(ln f, ln zm), marginal
-90 % widths, correlation matrices, convergence, WAIC and BIC (non-finite numbers as ``null``). Ridge chains are run to a step cap and
-reported as ridges, not tested for convergence (MODELS.md).
+90 % widths, correlation matrices, convergence, WAIC and BIC (non-finite numbers as ``null``).
+Ridge chains are run to a step cap and reported as ridges, not tested for convergence.
 
 Run by ``h1_deadzone_backlash`` (outputs under ``results/h1_deadzone_backlash/mcmc_ridge/``), or
 alone: ``python -m studies.calibration_ridge [--quick] [--seed N] [--out DIR]``.

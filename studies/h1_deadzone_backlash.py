@@ -3,11 +3,11 @@ and the backlash, and what one limit cycle really pins down.
 
 Hypothesis (paper 002): the HWIL cycle at controller A (4.89e-3 rad at 8.57 rad/s) and the
 describing functions of the dead zone (eq. 3) and the backlash (eqs. 4-5) determine (f, zm) through
-eqs. 13-18; the printed pair is f = 4.364e-4, zm = 1.2e-3. tvcid checks the equations as printed and
-corrected (three slips, MODELS.md), the exact harmonic balance, how far the DF prediction is from the
-simulated cycle, what the family members do when simulated, and where an MCMC posterior on one cycle
-lies relative to the family and how controller B and open-loop tests shrink it (the chains are
-run by ``calibration_ridge`` into ``mcmc_ridge/``).
+eqs. 13-18; the printed pair is f = 4.364e-4, zm = 1.2e-3. tvcid checks the equations as printed
+and corrected (three slips, ``docs/models.md#errata``), the exact harmonic balance, how far the DF
+prediction is from the simulated cycle, what the family members do when simulated, and where an
+MCMC posterior on one cycle lies relative to the family and how controller B and open-loop tests
+shrink it (the chains are run by ``calibration_ridge`` into ``mcmc_ridge/``).
 
 Deciding figure: ``family.png``: the corrected and printed families, the printed pair, and the cycle
 each family member produces in simulation; ``df_vs_simulation.png``; ``mcmc_ridge/ridge.png``:
@@ -17,7 +17,6 @@ statement and the ridge's correlations and widths.
 """
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -38,6 +37,7 @@ from models import (
     limit_cycle_features,
     simulate_batch,
 )
+from models.strict_json import write_json
 from tvcid.figures import pyplot
 
 from . import calibration_ridge
@@ -124,7 +124,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
         },
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    write_json(out_dir / "summary.json", summary, default=float)
     plot_family(corrected, printed, simulated, out_dir / "family.png")
     plot_comparison(comparisons, out_dir / "df_vs_simulation.png")
     return summary
@@ -133,7 +133,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
 def plot_family(corrected, printed, simulated, path):
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    corrected.plot(ax=axes[0], label="corrected (MODELS.md slips)")
+    corrected.plot(ax=axes[0], label="corrected (docs/models.md errata)")
     printed.plot(ax=axes[0], label="as printed")
     axes[0].plot(*PRINTED_PAIR, "k*", ms=12, label="printed pair (f, zm)")
     axes[0].plot(PRINTED_PAIR[0] / 2, PRINTED_PAIR[1], "kx", ms=9, label="printed pair, f as full width")

@@ -15,7 +15,6 @@ harmonics, and the reconstructed derivative of the record against the hypotheses
 """
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ from discovery.spectral import (
 )
 from models import CONTROLLER_A, hypothesis, simulate
 from models.recording import load_recording
+from models.strict_json import write_json
 from tvcid.figures import pyplot
 
 from .common import study_main
@@ -95,7 +95,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
         },
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    write_json(out_dir / "summary.json", summary, default=float)
     plot(spectra, recon, tables, config, out_dir / "spectra.png")
     return summary
 

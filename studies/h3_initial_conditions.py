@@ -3,7 +3,8 @@
 Hypothesis (paper 000 section 4.1): the model's second-order block hides two integrators whose
 initial conditions, with that of the output integrator, select between coexisting limit cycles;
 changing the output integrator's initial condition x(0) alone does not reach the second cycle.
-Tested on M000 with the band-pass loop that locks the cycle (F 48, saturation 0.015, MODELS.md).
+Tested on M000 with the band-pass loop that locks the cycle (F 48, saturation 0.015,
+``docs/models.md#m000``).
 
 Deciding figure: ``basins.png``, the attractor reached from each initial condition on three slices
 of (y(0), y'(0), x(0)); the small cycle's basin must exist on slices that move y(0) or y'(0) and be
@@ -11,7 +12,6 @@ absent from the x(0) axis. ``phase_planes.png`` shows the two coexisting cycles.
 """
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from models import CONTROLLER_A, hypothesis, simulate, simulate_batch
+from models.strict_json import write_json
 from tvcid.figures import pyplot
 
 from .common import study_main
@@ -117,7 +118,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
     summary["small_basin_off_x_axis"] = any(s["counts"]["small"] > 0 for s in slices)
     summary["x0_alone_reaches_small"] = summary["x0_alone_classes"]["small"] > 0
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json(out_dir / "summary.json", summary)
     np.savez_compressed(out_dir / "basins.npz", **arrays)
     plot_basins(arrays, out_dir / "basins.png")
     plot_phase_planes(arrays, summary, out_dir / "phase_planes.png")

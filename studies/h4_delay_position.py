@@ -13,7 +13,6 @@ square-wave responses. ``summary.json`` holds the scans and the ranking.
 """
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ from models import (
     simulate_batch,
 )
 from models.recording import load_recording
+from models.strict_json import write_json
 from tvcid.figures import pyplot
 
 from .common import study_main
@@ -122,7 +122,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
                "noise_floor": noise.to_dict(),
                "truth": recs["A"].meta["parameters"]["delay_position"]}
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    write_json(out_dir / "summary.json", summary, default=float)
     np.savez_compressed(out_dir / "traces.npz", **arrays)
     plot(summary, arrays, recs, config, out_dir / "comparison.png")
     return summary

@@ -17,7 +17,6 @@ identified dead zone vs noise). ``summary.json`` holds every number.
 """
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ from discovery.spectral import noise_floor
 from models import CONTROLLER_A, hypothesis, limit_cycle_features, simulate_batch
 from models.noise import noise_std
 from models.recording import load_recording
+from models.strict_json import write_json
 from tvcid.figures import pyplot
 
 from .common import study_main
@@ -131,7 +131,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
         },
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json(out_dir / "summary.json", summary)
     plot(summary, config, out_dir / "noise.png")
     return summary
 

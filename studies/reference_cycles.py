@@ -1,9 +1,9 @@
 """Study ``reference_cycles``: do the four reconstructed hypotheses reproduce the papers' cycles?
 
-Hypothesis: M002, M001i, M001f and M000 (as MODELS.md reconstructs them from papers 002, 001 and
-000) each produce a limit cycle at controller A (Kp 5.84, Kd 0.062, mu 12.3) close to the HWIL
-measurement of paper 002 (4.89e-3 rad at 8.57 rad/s), and at controller B (Kp 9.8, Kd 0.06,
-mu 4.5) the cycles MODELS.md lists.
+Hypothesis: M002, M001i, M001f and M000 (as ``docs/models.md`` reconstructs them from papers 002,
+001 and 000) each produce a limit cycle at controller A (Kp 5.84, Kd 0.062, mu 12.3) close to the
+HWIL measurement of paper 002 (4.89e-3 rad at 8.57 rad/s), and at controller B (Kp 9.8, Kd 0.06, mu
+4.5) the cycles ``docs/models.md#reference-limit-cycles`` lists.
 
 Deciding figure: ``cycles.png``, the last two seconds of each hypothesis' output at controllers A
 and B, with the HWIL amplitude marked; ``summary.json`` holds amplitude, frequency and the
@@ -12,7 +12,6 @@ at 200 Hz (the HWIL rate) changes each cycle.
 """
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -32,13 +31,14 @@ from models import (
     simulate,
 )
 from models.hypotheses import gains_from_abc
+from models.strict_json import write_json
 from tvcid.figures import pyplot
 
 from .common import study_main
 
 NAME = "reference_cycles"
 
-#: MODELS.md "Reference numbers" (reconstruction column): (amplitude rad, frequency rad/s)
+#: ``docs/models.md#reference-limit-cycles`` (the tvcid columns): (amplitude rad, frequency rad/s)
 REFERENCE = {
     ("M002", "A"): (4.991e-3, 8.597),
     ("M001i", "A"): (5.60e-3, 8.535),
@@ -85,7 +85,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
     summary = {"study": NAME, "config": asdict(config), "seed": seed, "hwil_controller_a": HWIL_A,
                "runs": rows, "sampled_200hz": sampled, "paper_numbers": paper_numbers(rows, sampled)}
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json(out_dir / "summary.json", summary)
     np.savez_compressed(out_dir / "cycles.npz", **traces)
     plot(traces, out_dir / "cycles.png")
     return summary

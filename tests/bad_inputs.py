@@ -1,4 +1,4 @@
-"""The catalogue of bad inputs every ``tvcid`` command is fed (issue 14).
+"""The catalogue of bad inputs every ``tvcid`` command is fed.
 
 One place defines what a user can get wrong and what tvcid must answer: ``tests/test_bad_input_cli.py``
 runs every entry through the real command line, and ``python tests/bad_inputs.py --readme`` renders

@@ -38,12 +38,11 @@ def no_reference_path(monkeypatch):
 def test_bundled_quick_draw_is_the_generators_own():
     """The bundled provenance is what the generator draws for the quick config's draw 0 today."""
     from studies.benchmarks.coverage import QUICK, QUICK_WAVEFORM, coverage_scenario
-    from studies.benchmarks.scenarios import DATA_DT
+    from studies.benchmarks.scenarios import provenance
 
     stored = json.loads((BUNDLED / "truth" / "scenario.json").read_text())
     for config in (QUICK, QUICK_WAVEFORM):
-        expected = {**coverage_scenario(0, config).to_dict(), "data_dt": DATA_DT}
-        assert stored == json.loads(json.dumps(expected, default=str))
+        assert stored == provenance(coverage_scenario(0, config))
 
 
 @pytest.mark.slow

@@ -1,7 +1,6 @@
 """Coverage of the 90 % intervals over seeds, and the ridge case (slow: minutes on 2 cores).
 
-MODELS.md: over 46 seeded trials the 90 % intervals covered the truth 89 % of the time; a coverage
-claim needs several seeds, at least 7 of 10 inside the 90 % interval per parameter.
+A coverage claim needs several seeds: at least 7 of 10 inside the 90 % interval per parameter.
 Run with ``pytest -m slow tests/test_calibration_coverage.py``.
 """
 import pytest
@@ -28,14 +27,15 @@ def test_ninety_percent_intervals_cover_the_truth_over_ten_seeds(tmp_path):
 
 @pytest.mark.slow
 def test_ridge_case_with_a_drawn_truth_converges_and_covers_it(tmp_path):
-    """Issue 12's ridge case (paper 001's placement without the band-pass loop, limit cycles at A
-    and B, 40 s at 1 kHz), a truth drawn by the shared generator, calibrated as ``tvcid fit``
-    does by default: converged within the step cap and every truth inside its 90 % interval
-    (seed 0 measured by ``studies.benchmarks.calibration --case ridge`` on 2026-11-24 at the 5e-4 s
-    default step, the friction offset's jump located inside the step: 260 steps, 27 s; widths
-    0.9 % dead zone, 2.8 % backlash, 14 % delay, 1.5 % friction offset; the truth's HPD rank 0.30;
-    discrepancy factors 1.0. Before the jump was located the period locked to the 5e-4 s grid and
-    every posterior sample beat the truth). About 3 minutes on 2 cores, mostly the data."""
+    """The calibration benchmark's ridge case (paper 001's placement without the band-pass loop,
+    limit cycles at A and B, 40 s at 1 kHz), a truth drawn by the shared generator, calibrated as
+    ``tvcid fit`` does by default: converged within the step cap and every truth inside its 90 %
+    interval (seed 0 measured by ``python -m studies.benchmarks.calibration --case ridge`` at the
+    5e-4 s default step: 260 steps, 27 s; widths 0.9 % dead zone, 2.8 % backlash, 14 % delay,
+    1.5 % friction offset; the truth's HPD rank 0.30; discrepancy factors 1.0). The friction
+    offset's jump is located inside the step; at a step boundary it would lock the period to the
+    5e-4 s grid and every posterior sample would beat the truth. About 3 minutes on 2 cores,
+    mostly the data."""
     from studies.benchmarks.calibration import run_ridge_case
 
     row = run_ridge_case(0, tmp_path)

@@ -22,8 +22,8 @@ def _with_offset(rec, offset):
 def test_waveform_profiles_a_sensor_offset_out(tmp_path):
     """M002's cycle at A with white noise 2e-5 rad, and the same record with a 3e-4 rad sensor
     offset (coverage draw 22 had 2.8e-4): at the truth both leave residuals of the noise's size
-    with zero mean, and their log-likelihoods agree within 0.01 nats (before, the offset itself
-    was the residual: rms 3e-4, 225 times the noise variance)."""
+    with zero mean, and their log-likelihoods agree within 0.01 nats (were the offset not profiled
+    out, it would be the residual: rms 3e-4, 225 times the noise variance)."""
     noise = 2e-5
     rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, noise, 7, tmp_path / "m002.csv",
                               keep_last=10.0)

@@ -29,9 +29,9 @@ def test_m000_cycle_wanders_beyond_its_sensor_noise():
 def test_m000_wander_estimate_against_the_spread_of_many_windows(name, controller):
     """The wander is estimated from four 2.5 s pieces of the record's one 10 s window. Measured
     independently: the features of 40 disjoint 10 s windows (20-420 s) of the same M000 at the same
-    controller with another noise seed (7; the bundled records use 1 and 2). When this was written
-    the estimate was 1.1-3.8x the windows' spread at A and 3.9-7.5x at B (per feature; frequency:
-    0.43 % vs 0.12 % at A, 0.36 % vs 0.06 % at B): conservative, so asserted as between 1x and 8x.
+    controller with another noise seed (7; the bundled records use 1 and 2). The estimate is
+    1.1-3.8x the windows' spread at A and 3.9-7.5x at B (per feature; frequency: 0.43 % vs 0.12 %
+    at A, 0.36 % vs 0.06 % at B): conservative, so asserted as between 1x and 8x.
     Every window lies within 2 sd of the record's features under the covariance (largest |z| 1.2),
     which it would not without the wander (the frequency's noise-only sd is < 0.01 %)."""
     from models import hypothesis, simulate
@@ -153,15 +153,14 @@ def test_start_imprint_of_a_slowly_settling_cycle_is_counted(tmp_path):
     assert np.all(sd < 0.1)
 
 
-def test_solver_error_of_the_features_is_gone_at_its_source_and_the_correction_keeps_it_so(tmp_path):
+def test_features_at_the_fit_step_lie_within_a_tenth_sd_of_a_fine_step(tmp_path):
     """Coverage draw 16's truth (dead zone on the velocity signal, friction offset, band-pass loop,
     delay before the first integrator) at its second setting, controller held at 200 Hz and
-    sampled at 200 Hz, noise 1.9e-5 rad. Simulated at 5e-4 s, H1 sat 3.2 sd (of the data's
-    covariance) below a 5e-5 s simulation's, the delay line spreading each held jump over the
-    step before its node, and the Richardson correction brought every feature within 0.35 sd.
-    Since the line delivers the jumps at their own times (b8ce59e) the raw features at 5e-4 s are
-    within 0.1 sd of the fine ones (measured 0.053 at most); corrected, still within 0.6 sd. The
-    remaining variance is the change itself, not twice it."""
+    sampled at 200 Hz, noise 1.9e-5 rad. The delay line delivers each held jump at its own time,
+    so the raw features at 5e-4 s lie within 0.1 sd (of the data's covariance) of a 5e-5 s
+    simulation's (measured 0.053 at most); with the Richardson correction, still within 0.6 sd.
+    A line that spread each held jump over the step before its node would put H1 3.2 sd below.
+    The remaining variance is the change itself, not twice it."""
     from studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(16, Config())
@@ -205,8 +204,9 @@ def test_a_record_still_settling_is_simulated_from_where_it_starts(tmp_path, mon
     several noise sd under the settled cycle while the window's own pieces show no trend. The
     whole record's pieces show the approach, so runs start at its first piece's size: at the
     truth the features then agree with the record (chi-square under 11.1, the 95 % point on 5;
-    measured 5.5), where runs started at the window's size do not (measured 41, H1 6.1 sd off). The same truth
-    recorded after 60 s, settled, is simulated as before."""
+    measured 5.5), where runs started at the window's size do not (measured 41, H1 6.1 sd off).
+    The same truth recorded after 60 s, settled, needs no record start: its runs start at the
+    window's size."""
     truth, rec = _settling_record(tmp_path / "d15.csv", 15)
     term = FeatureTerm(rec, 10.0, 20.0, 5e-4)
     assert term.record_start is not None
@@ -216,7 +216,7 @@ def test_a_record_still_settling_is_simulated_from_where_it_starts(tmp_path, mon
     chi2 = float(np.sum(term.whitened_residuals([truth], np.array([term.sigma_hat]))[0] ** 2))
     assert chi2 < 11.07
     # every parameter set starts its approach at the record's first size, not only the start's
-    # (a shared start put draw 15's dead zone and friction offset outside, rank 0.01): with
+    # (a shared start puts draw 15's dead zone and friction offset outside, rank 0.01): with
     # the dead zone 10 % off, the first piece 1.5 % off the record's rms shared, 0.36 % matched
     other = truth.replace(dead_zone=1.1 * truth.dead_zone)
     shared, _ = super(FeatureTerm, term).simulate([other])

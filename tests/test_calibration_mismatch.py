@@ -119,7 +119,7 @@ BUNDLED = ["data/m000_closed_A.csv", "data/m000_closed_B.csv", "data/m000_open_s
 ])
 def test_bundled_records_wrong_structure_flagged_right_one_passes(hypothesis, params, fixed,
                                                                    passes):
-    """Issue 12's demonstration on the bundled M000 records (both limit cycles, both open-loop
+    """The mismatch check on the bundled M000 records (both limit cycles, both open-loop
     tests): M002's structure has no parameter at a prior bound and fails the check on every
     record; M000's own model (its in-loop noise as data/generate.py made the records) passes on
     every record (150 steps)."""
@@ -157,9 +157,10 @@ def test_a_point_short_of_the_maximum_is_not_read_as_discrepancy(square):
 
 def test_a_sampled_noise_sd_does_not_undo_the_inflation(square):
     """Where the noise sd is sampled (``"sigma"``), the inflation must not be absorbed by it. An
-    inflated variance ``sigma^2 f`` was: its maximum over ``sigma`` moved to ``sqrt(RSS / n f)``,
-    and the physical parameters' curvature there was what it was without the term (coverage draw
-    18, an open-loop factor of 1.36: intervals 4-7 % narrower with the term than without). The
+    inflated variance ``sigma^2 f`` would be: its maximum over ``sigma`` moves to
+    ``sqrt(RSS / n f)``, and the physical parameters' curvature there is what it is without the
+    term (coverage draw 18, an open-loop factor of 1.36: intervals 4-7 % narrower with the term
+    than without). The
     tempered likelihood keeps the noise sd's maximum where it is and divides the physical
     parameters' curvature by ``f``."""
     from models import M002

@@ -13,12 +13,12 @@ benchmark's priors (:func:`studies.benchmarks.coverage.priors_for`: the generato
 together, ``sqrt(sd^2 + q^2/12)``.
 
 Measured over seeds 0-9 by the slow test (|z| = |posterior mean - truth| / posterior sd; relative
-sd = posterior sd over mean): every chain converged (the longest at 2750 steps, draw 5), every
-truth within 2.16 sd (the dead zone of draw 5); the 90 % intervals held the backlash on all ten
-draws, the dead zone on 9 (draw 5 out), the delay on 8 (draws 3 and 9 out, z = -1.9 and -1.7) and
-the noise sd on the four the waveform enters; on those four cycles (0, 1, 3, 4) the backlash's
-relative sd was 0.26-4.0 % and the dead zone's 0.13-0.34 %. Draws 2 and 5-9 attract slowly and
-enter through their limit-cycle features (the calibration's fallback, whose 20 s transient made
+sd = posterior sd over mean): every chain converges (the longest at 2750 steps, draw 5), every
+truth lies within 2.16 sd (the dead zone of draw 5); the 90 % intervals hold the backlash on all
+ten draws, the dead zone on 9 (draw 5 out), the delay on 8 (draws 3 and 9 out, z = -1.9 and -1.7)
+and the noise sd on the four the waveform enters; on those four cycles (0, 1, 3, 4) the backlash's
+relative sd is 0.26-4.0 % and the dead zone's 0.13-0.34 %. Draws 2 and 5-9 attract slowly and
+enter through their limit-cycle features (the calibration's fallback, whose 20 s transient makes
 those chains cost 16 s to 6 CPU-min each); they run in the slow test only.
 
 The ``tvcid fit`` tests use paper 002's model at controller A (the command names a hypothesis)

@@ -135,10 +135,11 @@ def test_df_family_and_robust_amplitude(fits):
     rec, _ = fits
     f, zm, source = df_family(2 * PAPER002_FAMILY_A["amplitude"])
     assert f[0] == pytest.approx(2e-4) and zm[0] == pytest.approx(2 * 1.011e-3)
-    assert "MODELS.md" in source
+    assert "scaled by homogeneity" in source  # the tabulated family of docs/models.md#errata
     # with the cycle's frequency, the controller and the structure: discovery.describing's family
     f, zm, source = df_family(4.89e-3, 8.57, CONTROLLER_A, M002(), backlash=[2e-4, 4.364e-4])
     assert "paper002_family" in source
-    assert zm == pytest.approx([1.111e-3, 1.333e-3], rel=2e-3)  # MODELS.md's corrected family
-    # MODELS.md's reconstruction: M002 at controller A, (max - min)/2 = 4.991e-3 rad
+    # docs/models.md#errata's corrected family
+    assert zm == pytest.approx([1.111e-3, 1.333e-3], rel=2e-3)
+    # docs/models.md#reference-limit-cycles: M002 at controller A, (max - min)/2 = 4.991e-3 rad
     assert robust_amplitude(rec.t, rec.delta) == pytest.approx(4.99e-3, rel=0.01)

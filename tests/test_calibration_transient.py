@@ -1,8 +1,8 @@
 """The transient each waveform record is simulated with, chosen by the accuracy it gives.
 
-Issue 12, item 4: the window is chosen by the accuracy it gives. Once the walkers are placed, the
-calibration tries shorter transients and keeps the shortest whose log-likelihood at the walkers
-(and as many points twice as far out) stays within ``TRANSIENT_TOLERANCE`` nats of a long one.
+Once the walkers are placed, the calibration tries shorter transients and keeps the shortest
+whose log-likelihood at the walkers (and as many points twice as far out) stays within
+``TRANSIENT_TOLERANCE`` nats of a long one.
 """
 import numpy as np
 import pytest
@@ -32,7 +32,7 @@ def test_the_shortest_accurate_transient_is_chosen_and_checked_against_a_long_on
     cal, walkers = _started(record)
     (name, chosen), = cal.transients_.items()
     term = cal.terms_[0]
-    assert chosen < cal.transient  # M002's cycle settles: 2 s was chosen on seeds 1-7
+    assert chosen < cal.transient  # M002's cycle settles: 2 s is chosen on seeds 1-7
     assert term.transient == chosen and term.simulator.t_end == pytest.approx(term.sim_t_end)
     errors = cal.transient_errors_[name]
     assert errors[chosen] <= calibration_module.TRANSIENT_TOLERANCE

@@ -65,7 +65,7 @@ def test_controller_option_helpers_parse_into_a_closed_loop():
         (["simulate", "M9", "--out", "x.csv"], "unknown hypothesis 'M9'"),
         (["simulate", "M002", "--set", "backlash=-1", "--out", "x.csv"], "backlash must be >= 0"),
         (["simulate", "M002", "--dt", "0", "--out", "x.csv"], "dt must be"),
-        # a loop that diverges: one line, not a SimulationDiverged traceback (issue 14)
+        # a loop that diverges: one line, not a SimulationDiverged traceback
         (["simulate", "M002", "--kp", "500", "--kd", "0.062", "--mu", "12.3", "--out", "x.csv"],
          "the loop is unstable with these parameters"),
         # compensator and bending options: the option and the fault named
@@ -78,7 +78,7 @@ def test_controller_option_helpers_parse_into_a_closed_loop():
          "--bending -60,0.02,0.001: bending frequency must be > 0"),
         (["simulate", "M002", "--open-loop", "step", "--lead", "4,8", "--out", "x.csv"],
          "act in the closed loop"),
-        # SINDy on a record that never moves: named, not a ZeroDivisionError (issue 14)
+        # SINDy on a record that never moves: named, not a ZeroDivisionError
         (["sindy", "const.csv"], "const.csv: column 'delta' is constant"),
     ],
 )

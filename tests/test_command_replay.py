@@ -1,5 +1,5 @@
-"""A command known only as samples, its edge timing integrated out (issue 12 item 3: "the replay
-error itself becomes a mismatch").
+"""A command known only as samples, its edge timing integrated out (else the replay error itself
+becomes a mismatch).
 
 Cases: the coverage benchmark's draw 3 (seed 2003), a square of 0.313 Hz sampled at 1 kHz from
 t = 0, every edge 1596 samples after the previous one while the true half period is 1595.81

@@ -1,10 +1,11 @@
 """The closed-loop target's start: a model with coexisting cycles must be able to show the record's.
 
-MODELS.md: the initial conditions select the limit cycle. Recordings drawn by the benchmark's
-generator (:func:`studies.benchmarks.scenarios.draw_scenario`) start from MODELS.md's kick, the target's
-simulations from the recorded cycle's state; on these draws one start alone settled the TRUE model
-on a cycle the record does not show (costs 2001 and 124 at the truth with ``y = x'``, 133841 with
-the threshold-consistent start alone), which no search can repair.
+The initial conditions select the limit cycle (docs/models.md#m000). Recordings drawn by the
+benchmark's generator (:func:`studies.benchmarks.scenarios.draw_scenario`) start from the
+hypotheses' kick (``models.hypotheses.KICK_X0``), the target's simulations from the recorded cycle's
+state; on these draws one start alone settles the TRUE model on a cycle the record does not show
+(costs 2001 and 124 at the truth with ``y = x'``, 133841 with the threshold-consistent start alone),
+which no search can repair.
 """
 import numpy as np
 import pytest

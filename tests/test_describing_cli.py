@@ -1,4 +1,4 @@
-"""``tvcid df predict`` and ``tvcid df family`` (issue 3, item 5)."""
+"""``tvcid df predict`` and ``tvcid df family``."""
 import json
 
 import pytest
@@ -13,11 +13,12 @@ def test_df_predict_json(capsys):
     (cycle,) = out["limit_cycles"]
     assert set(cycle) >= {"amplitude", "frequency", "stable"}
     assert cycle["stable"] is True
-    # regression pin: value printed by `tvcid df predict M002 --kp 9.8 --kd 0.06 --mu 4.5 --json` at
-    # commit 4c7fbe5, not an independent reference
+    # regression pin: the value `tvcid df predict M002 --kp 9.8 --kd 0.06 --mu 4.5 --json` prints,
+    # not an independent reference
     assert cycle["frequency"] == pytest.approx(6.83, abs=0.01)
     assert cycle["amplitude"] == pytest.approx(7.66e-3, rel=0.005)
-    # independent: the simulated cycle at B is MODELS.md's reconstruction (6.73e-3 rad at 6.67 rad/s)
+    # independent: the simulated cycle at B is docs/models.md#reference-limit-cycles' (6.73e-3 rad
+    # at 6.67 rad/s)
     cmp = out["comparison"]
     assert cmp["simulated_amplitude"] == pytest.approx(6.73e-3, abs=0.005e-3)
     assert cmp["simulated_frequency"] == pytest.approx(6.67, abs=0.005)
@@ -27,7 +28,7 @@ def test_df_predict_json(capsys):
 def test_df_predict_compare_reports_the_difference(capsys):
     assert main(["df", "predict", "M002", "--compare", "--frequency-range", "1", "50", "--json"]) == 0
     cmp = json.loads(capsys.readouterr().out)["comparison"]
-    # MODELS.md: simulated 8.60 rad/s, the DF 8.88 (+3.3 %)
+    # docs/models.md#errata: simulated 8.60 rad/s, the DF 8.88 (+3.3 %)
     assert cmp["simulated_frequency"] == pytest.approx(8.60, abs=0.01)
     assert cmp["frequency_error"] == pytest.approx(0.033, abs=0.005)
 

@@ -1,4 +1,4 @@
-"""Describing-function prediction for any linear controller (issue 13, item 1 DF part and item 6).
+"""Describing-function prediction for any linear controller.
 
 The loop's linear part around the actuator is ``Gp = C V`` (:func:`vehicle_controller_response`):
 paper 002 eq. 7 for the PD, generalised to a compensator ``F(s)``, a bending mode and a held
@@ -35,7 +35,8 @@ from models import CONTROLLER_A, CONTROLLER_B, ClosedLoop, SimulationDiverged, h
 from models.controllers import BendingMode, TransferFunction
 from models.hypotheses import DelayPosition
 
-#: Geometric centre of the lead/lag/notch corners: the cycle's 8.6 rad/s (MODELS.md, M002 at A).
+#: Geometric centre of the lead/lag/notch corners: the cycle's 8.6 rad/s
+#: (docs/models.md#reference-limit-cycles, M002 at A).
 CYCLE_FREQUENCY = 8.6
 
 
@@ -54,7 +55,7 @@ def _lead(ratio, centre=CYCLE_FREQUENCY):
 
 
 class _Eq7Loop(ActuatorDescribingLoop):
-    """The loop as it was before the generalisation: ``Gp`` written as paper 002 eq. 7."""
+    """The PD loop with ``Gp`` written as paper 002 eq. 7: what the general ``Gp`` must equal."""
 
     def return_response(self, amplitude, frequency):
         c = self.controller
@@ -309,7 +310,7 @@ def test_held_controller_is_a_half_sample_delay(controller):
 # frequency +0.279 %, the simulator's +13.76 % and +0.807 %; at B +12.71 %/+0.149 % against
 # +13.26 %/+0.529 %. The simulator agrees that the hold acts as 2.5 ms of extra delay (held vs
 # continuous with Td + 2.5 ms: within 3.2e-4). The DF's frequency moves a third as much as the
-# simulator's: its d(w)/d(Td) is ~10 rad/s per s against the simulated 28.6 (MODELS.md).
+# simulator's: its d(w)/d(Td) is ~10 rad/s per s against the simulated 28.6.
 @pytest.mark.parametrize("controller", [CONTROLLER_A, CONTROLLER_B], ids=["A", "B"])
 def test_held_controller_against_the_simulator(controller):
     params = hypothesis("M002")

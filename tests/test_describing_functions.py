@@ -1,4 +1,4 @@
-"""Describing functions: analytic formulas against the numeric first harmonic (issue 3, item 1)."""
+"""Describing functions: analytic formulas against the numeric first harmonic."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,4 @@
-"""Harmonic balance: python-control's example, M002 and M001i against the simulator (issue 3, item 2)."""
+"""Harmonic balance: python-control's example, M002 and M001i against the simulator."""
 import numpy as np
 import pytest
 
@@ -53,8 +53,8 @@ def test_numeric_describing_function_path_gives_the_same_cycle():
 
 
 def test_m002_prediction_is_the_documented_one():
-    # MODELS.md ("Calibration facts"): the DF predicts 8.88 rad/s and first harmonic 5.90e-3 at A,
-    # 8.80 rad/s with no backlash (numbers from trial runs made before this code)
+    # docs/models.md#errata: the DF predicts 8.88 rad/s and first harmonic 5.90e-3 at A; 8.80 rad/s
+    # with no backlash (numbers from trial runs independent of this code)
     result = predict_limit_cycles(hypothesis("M002"), CONTROLLER_A)
     stable = result.stable_cycles
     assert len(stable) == 1
@@ -72,10 +72,11 @@ def test_m002_prediction_is_the_documented_one():
 )
 def test_m002_prediction_against_the_simulator(controller, freq_error, amp_error):
     cmp = compare_with_simulation(hypothesis("M002"), controller)
-    # the DF overestimates both. A: MODELS.md's 8.88 vs 8.60 rad/s and 5.90e-3 vs 5.52e-3 (trial
-    # runs made before this code). B: regression pin: value printed by
-    # `tvcid df predict M002 --kp 9.8 --kd 0.06 --mu 4.5 --compare --json` at commit 4c7fbe5, not an
-    # independent reference (MODELS.md has the simulated cycle at B only: 6.73e-3 at 6.67 rad/s)
+    # the DF overestimates both. A: docs/models.md#errata's 8.88 vs 8.60 rad/s and 5.90e-3 vs
+    # 5.52e-3 (trial runs independent of this code). B: regression pin: the value
+    # `tvcid df predict M002 --kp 9.8 --kd 0.06 --mu 4.5 --compare --json` prints, not an
+    # independent reference (docs/models.md#reference-limit-cycles has the simulated cycle at B
+    # only: 6.73e-3 at 6.67 rad/s)
     assert cmp.frequency_error == pytest.approx(freq_error, abs=0.005)
     assert cmp.amplitude_error == pytest.approx(amp_error, abs=0.005)
 
@@ -102,7 +103,7 @@ def test_unsupported_structures_raise():
         predict_limit_cycles(hypothesis("M002", bandpass_gain=48.0, bandpass_saturation=0.015), CONTROLLER_A)
     with pytest.raises(UnsupportedStructureError, match="friction offset"):
         predict_limit_cycles(hypothesis("M002", friction_offset=-0.001), CONTROLLER_A)
-    # a held controller is no longer refused: its hold enters as its first harmonic
+    # a held controller is accepted: its hold enters as its first harmonic
     # (tests/test_describing_controllers.py)
 
 

@@ -1,4 +1,4 @@
-"""Paper 002's inverse method and paper 001's describing function (issue 3, item 3)."""
+"""Paper 002's inverse method and paper 001's describing function."""
 import numpy as np
 import pytest
 
@@ -12,17 +12,17 @@ from discovery.describing import (
 )
 from models import CONTROLLER_A, hypothesis
 
-#: MODELS.md "Describing-function facts": the corrected family at controller A.
-MODELS_FAMILY = np.array([1.011e-3, 1.111e-3, 1.208e-3, 1.301e-3, 1.333e-3, 1.389e-3, 1.554e-3, 1.769e-3])
+#: docs/models.md#errata: the corrected family at controller A, as tabulated there.
+TABULATED_FAMILY = np.array([1.011e-3, 1.111e-3, 1.208e-3, 1.301e-3, 1.333e-3, 1.389e-3, 1.554e-3, 1.769e-3])
 HWIL = dict(amplitude=4.89e-3, frequency=8.57)
 M002 = hypothesis("M002")
 
 
-def test_corrected_family_reproduces_models_md():
+def test_corrected_family_reproduces_the_tabulated_one():
     family = paper002_family(**HWIL, controller=CONTROLLER_A, params=M002)
     np.testing.assert_allclose(family.backlash_half_width, FAMILY_BACKLASH_HALF_WIDTHS)
-    # MODELS.md prints 4 digits (rounding up to 0.05 %); measured: 0.030 % at most (README)
-    assert np.max(np.abs(family.dead_zone / MODELS_FAMILY - 1)) < 5e-4
+    # the table has 4 digits (rounding up to 0.05 %); measured: 0.030 % at most
+    assert np.max(np.abs(family.dead_zone / TABULATED_FAMILY - 1)) < 5e-4
     assert family.delay == pytest.approx(7e-3)
     rows = family.to_dict()["family"]
     assert rows[4] == {"backlash_half_width": 4.364e-4, "dead_zone": pytest.approx(1.333e-3, rel=0.01)}
@@ -53,7 +53,7 @@ def test_exact_balance_inverts_a_predicted_cycle():
 
 def test_paper001_describing_function():
     (pair,) = solve_backlash_and_dead_zone(**HWIL, controller=CONTROLLER_A, params=hypothesis("M001i"))
-    # MODELS.md: f = 1.237e-4 (4 digits); measured 1.2347e-4, -0.18 % (README: 1.235e-4)
+    # docs/models.md#errata: f = 1.237e-4 (4 digits); measured 1.2347e-4, -0.18 %
     assert pair.backlash_half_width == pytest.approx(1.237e-4, rel=2.5e-3)
     (later,) = solve_backlash_and_dead_zone(**HWIL, controller=CONTROLLER_A, params=hypothesis("M001i", delay=5.89e-3))
     assert later.backlash_half_width == pytest.approx(1.1625e-4, rel=0.01)

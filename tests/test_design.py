@@ -1,4 +1,4 @@
-"""Next-experiment ranking on the one-cycle ridge of M002 (issue 13 item 3).
+"""Next-experiment ranking on the one-cycle ridge of M002.
 
 Case (the ridge of ``studies.calibration_ridge``): M002 at controller A, the last 10 s of a 20 s
 run with 1e-4 rad sensor noise (seeded); posterior of (backlash, dead_zone, delay) from the cycle's

@@ -123,7 +123,7 @@ def _recover_known_positions(seed, directory, reference_path):
     scores = [(f.structure.name, f.score) for f in disc.ranking_]
     assert fit.indistinguishable_from_best, (seed, scores)
     # what this design pins (local spread at the truth under 2 %) must come back; two limit
-    # cycles alone do not pin the linear block (MODELS.md), so the rest is not asserted
+    # cycles alone do not pin the linear block, so the rest is not asserted
     errors = coordinate_errors(disc, scenario.truth, s)
     pinned = {k: v["error"] for k, v in errors.items() if v["identifiable"]}
     assert all(e <= PINNED_ERROR for e in pinned.values()), (seed, errors)
@@ -466,10 +466,9 @@ def _loaded(paths):
 @pytest.mark.parametrize("bad", [dict(damping=0.0), dict(damping=-5.0), dict(stiffness=-100.0),
                                  dict(stiffness=0.0, damping=0.0)])
 def test_a_seed_with_an_unphysical_linear_block_starts_at_the_box_edge(bad):
-    """SINDy can return K2 = 0 or a negative K3 (issue 11: 'the right form returned K2 = 0');
-    such a seed must not stop discovery (it raised 'math domain error' in the log coordinates on
-    paper 002's two limit cycles). Its coordinates are finite, inside the box, and those that do
-    not involve the bad value are the valid seed's."""
+    """SINDy can return K2 = 0 or a negative K3; such a seed must not stop discovery (the log
+    coordinates of a value <= 0 would raise 'math domain error'). Its coordinates are finite,
+    inside the box, and those that do not involve the bad value are the valid seed's."""
     from discovery.structure.coordinates import SearchSpace
     from discovery.structure.structure_search import TEMPLATE, _fixed_for
     from models import hypothesis
@@ -549,10 +548,11 @@ def test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature():
 def test_wandering_cycles_raise_the_margin_floor(tmp_path):
     """The bundled benchmark draw 1000 (two band-pass cycles at 200 Hz, which wander from period
     to period): each cycle's window cost is over twice ``TOL_ABS`` (measured 0.24 and 0.22), and a
-    structure 0.225 worse than the best (draw 1000's truth's structure against the winner at
-    696f4e1) is inside the set with these floors, outside with the default ones. A periodic
-    cycle (benchmark draw 1019's truth, no band-pass loop, 25 s at its first controller) keeps
-    the default floor (its window cost 0.08, from the pieces' ends at sampled crossings)."""
+    structure 0.225 worse than the best (draw 1000's truth's structure against the winner, as a
+    benchmark row scores them) is inside the set with these floors, outside with the default
+    ones. A periodic cycle (benchmark draw 1019's truth, no band-pass loop, 25 s at its first
+    controller) keeps the default floor (its window cost 0.08, from the pieces' ends at sampled
+    crossings)."""
     from pathlib import Path
 
     from discovery.structure.indistinguishable import (
@@ -590,9 +590,9 @@ def test_wandering_cycles_raise_the_margin_floor(tmp_path):
 
 
 def _held_m000_records(tmp_path):
-    """Paper 000's model recorded as the HWIL did (issue 11's case, made here by the kernel at
-    1e-4 s): controller held at 200 Hz, 40 s at 200 Hz after a 10 s lead, noise 2e-5 rad,
-    offset 1.5e-4 rad, quantisation 2e-5 rad; controllers A and B."""
+    """Paper 000's model recorded as the HWIL did (the held-out case ``m000_hwil``, made here by
+    the kernel at 1e-4 s): controller held at 200 Hz, 40 s at 200 Hz after a 10 s lead, noise
+    2e-5 rad, offset 1.5e-4 rad, quantisation 2e-5 rad; controllers A and B."""
     from models import hypothesis
     from models.recording import load_recording
     from models.simulate import simulate
@@ -616,8 +616,8 @@ def test_a_wandering_cycle_is_compared_over_enough_periods(tmp_path, monkeypatch
     """Paper 000's band-pass cycle held at 200 Hz is not periodic; the record's features average
     its wander over 50 periods. Simulated windows of ``WINDOW_PERIODS`` (12) periods put the
     truth within 0.2 units per recording of its own records whatever the transient (4-16 s);
-    windows of 6 periods, as before, left it 0.3-0.6 units off on controller A's record, where
-    periodic wrong structures fitted at 0.04-0.1 and took its place (issue 11's case)."""
+    windows of 6 periods leave it 0.3-0.6 units off on controller A's record, where periodic
+    wrong structures fit at 0.04-0.1 and take its place."""
     import discovery.structure.targets as targets
     from discovery.structure.search import Objective
 

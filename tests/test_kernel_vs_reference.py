@@ -100,8 +100,8 @@ def test_kernel_matches_reference_held_controller_with_delay_before_first_integr
 
 def test_held_command_through_the_delay_converges_with_the_step():
     """M000 held at 200 Hz, delay before the first integrator: the cycle's first harmonic at the
-    fits' 5e-4 s step within 0.1 % of a 5e-5 s run (issue 11's paper-000 case: it was 2.0 % small,
-    0.9 % at 2.5e-4 s, when the line spread each jump over the step before its node)."""
+    fits' 5e-4 s step within 0.1 % of a 5e-5 s run (a line that spread each jump over the step
+    before its node would read it 2.0 % small, 0.9 % at 2.5e-4 s)."""
     from discovery.structure.targets import phase_free_harmonics, stationary_tail
 
     def first_harmonic(dt):
@@ -132,4 +132,5 @@ def test_delay_line_holds_a_jump_at_its_node_and_averages_it_over_a_share():
     plain = DelayLine(delay=0.25, dt=0.1)
     for k in range(6):
         plain.write(1.0 if k >= 3 else 0.0)
-    assert plain.read(0.25 + 0.25) == pytest.approx(0.5)  # the unmarked jump ramps as before
+    # an unmarked jump ramps over the step before its node
+    assert plain.read(0.25 + 0.25) == pytest.approx(0.5)

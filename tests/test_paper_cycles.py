@@ -1,4 +1,5 @@
-"""The simulator reproduces the limit cycles the papers print (MODELS.md reference numbers)."""
+"""The simulator reproduces the limit cycles the papers print
+(docs/models.md#reference-limit-cycles)."""
 import pytest
 
 from models import ClosedLoop, hypothesis, simulate
@@ -28,7 +29,8 @@ def test_m000_initial_conditions_select_the_attractor(cycle_at_a):
     overrides = dict(bandpass_gain=48.0, bandpass_saturation=0.015)
     large = cycle_at_a("M000", **overrides).features(window=20)  # paper's C1, C2, C3
     small = cycle_at_a("M000", y0=0.1, yd0=0.0, x0=0.0, **overrides).features(window=20)
-    assert large.amplitude == pytest.approx(5.48e-3, rel=0.02)  # MODELS.md reconstruction
+    # docs/models.md#reference-limit-cycles: 5.48e-3 rad
+    assert large.amplitude == pytest.approx(5.48e-3, rel=0.02)
     assert large.frequency == pytest.approx(HWIL_FREQUENCY, rel=0.01)
     assert small.amplitude < 0.1 * large.amplitude  # a different, small attractor (2.4e-4 rad)
     assert small.amplitude > 0  # ... that still oscillates
@@ -61,7 +63,8 @@ def test_200hz_controller_sampling_raises_the_cycle(cycle_at_a, name):
         hypothesis(name), ClosedLoop(5.84, 0.062, 12.3, sample_rate=200.0), 40.0
     ).features(window=20)
     raise_pct = 100 * (sampled.amplitude / continuous.amplitude - 1)
-    assert 13.0 <= raise_pct <= 24.0  # MODELS.md: a 200 Hz hold raises the cycle by 13-24 %
+    # docs/models.md#errata: a 200 Hz hold raises the cycle by 13-24 %
+    assert 13.0 <= raise_pct <= 24.0
 
 
 @pytest.mark.parametrize("name", ["M002", "M001i", "M001f", "M000"])

@@ -1,4 +1,4 @@
-"""Limit-cycle prediction under other controllers from a calibrated posterior (issue 13).
+"""Limit-cycle prediction under other controllers from a calibrated posterior.
 
 The case is the prediction benchmark's (:func:`studies.benchmarks.prediction.prediction_case`): a truth
 drawn by the shared scenario generator (seeded), calibrated on closed-loop records at two
@@ -6,7 +6,7 @@ controller settings (made at dt = 2e-4, sensor noise 5e-5 rad, features likeliho
 predicted at a third setting never used in the fit.
 The band must bracket the generating model's own cycle, measured the same way; the tolerance
 ``SHORTCUT_TOL`` is the largest shortcut error ``studies.benchmarks.prediction`` measured against
-full-length runs (0.4 % in amplitude; see the README), doubled.
+full-length runs (0.4 % in amplitude), doubled.
 """
 import json
 

@@ -1,6 +1,6 @@
 """Property-based tests (``hypothesis``): what must hold for every input in range, not just a few.
 
-Issue 14, item 2. Every property runs with ``derandomize=True`` (the same examples every run) and
+Every property runs with ``derandomize=True`` (the same examples every run) and
 an explicit example budget; ``deadline=None`` because the first call of a numba kernel loads it.
 
 Properties
@@ -294,8 +294,7 @@ def _check_run(params, experiment, t_end, rate):
 
 def _check_batch(params, experiments, t_end, rate, singles):
     """The batch runs diverge where the single ones do and otherwise record the same signals
-    (this found ``simulate_batch`` recording the solver's averages of a square command's edges as
-    ``u`` where ``simulate`` records the command)."""
+    (``u`` is the command in both, never the solver's averages of a square command's edges)."""
     batch = simulate_batch([params] * len(experiments), experiments, t_end, rate=rate)
     for i, (diverged, tr) in enumerate(singles):
         assert batch.diverged[i] == diverged, (i, batch.status[i])

@@ -50,7 +50,7 @@ def test_minimal_hand_written_sidecar(tmp_path):
         ("t,u\n0,0\n1,1\n", {"kind": "open"}, "missing column 'delta'"),
         ("t,u,delta\n0,0,0\n1,1,nan\n", {"kind": "open"}, "column 'delta' holds NaN"),
         ("t,u,delta\n0,0,0\n0,1,1\n", {"kind": "open"}, "not strictly increasing"),
-        # a 0.5 s gap in a 1 kHz record, and a record whose rate halves midway (issue 14)
+        # a 0.5 s gap in a 1 kHz record, and a record whose rate halves midway
         ("t,u,delta\n0,0,0\n0.001,0,0\n0.002,0,0\n0.502,0,0\n0.503,0,0\n", {"kind": "open"},
          "not uniformly sampled: step 0.5 s between data rows 3 and 4"),
         ("t,u,delta\n0,0,0\n0.001,0,0\n0.002,0,0\n0.004,0,0\n0.006,0,0\n", {"kind": "open"},

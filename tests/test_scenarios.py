@@ -114,12 +114,12 @@ def test_the_data_step_keeps_the_solver_error_under_the_smallest_noise():
         e = simulate_batch([sc.truth], exp, t_end, dt=dt, rate=1000.0).signal("delta")[0] - exact
         return float(np.sqrt(np.mean(e**2)))
 
-    assert rms_error(2e-4) > 1e-5  # the old step: the error was the noise's size
+    assert rms_error(2e-4) > 1e-5  # at 2e-4 s the error is the noise's size
     assert rms_error(DATA_DT) < 0.3e-5
 
 
-def test_issue11_cases_are_the_reported_placements_and_oscillate():
-    """``studies.benchmarks.heldout_cases``: the three recordings sets issue 11 reported, each truth a
+def test_heldout_cases_are_the_papers_placements_and_oscillate():
+    """``studies.benchmarks.heldout_cases``: the three held-out recordings sets, each truth a
     paper's placement that oscillates at every closed-loop setting of its design (else the
     script would fail after minutes of the reference path), and the comparison of a fit with
     the truth reads 0 on the truth itself."""

@@ -1,4 +1,5 @@
-"""Issue 4 components: the pysindy feature library, the weak form, the estimator's checks, the CLI."""
+"""SINDy's components: the pysindy feature library, the weak form, the estimator's checks, the
+CLI."""
 import json
 
 import numpy as np

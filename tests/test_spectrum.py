@@ -1,4 +1,4 @@
-"""Spectral analysis as papers 001 and 000 did it (issue 3, items 4-6)."""
+"""Spectral analysis as papers 001 and 000 do it."""
 import functools
 import json
 
@@ -60,7 +60,8 @@ def test_harmonic_table_flags_the_seventh_harmonic_of_m001f(m001f_record):
     assert table.raised_harmonics == (7,)
     row = table.rows()[6]
     assert row["frequency_hz"] == pytest.approx(9.57, abs=0.02)
-    assert row["ratio"] == pytest.approx(0.45, abs=0.02)  # MODELS.md: H7/H1 = 0.45
+    # docs/models.md#reference-limit-cycles: H7/H1 = 0.45
+    assert row["ratio"] == pytest.approx(0.45, abs=0.02)
 
 
 @functools.lru_cache(maxsize=None)

@@ -44,7 +44,9 @@ def test_report_has_a_row_for_every_paper_number(quick_results):
         assert (f"## {name}" in report) == (name != "discover")
 
 
-def test_reference_cycles_within_one_percent_of_models_md(tmp_path):
+def test_reference_cycles_within_one_percent_of_the_tabulated_cycles(tmp_path):
+    """Every hypothesis' cycle at controllers A and B within 1 % (amplitude) and 0.5 % (frequency)
+    of the table in docs/models.md#reference-limit-cycles."""
     summary = STUDIES["reference_cycles"].run(STUDIES["reference_cycles"].Config(), 0, tmp_path)
     checked = [r for r in summary["runs"] if r["reference_amplitude"]]
     assert len(checked) == 7
@@ -94,7 +96,7 @@ def test_h5_noise_floor_and_effects(quick_results):
 
 def test_h1_family_and_exact_solve(quick_results):
     summary = _summary(quick_results, "h1_deadzone_backlash")
-    # MODELS.md: corrected family gives zm = 1.333e-3 at f = 4.364e-4 (half width)
+    # docs/models.md#errata: the corrected family gives zm = 1.333e-3 at f = 4.364e-4 (half width)
     assert summary["dead_zone_at_printed_f"]["f_as_half_width"] == pytest.approx(1.333e-3, rel=0.01)
     assert summary["exact_solution"] == [] and "no exact harmonic-balance solution" in summary["exact_solution_message"]
     assert summary["paper001_exact"][0]["backlash_half_width"] == pytest.approx(1.237e-4, rel=0.01)
@@ -137,7 +139,7 @@ def test_h1_runs_the_mcmc_ridge_and_the_report_embeds_it(quick_results):
 @pytest.mark.slow
 def test_full_ridge_study_gives_the_readme_numbers(tmp_path):
     """The full ``python -m studies.calibration_ridge`` (seed 0; 7-8 min on 2 cores), whose numbers
-    the README quotes. Measured when this was written, seeds 0 and 1: corr(ln f, ln zm) 0.989 and
+    the README quotes. Measured on seeds 0 and 1: corr(ln f, ln zm) 0.989 and
     0.989 on one cycle's amplitude and frequency, f's 90 % width 120 % and 124 % of its median;
     width shrinkage (first row's width over the row's, per parameter f, zm, Td) with controller B
     10.9-16.6x and 6.6-16.4x, B and open loop 40-49x and 38-41x, the waveform of all records
@@ -193,8 +195,8 @@ def discover_quick(tmp_path_factory):
 def test_discover_reports_the_generating_structure_and_its_threshold(discover_quick):
     """Quick run of the discover study (same function as ``tvcid discover``): M000's structure is
     the winner or inside a reported set of at most 3 distinct structures, its own fit has z - off
-    within 10 %, the backlash within 30 % and the delay within 0.5 ms (issue 11's tolerances, the
-    study's ``meets_goal``); the winner has the band-pass loop and the dead zone on the velocity
+    within 10 %, the backlash within 30 % and the delay within 0.5 ms (the study's
+    ``meets_goal``); the winner has the band-pass loop and the dead zone on the velocity
     signal and its threshold is within 10 % too."""
     summary = _summary(discover_quick, "discover")
     assert summary["study"] == "discover"
@@ -216,7 +218,7 @@ def test_h6_controller_design_predicts_filters_boundary_and_next_test(quick_resu
     steps; 20 draws; about 30 s): the Kp x Kd map holds both sides of the stability boundary, and
     at controller A's Kp the draws' boundary lies within one scan step of the generating model's;
     at controller A a lead 5/20 rad/s raises the median frequency and shrinks the cycle (measured
-    when this was written: 8.54 -> 11.91 rad/s, 5.45 -> 0.456 mrad), a bending mode (60 rad/s,
+    on the full run, seed 0: 8.54 -> 11.91 rad/s, 5.45 -> 0.456 mrad), a bending mode (60 rad/s,
     damping 0.02, gain 0.01) makes the plain PD diverge and a notch at 60 rad/s restores a cycle,
     as the generating model's own 120 s runs do; the predicted medians are within 5 % of those
     runs (measured: 0.02-1.2 % on the full run, up to 2.5 % on quick ones; M000's cycle is not

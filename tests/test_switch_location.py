@@ -27,8 +27,9 @@ def test_sign_switch_average_is_the_mean_sign_along_the_step():
 
 @pytest.fixture(scope="module")
 def locked_cycle():
-    """Coverage draw 2, second limit cycle: friction offset at a velocity dead zone; before the
-    jump was located its frequency was identical at 5e-4 and 2.5e-4 s and flat in the offset."""
+    """Coverage draw 2, second limit cycle: friction offset at a velocity dead zone; with the jump
+    at a step boundary instead of located, its frequency would be identical at 5e-4 and 2.5e-4 s
+    and flat in the offset."""
     from studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(2, Config())

@@ -54,18 +54,19 @@ integrator output has amplitude ``a = N Q/w`` and the loop equation becomes
 
     1 - N_sat(S) G BP(jw) N(Q) + H(jw) P(jw, a) N(Q)/(jw) = 0.
 
-This is a first-harmonic balance only: the 7th harmonic that the loop raises in simulation (and
-that saturates it there) is beyond it, so at the cycle near 8.6 rad/s the loop hardly changes the
-prediction (M001f at controller A: 5.698e-3 rad at 8.514 rad/s against a simulated first harmonic
-of 5.697e-3 at 8.589). It also finds a small cycle of the loop in its pass band (59.6 rad/s,
-4.5e-5 rad, "stable" by Loeb) for M001f and for M000 with G 48 and saturation 0.015. That one is
-*not* confirmed by the simulator: the small cycle M000 does reach from x(0) = 0, y(0) = 0.1
-(MODELS.md) is at 13.8 rad/s with 2.4e-4 rad, which this balance does not find. A band-pass loop
-with the dead zone on the error raises :class:`UnsupportedStructureError`.
+This is a first-harmonic balance only: the 7th harmonic that the loop raises in simulation (and that
+saturates it there) is beyond it, so at the cycle near 8.6 rad/s the loop hardly changes the
+prediction (M001f at controller A: 5.698e-3 rad at 8.514 rad/s against a simulated first harmonic of
+5.697e-3 at 8.589). It also finds a small cycle of the loop in its pass band (59.6 rad/s, 4.5e-5
+rad, "stable" by Loeb) for M001f and for M000 with G 48 and saturation 0.015. That one is *not*
+confirmed by the simulator: the small cycle M000 does reach from x(0) = 0, y(0) = 0.1
+(``docs/models.md#m000``) is at 13.8 rad/s with 2.4e-4 rad, which this balance does not find. A
+band-pass loop with the dead zone on the error raises :class:`UnsupportedStructureError`.
 
-Known limit of the approximation (MODELS.md): for M002 at controller A it predicts 8.88 rad/s
-where the simulator gives 8.60, and 8.80 even with no backlash: the cycle is far from a sinusoid
-at the dead zone's output, so expect a few per cent in frequency and about 7 % in amplitude.
+Known limit of the approximation (``docs/models.md#errata``): for M002 at controller A it predicts
+8.88 rad/s where the simulator gives 8.60, and 8.80 even with no backlash: the cycle is far from a
+sinusoid at the dead zone's output, so expect a few per cent in frequency and about 7 % in
+amplitude.
 """
 from __future__ import annotations
 
@@ -94,14 +95,14 @@ __all__ = [
 #: What a user should know before trusting a first-harmonic prediction of these loops.
 DF_CAVEAT = (
     "first-harmonic approximation: for M002 at controller A it predicts 8.88 rad/s and a "
-    "first harmonic of 5.90e-3 rad against 8.60 rad/s and 5.52e-3 simulated (MODELS.md); use it "
-    "to draw families and as a starting guess, not as a likelihood"
+    "first harmonic of 5.90e-3 rad against 8.60 rad/s and 5.52e-3 simulated "
+    "(docs/models.md#errata); use it to draw families and as a starting guess, not as a likelihood"
 )
 
 #: What a compensator does to the approximation (measured, see the module docstring).
 COMPENSATOR_CAVEAT = (
     "with a compensator the DF gets the direction of the shift right but its error grows: for "
-    "M002 at controller A with leads centred on 8.6 rad/s it was up to +16 % in frequency and "
+    "M002 at controller A with leads centred on 8.6 rad/s it is up to +16 % in frequency and "
     "+25 % in amplitude against a simulation"
 )
 

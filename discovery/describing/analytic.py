@@ -4,7 +4,7 @@ Convention: for the input ``A sin(wt)`` an element's output has the first harmon
 ``b1 sin(wt) + a1 cos(wt)``; its describing function is the complex gain ``N = (b1 + j a1)/A``
 (paper 002 eq. 2), so a phase lag gives a negative imaginary part. Every width is a *half* width,
 as in :mod:`models.nonlinearities`; paper 002's backlash ``f`` is converted with
-``full_width=`` (MODELS.md "Conventions").
+``full_width=`` (``docs/models.md#conventions``).
 
 All functions accept scalars or arrays of amplitudes and return float (static odd elements) or
 complex (play operator) arrays of the same shape.
@@ -123,8 +123,8 @@ def backlash_df(amplitude, half_width=None, *, full_width=None):
 
     and ``N = 0`` for ``A <= r`` (the output stays still). Paper 002's eq. 5 is written with its
     ``f`` as this half width; its section 6 value ``f = 4.364e-4`` reproduces the paper's simulated
-    cycle only as a *full* width (MODELS.md), so pass exactly one of ``half_width`` or
-    ``full_width`` and say which.
+    cycle only as a *full* width (``docs/models.md#errata``), so pass exactly one of ``half_width``
+    or ``full_width`` and say which.
 
     Parameters
     ----------

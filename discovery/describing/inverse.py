@@ -6,11 +6,11 @@ condition ``Gm(jw) Gp(jw) = -1`` (eqs. 6-18):
 
 * :func:`paper002_family`: the one-parameter family of (backlash, dead zone) pairs of eqs. 13-18,
   either ``variant="printed"`` (the equations as printed) or ``variant="corrected"`` with the three
-  slips MODELS.md lists: eq. 15 is ``KK = (1 + cot^2 theta)/|Gp|^2``, eq. 16's last term is
-  ``c^2 KK`` with ``c = K3 w - w^3``, eq. 18 is ``X_z = K1 w/(37 Z)`` (``Z`` the dead-zone DF, not
-  ``Zx = 37*34100 Z``). These equations keep the modulus and ``tan`` of the phase condition only,
-  so the family satisfies eq. 13 and eq. 14 up to a half-turn of phase; the paper says the real
-  solution "must satisfy Eq. (12)".
+  slips ``docs/models.md#errata`` lists: eq. 15 is ``KK = (1 + cot^2 theta)/|Gp|^2``, eq. 16's last
+  term is ``c^2 KK`` with ``c = K3 w - w^3``, eq. 18 is ``X_z = K1 w/(37 Z)`` (``Z`` the dead-zone
+  DF, not ``Zx = 37*34100 Z``). These equations keep the modulus and ``tan`` of the phase condition
+  only, so the family satisfies eq. 13 and eq. 14 up to a half-turn of phase; the paper says the
+  real solution "must satisfy Eq. (12)".
 * :func:`solve_backlash_and_dead_zone`: the exact harmonic balance (eq. 12, phase and modulus),
   for any hypothesis :class:`~discovery.describing.actuator_loop.ActuatorDescribingLoop` treats.
   At controller A (4.89e-3 rad at 8.57 rad/s) with paper 002's 7 ms output delay it has *no*
@@ -44,7 +44,7 @@ __all__ = [
     "solve_backlash_and_dead_zone",
 ]
 
-#: Backlash half widths (rad) at which MODELS.md tabulates the corrected family.
+#: Backlash half widths (rad) at which ``docs/models.md#errata`` tabulates the corrected family.
 FAMILY_BACKLASH_HALF_WIDTHS = (1e-4, 2e-4, 3e-4, 4e-4, 4.364e-4, 5e-4, 7e-4, 1e-3)
 VARIANTS = ("corrected", "printed")
 
@@ -227,8 +227,8 @@ def paper002_family(
         if 0.0 < z_gain < 1.0:
             dead_zone[i] = x_z * analytic.inverse_dead_zone_df(z_gain)
     note = (
-        "eqs. 13-18 with MODELS.md's three corrections; the family satisfies the modulus and the tangent "
-        "of the phase condition, not necessarily the phase itself (see solve_backlash_and_dead_zone)"
+        "eqs. 13-18 with the three corrections of docs/models.md#errata; the family satisfies the "
+        "modulus and the tangent of the phase condition, not necessarily the phase itself (see solve_backlash_and_dead_zone)"
         if variant == "corrected"
         else "eqs. 15, 16 and 18 as printed (three slips); not dimensionally consistent, shown for the record"
     )

@@ -1,4 +1,4 @@
-"""tvcid.discovery.prediction: what a calibrated actuator does under other controllers (issue 13).
+"""tvcid.discovery.prediction: what a calibrated actuator does under other controllers.
 
 * :func:`load_posterior_draws` -- posterior draws back from ``tvcid fit``/``discover`` output;
 * :func:`predict_cycle`, :func:`cycle_map` -- the limit cycle at one controller setting or over a

@@ -4,10 +4,11 @@ Paper 002 (section 1) motivates the whole identification by the design of the at
 lead and notch filters shape the limit cycle, so the designer needs the cycle's amplitude and
 frequency, and how sure they are, under a controller that was never tested. Here every posterior
 draw is simulated in closed loop through the batch kernel (:func:`models.simulate_batch`) and the
-cycle measured as MODELS.md measures it (:func:`models.limit_cycle_features`); the spread over the
-draws is the band. The describing function of the median model is given beside it.
+cycle measured as ``docs/models.md#conventions`` defines it (:func:`models.limit_cycle_features`);
+the spread over the draws is the band. The describing function of the median model is given beside
+it.
 
-The shortcut (issue 13 item 5): a pilot run of the median model at each setting, ``pilot``
+The shortcut: a pilot run of the median model at each setting, ``pilot``
 seconds long, gives the state on its cycle; every draw starts there and runs a short ``transient``
 before the measured ``window``. ``benchmark`` in :mod:`studies.benchmarks.prediction` measures how far
 it lands from full-length runs.

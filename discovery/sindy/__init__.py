@@ -1,4 +1,4 @@
-"""Weak-form SINDy structure discovery of the actuator (issue 4).
+"""Weak-form SINDy structure discovery of the actuator.
 
 Pipeline stages, one module each:
 

@@ -1,7 +1,7 @@
 """Structure proposals: a fitted form, its terms, thresholds and inclusion probabilities.
 
-Each proposal converts into a :class:`models.ActuatorParams` (issue 4, deliverable 3), so that it
-can be simulated as a full closed-loop model (:mod:`discovery.sindy.ranking`).
+Each proposal converts into a :class:`models.ActuatorParams`, so that it can be simulated as a
+full closed-loop model (:mod:`discovery.sindy.ranking`).
 """
 from __future__ import annotations
 

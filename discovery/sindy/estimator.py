@@ -1,7 +1,7 @@
 """The weak-SINDy estimator of the actuator structure, with its threshold and delay scan.
 
-Issue 4, deliverable 2: an sklearn-style estimator (``__init__`` stores arguments, ``fit`` validates
-and returns ``self``, learned attributes end in ``_``). For every structure form
+An sklearn-style estimator (``__init__`` stores arguments, ``fit`` validates and returns
+``self``, learned attributes end in ``_``). For every structure form
 (:mod:`discovery.sindy.forms`) it
 
 1. builds the weak system of the recordings (:mod:`discovery.sindy.weak`);
@@ -35,7 +35,7 @@ from .weak import BumpTestFunctions, prepare_signals
 
 __all__ = ["WeakSINDyActuator", "DEFAULT_FORMS"]
 
-#: Forms fitted by default: the papers' placements (issue 4, deliverable 3).
+#: Forms fitted by default: the papers' placements.
 DEFAULT_FORMS = (
     "dead_zone_on_error",
     "dead_zone_on_velocity",

@@ -1,6 +1,6 @@
 """Structure descriptions ("forms") of the actuator equation and their weak regression columns.
 
-A form says where the nonlinear blocks sit, never what their values are (issue 4, deliverable 3).
+A form says where the nonlinear blocks sit, never what their values are.
 Written in the measured output ``delta`` with ``L = d^2/dt^2 + K2 d/dt + K3``:
 
 * dead zone on the error (paper 002, Fig. 1 and eq. 1; delay at the output)::
@@ -50,7 +50,7 @@ class StructureForm:
     ----------
     name : str
     dead_zone_on : {"error", "velocity"}
-        The signal the dead zone acts on (MODELS.md ``DeadZonePosition``).
+        The signal the dead zone acts on (``DeadZonePosition``, ``docs/models.md#the-actuator``).
     friction : bool
         Offer the friction-offset term ``sign(delta')`` to the sparse regression.
     bandpass : bool
@@ -232,8 +232,8 @@ class StructureForm:
 def _bandpass_of_velocity(prepared):
     """``BP(delta')`` on the fine grid as the strictly proper filter ``s*BP(s)`` of ``delta``.
 
-    The 9-10 Hz, 4th-order Butterworth band-pass of MODELS.md, applied to the smoothed ``delta``
-    so that the velocity is never differentiated numerically.
+    The 9-10 Hz, 4th-order Butterworth band-pass of ``docs/models.md#conventions``, applied to the
+    smoothed ``delta`` so that the velocity is never differentiated numerically.
     """
     num, den = bandpass_transfer_function(9.0, 10.0, 2)
     num = np.trim_zeros(np.polymul(np.ravel(num), [1.0, 0.0]), "f")

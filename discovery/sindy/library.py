@@ -1,11 +1,11 @@
-"""A pysindy feature library of the actuator's nonlinearities (issue 4, deliverable 1).
+"""A pysindy feature library of the actuator's nonlinearities.
 
-The elements are those of MODELS.md "Conventions" and :mod:`models.nonlinearities`: the dead zone
-``DZ_z`` (paper 002 eq. 3), the saturation ``sat_s`` (paper 001 section 3), the sign of the
-friction offset ``FRIC(q) = q + off*sign(q)`` (paper 001 section 3), the backlash as a play
-operator of half width ``r`` (paper 002 eqs. 4-5; a memory term computed along the trajectory) and
-the delayed command ``u(t - Td)`` (papers 002, 001, 000). Thresholds and the delay enter
-nonlinearly, so they are fixed arguments of the library; :mod:`discovery.sindy.estimator` scans them.
+The elements are those of ``docs/models.md#conventions`` and :mod:`models.nonlinearities`: the dead
+zone ``DZ_z`` (paper 002 eq. 3), the saturation ``sat_s`` (paper 001 section 3), the sign of the
+friction offset ``FRIC(q) = q + off*sign(q)`` (paper 001 section 3), the backlash as a play operator
+of half width ``r`` (paper 002 eqs. 4-5; a memory term computed along the trajectory) and the
+delayed command ``u(t - Td)`` (papers 002, 001, 000). Thresholds and the delay enter nonlinearly, so
+they are fixed arguments of the library; :mod:`discovery.sindy.estimator` scans them.
 """
 from __future__ import annotations
 
@@ -54,7 +54,8 @@ def _play(x, half_width, initial):
 
 
 def play_along(x, half_width, initial=None):
-    """Backlash ``play_r(x)`` along a sampled trajectory (MODELS.md convention, numba loop).
+    """Backlash ``play_r(x)`` along a sampled trajectory (``docs/models.md#conventions``, numba
+    loop).
 
     Same rule as :func:`models.nonlinearities.play_operator`: ``b_k = min(max(b_{k-1}, x_k - r),
     x_k + r)``. The default initial memory is ``x_0`` (the play centred at the start).
@@ -102,7 +103,7 @@ def delayed_command(t_query, t, u, delay, jumps=None):
 
 
 def actuator_error(u_delayed, backlash, feedback_gain):
-    """Actuator error ``e = u(t - Td) - K*play_r(delta)`` (MODELS.md, "The four hypotheses")."""
+    """Actuator error ``e = u(t - Td) - K*play_r(delta)`` (``docs/models.md#the-actuator``)."""
     return u_delayed - feedback_gain * backlash
 
 

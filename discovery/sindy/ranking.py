@@ -1,10 +1,11 @@
-"""Ranking structure proposals by simulating them as full models (issue 4, deliverable 4).
+"""Ranking structure proposals by simulating them as full models.
 
-Every proposal is converted into a :class:`models.ActuatorParams` and run through the experiment
-of every recording with :func:`models.simulate_batch`: the HWIL closed loop of a limit-cycle record
+Every proposal is converted into a :class:`models.ActuatorParams` and run through the experiment of
+every recording with :func:`models.simulate_batch`: the HWIL closed loop of a limit-cycle record
 (vehicle and PD controller from the sidecar), or the recorded command replayed open loop. The score
-compares the runs with the data on limit-cycle features (amplitude and frequency, MODELS.md
-conventions) and on the waveform (:func:`discovery.sindy.simulation.simulation_score`).
+compares the runs with the data on limit-cycle features (amplitude and frequency,
+``docs/models.md#conventions``) and on the waveform
+(:func:`discovery.sindy.simulation.simulation_score`).
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The weak (integral) form of the actuator equation, built here and handed to pysindy optimizers.
 
-Strong-form SINDy on numerical derivatives of ``delta`` fails on this actuator (issue 4: 40-90 %
+Strong-form SINDy on numerical derivatives of ``delta`` fails on this actuator (40-90 %
 errors in ``delta'''``). Multiplying the equation by compact test functions ``phi`` and integrating
 by parts moves every derivative onto ``phi``: ``int phi delta''' = -int phi''' delta``,
 ``int phi delta'' = int phi'' delta``, ``int phi delta' = -int phi' delta`` (the weak SINDy of

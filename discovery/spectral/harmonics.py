@@ -14,9 +14,10 @@ reading into numbers:
   ``raise_factor`` (default 3) times its smooth-decay value: the geometric mean of its same-parity
   neighbours ``k-2`` and ``k+2`` (only ``k-2`` for the last one). At controller A the derivative's
   7th harmonic of M001f is 5.8 times that mean (flagged, 9.57 Hz); without the band-pass loop it is
-  1.1, and no harmonic of M002 exceeds 1.2. M000 with Table 1's loop (F 72, saturation 0.01) sits
-  in between: its 7th is 2.2 times its neighbours' mean but only 0.08 of the fundamental (0.45
-  for M001f), which MODELS.md calls "not raised"; lower ``raise_factor`` to 2 to flag it.
+  1.1, and no harmonic of M002 exceeds 1.2. M000 with Table 1's loop (F 72, saturation 0.01) sits in
+  between: its 7th is 2.2 times its neighbours' mean but only 0.08 of the fundamental (0.45 for
+  M001f), which ``docs/models.md#reference-limit-cycles`` calls "not raised"; lower ``raise_factor``
+  to 2 to flag it.
 """
 from __future__ import annotations
 

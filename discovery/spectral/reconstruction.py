@@ -1,8 +1,8 @@
 """Low-pass reconstruction by inverse FFT (paper 001 section 3, Figs. 4 and 5).
 
-Paper 001 found that the HWIL output's content above 10 Hz could be ignored, rebuilt the output
-from the FFT bins below 10 Hz by IFFT to see its shape without noise, and from that the derivative
-(the signal before the integrator) where the friction spikes show. Here the derivative is the IFFT
+Paper 001 ignores the HWIL output's content above 10 Hz, rebuilds the output from the FFT bins
+below 10 Hz by IFFT to see its shape without noise, and from that the derivative (the signal
+before the integrator) where the friction spikes show. Here the derivative is the IFFT
 of ``j 2 pi f X(f)`` over the same bins.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Benchmark of the Bayesian calibration (issue 5): wall time to a converged posterior.
+"""Benchmark of the Bayesian calibration: wall time to a converged posterior.
 
 Case: M002 at controller A, one 10 s limit-cycle record (the last 10 s of a 20 s run at
 dt = 2e-4, 1 kHz), independent Gaussian sensor noise of sd 1e-4 rad (seeded); posterior of
@@ -13,12 +13,12 @@ Goal: under 60 s on 2 cores.
 
 Also measured: simulations per second, tau and N/tau, truth against the 90 % interval, and the
 log-likelihood error of the dt = 5e-4 likelihood (against dt = 2e-4) and of the 6 s transient
-(against 12 s) at the truth; ``simulated_seconds``, the seconds simulated to convergence (issue
-12 goal: <= 40,000), per seed and as the median over the seeds, and ``simulated_steps`` (RK4
-steps; ``simulated_seconds_at_5e-4`` is the same cost in seconds at the 5e-4 s step the goal was
-set at, since a finer step costs more per simulated second).
+(against 12 s) at the truth; ``simulated_seconds``, the seconds simulated to convergence (goal:
+<= 40,000), per seed and as the median over the seeds, and ``simulated_steps`` (RK4
+steps; ``simulated_seconds_at_5e-4`` is the same cost in seconds at the 5e-4 s step the goal is
+stated at, since a finer step costs more per simulated second).
 
-Ridge case (issue 12): :func:`studies.benchmarks.scenarios.ridge_scenario` (paper 001's placement without the
+Ridge case: :func:`studies.benchmarks.scenarios.ridge_scenario` (paper 001's placement without the
 band-pass loop, a drawn truth, limit cycles at A and B of 40 s at 1 kHz, data from the reference
 path read back as measured), calibrated as ``tvcid fit`` does by default (waveform likelihood,
 16 walkers, 4000-step cap) on (dead zone, backlash, delay, friction offset) from a start 20 %
@@ -26,12 +26,12 @@ off the truth (log-normal). Goal: converged within the step cap in <= 3 minutes 
 truths inside the 90 % intervals.
 
 The transient is chosen by the accuracy it gives; ``--reference-transient 12`` runs the same
-seeds with a fixed 12 s transient too and reports how far each posterior moved from that one
-(2026-11-26, the default: 2 s chosen on every seed, medians within 0.11 half-widths of the 90 %
-interval and widths 0.89-1.17 of it, median 30,699 simulated s, 7 of 7 seeds within 40,000;
-2026-11-25, a fixed 6 s: within 0.15 and 0.88-1.24, median 38,740 s, 4 of 7 within).
+seeds with a fixed 12 s transient too and reports how far each posterior lies from that one
+(with the default, 2 s is chosen on every seed, the medians lie within 0.11 half-widths of the
+90 % interval and the widths are 0.89-1.17 of it, median 30,699 simulated s, 7 of 7 seeds within
+40,000; with ``--transient 6``: within 0.15 and 0.88-1.24, median 38,740 s, 4 of 7 within).
 ``--continuation`` continues each run from the nearest stored run's cycle
-(``Calibration(continuation=True)``; 2026-11-26 at a fixed 6 s: within 0.10, median 35,729 s).
+(``Calibration(continuation=True)``; with ``--transient 6``: within 0.10, median 35,729 s).
 
 Usage: ``python -m studies.benchmarks.calibration [--case m002|ridge|all] [--seeds 1,2,3,4,5,6,7]
 [--ridge-seeds 0] [--walkers 10] [--transient T] [--continuation] [--reference-transient 12]``;
@@ -87,7 +87,7 @@ def likelihood_errors(rec):
     return out
 
 
-#: Issue 12's cost goal for the M002 case (seconds simulated to convergence).
+#: The cost goal of the M002 case (seconds simulated to convergence).
 GOAL_SIMULATED_SECONDS = 40000.0
 #: The ridge case's goal: converged within the step cap, in at most this wall time on 2 cores.
 RIDGE_GOAL = {"wall_time_s": 180.0, "step_cap": 4000}
@@ -125,10 +125,10 @@ def run_case(seed, walkers, workdir, transient=None, continuation=False, choose_
         "sampling_time_s": rep.wall_time,
         "setup_and_start_s": wall - rep.wall_time,
         "simulations": sims,
-        # total seconds simulated to convergence (issue 12 goal: <= 40,000 for this case)
+        # total seconds simulated to convergence (goal: <= 40,000 for this case)
         "simulated_seconds": cal.log_posterior_.simulated_seconds,
-        # RK4 steps, and the seconds they would simulate at the 5e-4 s step the goal was set at
-        # (a record whose step was halved costs twice per simulated second)
+        # RK4 steps, and the seconds they would simulate at the 5e-4 s step the goal is stated at
+        # (a record at half the step costs twice per simulated second)
         "dt": cal.dt_,
         "simulated_steps": cal.log_posterior_.simulated_steps,
         "simulated_seconds_at_5e-4": 5e-4 * cal.log_posterior_.simulated_steps,
@@ -195,7 +195,7 @@ def run_ridge_case(seed, workdir):
 def transient_accuracy(results, seeds, walkers, reference):
     """How far each seed's posterior moved from the same seed's at a ``reference`` transient:
     the median's shift in half-widths of the reference's 90 % interval, and the interval's width
-    ratio, per parameter (issue 12: choose the window by the accuracy it gives)."""
+    ratio, per parameter (the window is chosen by the accuracy it gives)."""
     out = []
     for seed, res in zip(seeds, results):
         # the reference simulates its own transient, never a shorter one chosen for it

@@ -36,7 +36,7 @@ every row is complete and that coverage and ranks are computed from the rows.
 ``--widening`` measures what the model-discrepancy term costs a right model: the finished draws
 whose factor is over 1 are calibrated again without the term (same seed, start and chain
 settings) and ``DIR/widening.json`` gives, per draw and parameter, the ratio of the 90 %
-intervals' widths with and without it (issue 12: at most about 20 %).
+intervals' widths with and without it (the goal: at most about 20 %).
 
 The run ends with its goals, one line each (:mod:`studies.benchmarks.goals`), and exits 0 when all are met,
 1 otherwise: no draw failed; per parameter, the truth inside its 90 % interval in 80-97 % of the
@@ -270,7 +270,7 @@ def summarise(rows) -> dict:
 
 
 def widening(rows, plain_rows) -> dict:
-    """What the discrepancy term does to right models' intervals (issue 12: at most about 20 %).
+    """What the discrepancy term does to right models' intervals (the goal: at most about 20 %).
 
     ``rows``: draws calibrated as the benchmark does (the term on); ``plain_rows``: the same draws
     without it. Per draw and parameter, the ratio of the 90 % intervals' widths (on / off), and
@@ -346,7 +346,7 @@ def main(argv=None) -> int:
                         help="draws calibrated at once, one process each (default 1)")
     parser.add_argument("--indices", default=None,
                         help="run only these draws of the config, e.g. '10,14-29' (to share a "
-                             "benchmark between machines or sessions; the table covers the rows done)")
+                             "benchmark between machines or runs; the table covers the rows done)")
     parser.add_argument("--widening", action="store_true",
                         help="calibrate the finished draws whose discrepancy factor is over 1 (or "
                              "--indices) again without the discrepancy term and write "

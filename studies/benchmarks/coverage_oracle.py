@@ -24,7 +24,7 @@ per open-loop record of draw ``INDEX``:
   the truth, noise-free at the oracle's step, against the analytic command: read by its chords
   (``chords``) and as :meth:`models.recording.Recording.experiment` replays it (``replayed``).
   ``--replay-only`` prints just this for several draws (seconds each): a sine's chords lower its
-  fundamental, which at 200 Hz and 2.6 Hz added 90 (draw 17). For a square it is the replayed
+  fundamental, which at 200 Hz and 2.6 Hz adds 90 (draw 17). For a square it is the replayed
   edges' chi-square before the term integrates their timing out (thousands at 200 Hz; compare
   ``term_gain`` with ``oracle_gain`` there instead).
 
@@ -43,11 +43,12 @@ Written: ``DIR/draw<INDEX>.json``; data reuse ``results/bench_coverage/data`` (t
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from models.strict_json import write_json
 
 #: Step (s) of the oracle's simulations: 10x finer than the features' 5e-4 s and the data's
 #: generator step (:data:`studies.benchmarks.scenarios.DATA_DT`) apart by the same factor.
@@ -242,7 +243,7 @@ def main(argv=None) -> int:
                           for r in c["ladder"])
         print(f"{c['recording']} ({', '.join(c['features'])}) at the truth, in sd: {steps}")
     path = out / f"draw{args.index:03d}.json"
-    path.write_text(json.dumps(result, indent=2, default=float))
+    write_json(path, result, default=float)
     print(f"wrote {path}")
     return 0
 

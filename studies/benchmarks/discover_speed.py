@@ -1,20 +1,20 @@
-"""Speed of ``tvcid discover`` on issue 11's four recordings (deliverable 7: <= 10 minutes on 2 cores).
+"""Speed of ``tvcid discover`` on four recordings of M000 (goal: <= 10 minutes on 2 cores).
 
 ``python -m studies.benchmarks.discover_speed [--search standard|thorough] [--out DIR]``
 
-The recordings are M000's (the bundled set's model and noise, ``data/generate.py``) at the issue's
-lengths: limit cycles at controllers A and B of 40 s, an open-loop square (+-20 mrad, 1 Hz) and
-sine (20 mrad, 2 Hz) of 10 s, 1 kHz, written with measured-style sidecars (no hypothesis, no
-parameters, the commands only as samples). ``tvcid discover`` runs on them as a user would run it
-(default options: SINDy, the searches, the ranking, the MCMC to convergence) and the wall time of
-every stage is written to ``DIR/bench.json`` beside the goal (600 s), the machine's cores, its
-load average before and after, the commit of the code, and a reference measured in the same run:
-the batch kernel's wall time per simulated second (:func:`studies.benchmarks.goals.kernel_reference`: 64
-closed-loop runs of M000 at the search's 5e-4 s step), so that a slower machine can be told from
-a slower discovery (``discovery_in_kernel_seconds``: the discovery's wall time over that
-reference). The goal is judged on that ratio (:meth:`studies.benchmarks.goals.Goal.speed`); the last line
-printed is the goal, met or NOT met, and so is the exit status (0 met, 1 not). Non-finite
-numbers are written as ``null``. Other jobs inflate the times; run it on an idle machine.
+The recordings are M000's (the bundled set's model and noise, ``data/generate.py``): limit cycles at
+controllers A and B of 40 s, an open-loop square (+-20 mrad, 1 Hz) and sine (20 mrad, 2 Hz) of 10 s,
+1 kHz, written with measured-style sidecars (no hypothesis, no parameters, the commands only as
+samples). ``tvcid discover`` runs on them as a user would run it (default options: SINDy, the
+searches, the ranking, the MCMC to convergence) and the wall time of every stage is written to
+``DIR/bench.json`` beside the goal (600 s), the machine's cores, its load average before and after,
+the commit of the code, and a reference measured in the same run: the batch kernel's wall time per
+simulated second (:func:`studies.benchmarks.goals.kernel_reference`: 64 closed-loop runs of M000 at
+the search's 5e-4 s step), so that a slower machine can be told from a slower discovery
+(``discovery_in_kernel_seconds``: the discovery's wall time over that reference). The goal is judged
+on that ratio (:meth:`studies.benchmarks.goals.Goal.speed`); the last line printed is the goal, met
+or NOT met, and so is the exit status (0 met, 1 not). Non-finite numbers are written as ``null``.
+Other jobs inflate the times; run it on an idle machine.
 """
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ from .goals import report as goal_report
 
 OUT = Path("results/bench_discover_speed")
 GOAL_SECONDS = 600.0
-#: Issue 11 deliverable 7's design: (name, experiment, seconds, noise seed).
+#: The design: (name, experiment, seconds, noise seed).
 RECORDINGS = (
     ("closed_A", CONTROLLER_A, 40.0, 1),
     ("closed_B", CONTROLLER_B, 40.0, 2),

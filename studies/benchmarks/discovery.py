@@ -34,15 +34,15 @@ scaled from 0 to 3, the rates per scale and the draws no scale turns into a hit 
 at every scale is held by its data, not by the margin), to ``DIR/floor_scan.json`` and
 ``DIR/floor_scan.png``.
 
-Goals (issue 11): right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
+Goals: right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
 parameters within 5 % in >= 90 %. Every draw runs the ``standard`` search sizes
 (:data:`discovery.structure.discover.SEARCHES`, the default of ``tvcid discover``); without
 ``--quick`` SINDy seeds them, as in ``tvcid discover``. ``--quick`` (CI) runs a handful of draws
 without SINDy's seeds on the same data (full-length records at the generator's step: cut to 12 s, a band-pass cycle's
-wander rests on two pieces of six periods and draw 1000's truth missed its own record by 13.6 cost
+wander rests on two pieces of six periods and draw 1000's truth misses its own record by 13.6 cost
 units, 0.7 on the full 31 s; at a 2e-4 s step the data's own RK4 error near square edges is of the
 order of the open-loop targets' unit, the sensor noise). The exit status says whether the goals
-hold: over 30 draws or more the issue's 90 %, over fewer (CI's handful) the same rates scaled
+hold: over 30 draws or more the goals' 90 %, over fewer (CI's handful) the same rates scaled
 down to half of the draws; the run ends with both goals, one line each, met or NOT met
 (:func:`discovery_goals`). Every row names the commit of the code that ran it (a resumed run's
 rows may come from several); non-finite numbers, such as a failed draw's times or a truth's
@@ -173,7 +173,7 @@ def set_verdict(ranked, truth):
     Returns ``winner``; ``right_winner``; ``set`` (every structure in the set, merged ones too);
     ``members`` (the unmerged ones) and ``set_size`` (their number); ``truth_member`` (the member
     the truth is or is merged into, ``None`` outside the set) and ``truth_in_set``; and
-    ``right_or_in_small_set``, issue 11's verdict: the right winner, or the truth in a set of at
+    ``right_or_in_small_set``, the goal's verdict: the right winner, or the truth in a set of at
     most 3 members.
     """
     inside = [f for f in ranked if f.indistinguishable_from_best]
@@ -420,7 +420,7 @@ class FloorScan:
             ax = pyplot().subplots(figsize=(6, 3.6))[1]
         ax.plot(self.scales, self.right_or_in_set_le3, "o-", label="winner, or in a set of at most 3")
         ax.plot(self.scales, self.truth_in_set, "s--", label="truth in the reported set")
-        ax.axhline(0.9, color="0.5", lw=0.8, ls=":", label="goal (issue 11)")
+        ax.axhline(0.9, color="0.5", lw=0.8, ls=":", label="goal")
         ax.axhline(self.ceiling, color="C3", lw=0.8, ls="-.",
                    label="at most 3 structures fit as well as the truth")
         ax.axvline(1.0, color="0.7", lw=0.8)

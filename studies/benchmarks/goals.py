@@ -11,7 +11,7 @@ run (:func:`kernel_reference`), so that a slower machine is told from a slower p
 target is the goal's seconds over :data:`NOMINAL_REFERENCE`, the reference's cost at which those
 seconds are read.
 
-The JSON a benchmark writes is strict: :func:`write_json` writes NaN and infinities as ``null``
+The JSON a benchmark writes is strict: :func:`models.strict_json.write_json` writes NaN and infinities as ``null``
 (``json`` would write the tokens ``NaN`` and ``Infinity``, which are not JSON).
 """
 from __future__ import annotations

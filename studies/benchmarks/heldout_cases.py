@@ -1,26 +1,26 @@
-"""Issue 11's reported failures, rerun as the user ran them: does ``tvcid discover`` now get them?
+"""Three held-out cases, rerun as a user ran them: does ``tvcid discover`` name their structure?
 
 ``python -m studies.benchmarks.heldout_cases [--case NAME ...] [--seed N] [--quick] [--no-mcmc] [--out DIR]``
 
-Hypothesis: the discovery that picked the wrong structure or a wrong linear block on these three
-recordings sets (issue 11's opening list) now names the generating structure, or reports a set of
-structures it cannot tell apart with the truth inside, and fits the coordinates the recordings pin
-within 5 %. Deciding numbers: per case, ``truth_in_set``, ``right_winner`` and the relative errors
-of the truth structure's fit in ``results/heldout_cases/summary.json``.
+Hypothesis: on these three recordings sets, each a paper's model recorded with a design a user
+ran, the discovery names the generating structure, or reports a set of structures it cannot tell
+apart with the truth inside, and fits the coordinates the recordings pin within 5 %. Deciding
+numbers: per case, ``truth_in_set``, ``right_winner`` and the relative errors of the truth
+structure's fit in ``results/heldout_cases/summary.json``.
 
-The cases are the papers' models with the issue's designs; the recordings are made by the
-plain-Python reference path (:func:`studies.benchmarks.scenarios.write_recordings`, a second implementation
-at 5e-5 s) and written with measured-style sidecars (no hypothesis, no parameters, commands only as
-samples); 2e-5 rad of white sensor noise where the issue gives none:
+The recordings are made by the plain-Python reference path
+(:func:`studies.benchmarks.scenarios.write_recordings`, a second implementation at 5e-5 s) and
+written with measured-style sidecars (no hypothesis, no parameters, commands only as samples);
+2e-5 rad of white sensor noise where the design gives none:
 
 * ``m001f_no_bandpass``: paper 001's placement without the band-pass loop (M001f, gain 0): limit
   cycles at A and B (40 s, 1 kHz), an open-loop square +-10 mrad at 0.5 Hz and a sine of 10 mrad at
-  1 Hz, 12 s each (the issue: ``dead_zone_on_error`` ranked first; the right form with K2 = 0);
+  1 Hz, 12 s each (the dead-zone position and a damping ``K2`` a fit can drive to 0);
 * ``m000_hwil``: paper 000's placement (M000) recorded as the HWIL did: controller held at 200 Hz,
   records at 200 Hz, sensor offset 1.5e-4 rad, quantisation 2e-5 rad, limit cycles at A and B
-  (the issue: every form wrong, the linear block 3-5x off);
-* ``m002_cycles``: paper 002's placement (M002), limit cycles at A and B only (the issue: K1-K3
-  off 2-4x and the delay 0).
+  (every structural choice and the linear block under the acquisition's distortions);
+* ``m002_cycles``: paper 002's placement (M002), limit cycles at A and B only (``K1``-``K3`` and
+  the delay from two cycles).
 
 This is a check on three cases, not the measure of the method: the discovery benchmark
 (:mod:`studies.benchmarks.discovery`) draws truths and designs at random.
@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 from models import hypothesis
+from models.strict_json import write_json
 from models.structures import Structure
 
 from ..common import code_commit
@@ -43,8 +44,8 @@ from models.synthetic import Acquisition
 from .scenarios import CONTROLLERS, RecordingDesign, Scenario, write_recordings
 
 OUT = Path("results/heldout_cases")
-#: Coordinates compared with the truth (the natural parameters; the friction split is shown as
-#: the threshold ``dead_zone - friction_offset`` the limit cycle pins, MODELS.md).
+#: Coordinates compared with the truth (the natural parameters; the friction split is shown as the
+#: threshold ``dead_zone - friction_offset`` the limit cycle pins, ``docs/models.md#structures``).
 COMPARED = ("gain", "damping", "stiffness", "feedback_gain", "dead_zone", "backlash", "delay",
             "friction_offset", "bandpass_gain", "bandpass_saturation")
 
@@ -55,7 +56,7 @@ def _cycles(duration, rate, controller_rate=None):
 
 
 def cases() -> dict:
-    """The three scenarios by name (frozen: the issue's designs)."""
+    """The three scenarios by name (frozen designs)."""
     m001f = hypothesis("M001f", bandpass_gain=0.0)
     m000 = hypothesis("M000")
     m002 = hypothesis("M002")
@@ -147,7 +148,7 @@ def main(argv=None) -> int:
         row = run_case(name, all_cases[name], out, args.seed, args.quick, not args.no_mcmc)
         row["commit"] = code_commit()
         summary[name] = row
-        path.write_text(json.dumps(summary, indent=2, default=str))
+        write_json(path, summary, default=str)
         errs = {k: f"{v:+.1%}" for k, v in (row["errors_of_truth_structure_fit"] or {}).items()
                 if k in ("gain", "damping", "stiffness", "delay", "dead_zone", "backlash",
                          "dead_zone_minus_friction_offset")}

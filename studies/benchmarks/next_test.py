@@ -38,7 +38,7 @@ from discovery.structure.discrimination import default_candidates, discriminatin
 from .discovery import set_verdict
 from ..common import code_commit
 from .goals import report as goal_report
-from models.strict_json import write_json
+from models.strict_json import dumps, write_json
 from .scenarios import RecordingDesign, draw_scenario, write_recording, write_recordings
 
 DEFAULT_SEEDS = (1004, 1009, 1016, 1010, 1020, 1025)
@@ -97,7 +97,7 @@ def run_draw(seed, out):
     index = len(scenario.recordings)
     new_path = directory / f"rec{index:02d}_{design.kind}.csv"
     stored = directory / "truth" / "scenario.json"
-    provenance = json.dumps(extended.to_dict(), indent=2, default=str)
+    provenance = dumps(extended.to_dict(), default=str)  # strict JSON: non-finite as null
     made = (stored.exists() and stored.read_text() == provenance and new_path.exists()
             and new_path.with_suffix(".json").exists())
     if not made:  # the reference path costs about 10 s per simulated second

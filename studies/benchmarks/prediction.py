@@ -1,4 +1,4 @@
-"""Benchmark of the limit-cycle prediction (issue 13 item 5): speed, shortcut accuracy, coverage.
+"""Benchmark of the limit-cycle prediction: speed, shortcut accuracy, coverage.
 
 Cases are drawn by the shared scenario generator (:func:`studies.benchmarks.scenarios.draw_truth`): a truth
 with the dead zone on the error and no band-pass loop that oscillates at controllers A and B and at

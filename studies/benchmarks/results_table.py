@@ -254,7 +254,7 @@ CLAIMS = (
           discovery_ceiling, lambda r: r["bench_discovery_quick"]["rows"],
           "python -m studies.benchmarks.discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
           "tests/test_bench_discovery.py::test_structures_fitting_as_well_as_the_truth_bound_the_set"),
-    Claim("discovery on fresh draws the set rule was never weighed on",
+    Claim("discovery on fresh draws the set rule is not weighed on",
           discovery_fresh, lambda r: r["bench_discovery_fresh"]["rows"],
           "python -m studies.benchmarks.discovery --quick --seed 1030 --draws 10 --jobs 2",
           "bench_discovery_fresh",

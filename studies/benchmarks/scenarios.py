@@ -1,8 +1,8 @@
 """One seeded generator of random truths and experiment designs, shared by benchmarks and tests.
 
-Used by :mod:`studies.benchmarks.discovery` and the discovery tests (and meant for the coverage
-benchmark of issue 12). Ranges (issue 11, item 6: parameters within a factor 2-3 of the papers'
-values, the linear block within +-30 % of paper 001's):
+Used by :mod:`studies.benchmarks.discovery`, :mod:`studies.benchmarks.coverage` and the tests.
+Ranges (parameters within a factor 2-3 of the papers' values, the linear block within +-30 % of
+paper 001's):
 
 * structure: uniform over :func:`models.structures.structure_space` (36 kept structures);
 * linear block: paper 001's ``K1 = 305500``, ``K2 = 202.1``, ``K3 = 14520`` each times U(0.7, 1.3);
@@ -36,19 +36,21 @@ from models.hypotheses import KICK_X0, ActuatorParams
 from models.recording import save_recording
 from models.synthetic import Acquisition
 from models.reference import simulate_reference
+from models.strict_json import dumps, write_json
 from models.structures import Structure, structure_space
 
 __all__ = ["RecordingDesign", "Acquisition", "Scenario", "draw_truth", "draw_design",
            "draw_scenario", "oscillates", "write_recordings", "write_recording", "ridge_scenario",
-           "RIDGE_PARAMETERS"]
+           "RIDGE_PARAMETERS", "provenance"]
 
 CONTROLLERS = ((5.84, 0.062, 12.3), (9.8, 0.06, 4.5))
 #: Step (s) of the kernel run that decides whether a drawn truth oscillates.
 ACCEPT_DT = 2e-4
 #: Step (s) of the reference path that makes the data (the fits use 5e-4). At 2e-4 the data
-#: carried RK4's own error near square edges and switching events (a drawn truth's 1 kHz square:
-#: rms 1.35e-5, up to 8.7e-5 rad against 2.6e-5 of noise), which the discrepancy term rightly
-#: read as a misfit of the true model (factor 12.8 at the truth; 1.17 with data at 5e-5).
+#: would carry RK4's own error near square edges and switching events (a drawn truth's 1 kHz
+#: square: rms 1.35e-5, up to 8.7e-5 rad against 2.6e-5 of noise), which the discrepancy term
+#: reads as a misfit of the true model (factor 12.8 at the truth; 1.17 with data at 5e-5;
+#: ``tests/test_scenarios.py::test_the_data_step_keeps_the_solver_error_under_the_smallest_noise``).
 DATA_DT = 5e-5
 #: Seconds at the end of a 30 s run over which a truth's cycle must be settled
 #: (:func:`discovery.structure.targets.stationary_tail`).
@@ -181,15 +183,15 @@ def draw_scenario(seed, structure=None, max_tries=200) -> Scenario:
                        f"at every controller setting in {max_tries} draws")
 
 
-#: What the ridge case samples (issue 12): the thresholds, the delay and the friction offset.
+#: What the ridge case samples: the thresholds, the delay and the friction offset.
 RIDGE_PARAMETERS = ("dead_zone", "backlash", "delay", "friction_offset")
 
 
 def ridge_scenario(seed, duration=40.0, noise_sd=1e-4) -> Scenario:
-    """Issue 12's ridge case with a drawn truth: paper 001's placement without the band-pass loop
-    (dead zone on the velocity signal, friction offset, backlash, delay before the integrator),
-    the thresholds, delay, friction offset and linear block drawn as :func:`draw_truth` does;
-    limit cycles at controllers A and B, ``duration`` s each at 1 kHz, white sensor noise."""
+    """The calibration benchmark's ridge case with a drawn truth: paper 001's placement without the
+    band-pass loop (dead zone on the velocity signal, friction offset, backlash, delay before the
+    integrator), the thresholds, delay, friction offset and linear block drawn as :func:`draw_truth`
+    does; limit cycles at controllers A and B, ``duration`` s each at 1 kHz, white sensor noise."""
     from models import M001f
 
     structure = Structure.of_params(M001f().replace(bandpass_gain=0.0))
@@ -214,16 +216,22 @@ def write_recordings(scenario: Scenario, directory, dt=None, reuse=False) -> lis
     directory = Path(directory)
     (directory / "truth").mkdir(parents=True, exist_ok=True)
     dt = dt or DATA_DT
-    provenance = {**scenario.to_dict(), "data_dt": dt}
-    provenance = json.loads(json.dumps(provenance, default=str))
+    stored_provenance = provenance(scenario, dt)
     names = [directory / f"rec{i:02d}_{rd.kind}.csv" for i, rd in enumerate(scenario.recordings)]
     stored = directory / "truth" / "scenario.json"
     if reuse and stored.exists() and all(p.exists() and p.with_suffix(".json").exists() for p in names):
-        if json.loads(stored.read_text()) == provenance:
+        if json.loads(stored.read_text()) == stored_provenance:
             return names
     paths = [write_recording(scenario, i, names[i], dt) for i in range(len(scenario.recordings))]
-    stored.write_text(json.dumps(provenance, indent=2))
+    write_json(stored, stored_provenance)
     return paths
+
+
+def provenance(scenario: Scenario, dt=None) -> dict:
+    """What ``truth/scenario.json`` holds for ``scenario`` made at step ``dt`` (default
+    :data:`DATA_DT`), as a JSON reader gets it back: strict JSON, so a non-finite parameter (the
+    saturation ``inf`` of a structure without the band-pass loop) reads as ``None``."""
+    return json.loads(dumps({**scenario.to_dict(), "data_dt": dt or DATA_DT}, default=str))
 
 
 def write_recording(scenario: Scenario, index, path, dt=None):

@@ -1,7 +1,6 @@
 """``tvcid design``: rank candidate experiments by what they are expected to teach."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 
@@ -35,6 +34,7 @@ def register(sub):
 def run(args) -> int:
     from discovery.prediction import load_posterior_draws
     from discovery.prediction.design import load_candidates, rank_experiments
+    from models.strict_json import write_json
 
     candidates = load_candidates(args.candidates)
     params = [n.strip() for n in args.params.split(",") if n.strip()] if args.params else None
@@ -50,7 +50,7 @@ def run(args) -> int:
                                progress=not args.no_progress)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "design.json").write_text(json.dumps(ranking.to_dict(), indent=2) + "\n")
+    write_json(out / "design.json", ranking.to_dict())
     import matplotlib
 
     matplotlib.use("Agg")

@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import contextlib
-import json
 import sys
 import warnings
 from pathlib import Path
 
 from models.hypotheses import HYPOTHESES
+from models.strict_json import write_json
 
 from ._common import parse_assignments
 
@@ -93,7 +93,7 @@ def run(args) -> int:
     from discovery.calibration import predictive_check
 
     check = predictive_check(cal, seed=args.seed)
-    (out / "check.json").write_text(json.dumps(check.to_dict(), indent=2) + "\n")
+    write_json(out / "check.json", check.to_dict())
     write_posterior_figures(post, out, seed=args.seed)
     try:  # ArviZ InferenceData (walkers as chains, natural units)
         post.to_inference_data().to_netcdf(str(out / "posterior.nc"), engine="h5netcdf")

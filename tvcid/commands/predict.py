@@ -74,6 +74,7 @@ def run(args) -> int:
         parse_grid,
         predict_cycle,
     )
+    from models.strict_json import write_json
 
     grid = dict(parse_grid(g) for g in args.grid)
     if len(grid) != len(args.grid):
@@ -123,7 +124,7 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     cmap = cycle_map(draws, setting, grid, config, describing=not args.no_df,
                      progress=not args.no_progress)
-    (out / "map.json").write_text(json.dumps(cmap.to_dict(), indent=1) + "\n")
+    write_json(out / "map.json", cmap.to_dict(), indent=1)
     cmap.to_csv(out / "map.csv")
     import matplotlib
 
