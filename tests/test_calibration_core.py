@@ -12,13 +12,13 @@ from discovery.calibration import (
     cycle_features,
     parse_prior,
     run_ensemble,
-    synthetic_recording,
 )
 from discovery.calibration.runner import ConvergenceWarning
 from discovery.calibration.testing import moment_errors, sample_gaussian
 from models import CONTROLLER_A, M002, simulate
 from models.features import limit_cycle_features
 from models.recording import RecordingError
+from models.synthetic import synthetic_recording
 from tvcid.cli import main
 
 
@@ -379,12 +379,12 @@ def test_laplace_move_kept_only_if_its_steps_are_accepted(correlated, kept):
     import emcee
 
     from discovery.calibration import Calibration
-    from discovery.calibration.calibration import (
+    from discovery.calibration.moves import (
         LAPLACE_CHECK_STEPS,
         LAPLACE_MAX_REFITS,
+        LaplaceIndependenceMove,
         _move_weights,
     )
-    from discovery.calibration.moves import LaplaceIndependenceMove
 
     mean, sd, cov = _correlated_gaussian()
     move = LaplaceIndependenceMove(mean, cov if correlated else np.diag(sd**2))
@@ -409,8 +409,11 @@ def test_switched_off_laplace_move_is_tried_again_once_the_chain_has_doubled():
     import emcee
 
     from discovery.calibration import Calibration
-    from discovery.calibration.calibration import LAPLACE_MAX_RETRIES, _move_weights
-    from discovery.calibration.moves import LaplaceIndependenceMove
+    from discovery.calibration.moves import (
+        LAPLACE_MAX_RETRIES,
+        LaplaceIndependenceMove,
+        _move_weights,
+    )
     from discovery.calibration.testing import GaussianLogProb
 
     mean, sd, cov = _correlated_gaussian()
@@ -456,7 +459,7 @@ def test_laplace_move_waits_idle_on_a_ridge_the_prior_cuts():
     against 13-17), to the cut Gaussian's moments (mean and sd of each coordinate within 0.15 sd /
     15 % of a rejection sample's)."""
     from discovery.calibration import Calibration
-    from discovery.calibration.calibration import _hessian
+    from discovery.calibration.optimum import _hessian
     from discovery.calibration.runner import run_ensemble
 
     mean, sd, cov = _correlated_gaussian()

@@ -7,7 +7,12 @@ the box's extent there, not the axis-wise sd that leaves the walkers in a thin b
 import numpy as np
 import pytest
 
-from discovery.calibration.calibration import _axis_scales, _box_extent, _hessian, _principal_axes
+from discovery.calibration.optimum import (
+    _axis_scales,
+    _box_extent,
+    _hessian,
+    _principal_axes,
+)
 from discovery.calibration.testing import GaussianLogProb
 
 

@@ -135,7 +135,7 @@ def test_open_loop_step_refined_until_its_error_is_under_the_noise(tmp_path, mon
     chi-square: the truth's log-likelihood then lies within 15 nats of a term started 8x finer
     (measured 11.9), against 363 at 5e-4 s. A record with 1e-4 rad of noise at 200 Hz keeps the
     5e-4 s step."""
-    from discovery.calibration import likelihood
+    from discovery.calibration.likelihood import solver as likelihood
     from studies.benchmarks.coverage import Config, coverage_scenario
 
     truth = coverage_scenario(10, Config()).truth
@@ -171,7 +171,7 @@ def test_closed_loop_waveform_keeps_the_coarse_step_once_the_friction_jump_is_lo
     nats). With the jump located inside the step (``models.nonlinearities.sign_switch_average``)
     both cycles keep 5e-4 s with a load under 1 (measured 0.002 and 0.0) and the log-likelihood at
     the truth is within 1 nat of the 8x finer term's (measured 0.06)."""
-    from discovery.calibration import likelihood
+    from discovery.calibration.likelihood import solver as likelihood
     from studies.benchmarks.scenarios import ridge_scenario
 
     scenario = ridge_scenario(0)
@@ -196,7 +196,7 @@ def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path, mon
     against a fine simulation) is 53.9 at the truth and 56.0 with the backlash 30 % short. With the limit put between the two, the term set up at the truth keeps
     5e-4 s, ``refine_at`` (what Calibration runs at the maximum a posteriori) halves the step at
     the other point, and a later check where the load is small keeps the finer step."""
-    from discovery.calibration import likelihood
+    from discovery.calibration.likelihood import solver as likelihood
     from studies.benchmarks.coverage import Config, coverage_scenario
 
     truth = coverage_scenario(10, Config()).truth

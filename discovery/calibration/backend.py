@@ -12,7 +12,11 @@ import time
 
 from emcee.backends import HDFBackend
 
-__all__ = ["CheckpointBackend"]
+__all__ = ["CheckpointBackend", "H5_GROUP"]
+
+#: The HDF5 group of a calibration's checkpoint that holds its own attributes beside emcee's chain
+#: (set-up, discrepancy factors, chosen transients, the Laplace proposal, ...).
+H5_GROUP = "tvcid"
 
 
 class CheckpointBackend(HDFBackend):

@@ -16,7 +16,7 @@ absorbs). Gelman, Meng & Stern (1996) posterior predictive p-value: the average 
   integrated autocorrelation time) is then simulated, ``REPLICATES`` noise realisations per draw.
 
 A recording fails when its p-value is below the level and the departure is material: the
-inflation it implies (``chi2 / k``; :func:`.likelihood.waveform_inflation`) exceeds
+inflation it implies (``chi2 / k``; :func:`.likelihood.base.waveform_inflation`) exceeds
 ``MATERIAL_INFLATION``.
 """
 from __future__ import annotations
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .likelihood import residual_statistics, waveform_inflation
+from .likelihood.base import residual_statistics, waveform_inflation
 
 __all__ = ["RecordingCheck", "PredictiveCheck", "predictive_check"]
 

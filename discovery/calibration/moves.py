@@ -1,4 +1,5 @@
-"""An independence move from the Laplace approximation, for posteriors that are nearly Gaussian.
+"""An independence move from the Laplace approximation, for posteriors that are nearly Gaussian,
+and its adaptation to the chain over a calibration's run.
 
 emcee's differential-evolution moves cross a narrow valley in a few tens of steps per independent
 sample (M002 on one record: tau 13-14 steps, 700 steps to ``N > 50 tau``). Where the posterior is
@@ -11,16 +12,23 @@ detailed balance move by move. Measured on M002's benchmark record (f, zm, Td, s
 in ten independent, the proposal refitted once to the chain after 50 steps): tau 2.3 steps instead
 of 13.8, converged after 125 steps instead of 700, the same 90 % intervals to 1-2 % of their
 widths. Where the Laplace approximation cannot serve (a ridge cut by the prior, a maximum on a
-prior bound: :func:`discovery.calibration.calibration.laplace_covariance`) the move waits idle
+prior bound: :func:`discovery.calibration.optimum.laplace_covariance`) the move waits idle
 until it can be fitted to the chain; a proposal that would be accepted under a quarter of the
 time is not switched on (:meth:`LaplaceIndependenceMove.expected_acceptance`).
+
+:class:`LaplaceAdaptation` (a part of :class:`discovery.calibration.calibration.Calibration`)
+builds the moves of a run and refits, checks and switches the move off as the chain grows.
 """
 from __future__ import annotations
+
+import json
 
 import emcee
 import numpy as np
 
-__all__ = ["LaplaceIndependenceMove"]
+from .backend import H5_GROUP, CheckpointBackend
+
+__all__ = ["LaplaceIndependenceMove", "LaplaceAdaptation"]
 
 
 class LaplaceIndependenceMove(emcee.moves.MHMove):
@@ -83,3 +91,131 @@ class LaplaceIndependenceMove(emcee.moves.MHMove):
         new = self.mean + (g / np.sqrt(w)[:, None]) @ self.chol.T
         # independence: the ratio q(old) / q(new) enters the acceptance
         return new, self.log_density(coords) - self.log_density(new)
+
+
+#: Steps between checks of the move's realised acceptance ...
+LAPLACE_CHECK_STEPS = 50
+#: ... and under which (the fraction of walker-steps that moved) it is switched off.
+LAPLACE_MIN_REALISED = 0.15
+#: Refits of the proposal after its first when its realised acceptance falls short.
+LAPLACE_MAX_REFITS = 3
+#: Share of the DE moves when the Laplace independence move is on.
+LAPLACE_SHARE_OTHER = 0.1
+#: Steps after which the independence proposal is refitted to the chain, once.
+LAPLACE_ADAPT_STEPS = 50
+#: Expected acceptance of the refitted proposal under which it is switched off.
+LAPLACE_MIN_ACCEPTANCE = 0.25
+#: Times a switched-off proposal is refitted again (each when the chain has doubled).
+LAPLACE_MAX_RETRIES = 3
+#: Acceptance (expected, or realised over the last check) under which a proposal in use is
+#: refitted when the chain has doubled since its fit (its first fit rests on 25 steps: on M002's
+#: noise seed 5 a proposal expected at 0.52 and kept takes 470 steps, tau 10).
+LAPLACE_GOOD_ACCEPTANCE = 0.6
+
+
+def _move_weights(share):
+    """Weights of (DEMove, DESnookerMove, Laplace move) when the last takes ``share`` of the
+    steps: the DE moves split the rest 80/20 as in :func:`.runner.default_moves`."""
+    return np.array([0.8 * (1.0 - share), 0.2 * (1.0 - share), share])
+
+
+class LaplaceAdaptation:
+    """The Laplace independence move of a calibration's run: built at the start, adapted to the
+    chain after each chunk of steps.
+
+    A part of :class:`discovery.calibration.calibration.Calibration`: reads its ``moves``,
+    ``laplace_`` (mean, covariance in sampling coordinates, the move's share, and the refits'
+    record; set at the start, :meth:`.start.StartSearch._start_laplace`, or read from the
+    checkpoint), ``seed``, ``n_walkers``, ``log_posterior_`` and ``backend``, and keeps the move
+    in ``_laplace_move``.
+    """
+
+    def _moves(self):
+        """The user's moves; else DE moves, nine in ten of them replaced by independence proposals
+        from the Laplace approximation when it is usable (``laplace_``)."""
+        self._laplace_move = None
+        if self.moves is not None or self.laplace_ is None:
+            return self.moves
+        self._laplace_move = LaplaceIndependenceMove(self.laplace_["mean"], self.laplace_["cov"])
+        share = float(self.laplace_.get("share", 1.0 - LAPLACE_SHARE_OTHER))
+        moves = (emcee.moves.DEMove(), emcee.moves.DESnookerMove(), self._laplace_move)
+        return list(zip(moves, _move_weights(share)))
+
+    def _adapt_laplace(self, sampler):
+        """At the first chunk end past ``LAPLACE_ADAPT_STEPS``, the independence proposal is
+        refitted to the chain (:meth:`_refit_laplace`); after that, every
+        ``LAPLACE_CHECK_STEPS``, the walkers' realised acceptance over those steps is read off the
+        chain (so a resumed run decides as the uninterrupted one), and under
+        ``LAPLACE_MIN_REALISED`` the proposal is refitted again (at most
+        ``LAPLACE_MAX_REFITS`` times, then the move is switched off). The trial's importance
+        weights only see where the proposal reaches: refitted while the walkers still spread
+        along a ridge, a proposal accepted at 0.23 over its first 50 steps can fall to an overall
+        0.06 (the ridge case without the checks: tau 150-220, not converged in 4000 steps). Each
+        refit is kept in the checkpoint; the posterior's burn-in covers the last one."""
+        move, info = self._laplace_move, self.laplace_
+        if move is None:
+            return
+        it = int(sampler.iteration)
+        if info.get("adapted_at") is None:
+            if it >= LAPLACE_ADAPT_STEPS:
+                self._refit_laplace(sampler, it)
+            return
+        last = int(info.get("checked_at", info["adapted_at"]))
+        if info.get("share", 0.0) <= 0.0:
+            # switched off while the walkers were still spreading along a ridge: tried again once
+            # the chain has doubled (the ridge case: 0.15 expected at step 200)
+            retries = int(info.get("retries", 0))
+            if retries < LAPLACE_MAX_RETRIES and it >= 2 * int(info["adapted_at"]):
+                info["retries"] = retries + 1
+                self._refit_laplace(sampler, it)
+            return
+        if it < last + LAPLACE_CHECK_STEPS:
+            return
+        chain = sampler.get_chain(discard=it - LAPLACE_CHECK_STEPS - 1)
+        realised = float(np.mean(np.any(np.diff(chain, axis=0) != 0, axis=2)))
+        info.update(checked_at=it, realised_acceptance=realised)
+        refits = int(info.get("refits", 0))
+        mediocre = (min(realised, info.get("expected_acceptance", 1.0)) < LAPLACE_GOOD_ACCEPTANCE
+                    and it >= 2 * int(info["adapted_at"]))
+        if realised >= LAPLACE_MIN_REALISED and not (mediocre and refits < LAPLACE_MAX_REFITS):
+            self._save_laplace()
+        elif refits < LAPLACE_MAX_REFITS:
+            info["refits"] = int(info.get("refits", 0)) + 1
+            self._refit_laplace(sampler, it)
+        else:
+            info["share"] = 0.0
+            sampler._weights = _move_weights(0.0)
+            self._save_laplace()
+
+    def _refit_laplace(self, sampler, it):
+        """The independence proposal recentred on the chain's second half (its mean and
+        covariance), which the curvature at the optimum only approximates (M002 on one record:
+        tau 5.4 without the refit, 2.3 with it), then tried: ``2 n_walkers`` proposals (a seeded
+        draw, one batch of simulations) give its expected acceptance at equilibrium; under
+        ``LAPLACE_MIN_ACCEPTANCE`` the move is switched off and the DE moves take every step
+        (drawn truths whose posterior is far from Gaussian: acceptance 0.05-0.08, tau 80-95 with
+        the move kept)."""
+        move, info = self._laplace_move, self.laplace_
+        z = sampler.get_chain(discard=it // 2, flat=True)
+        cov = np.cov(z, rowvar=False)
+        try:
+            move.set_proposal(z.mean(axis=0), cov)
+        except np.linalg.LinAlgError:
+            info["share"] = 0.0
+            sampler._weights = _move_weights(0.0)
+            self._save_laplace()
+            return
+        trial = move.draw(np.random.default_rng([int(self.seed), it]), 2 * self.n_walkers)
+        acceptance = move.expected_acceptance(trial, self.log_posterior_(trial))
+        share = (1.0 - LAPLACE_SHARE_OTHER) if acceptance >= LAPLACE_MIN_ACCEPTANCE else 0.0
+        sampler._weights = _move_weights(share)  # emcee's move weights, in _moves' order
+        info.update(mean=z.mean(axis=0).tolist(), cov=np.atleast_2d(cov).tolist(), adapted_at=it,
+                    checked_at=it, expected_acceptance=acceptance, share=share)
+        self._save_laplace()
+
+    def _save_laplace(self):
+        """``laplace_`` kept in the checkpoint (when there is one)."""
+        if self.backend is not None:
+            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
+                f.require_group(H5_GROUP).attrs["laplace"] = json.dumps(self.laplace_)
+

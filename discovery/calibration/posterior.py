@@ -253,7 +253,7 @@ class Posterior:
             if getattr(term, "kind", "") == "features":
                 import warnings
 
-                from .likelihood import IllPosedLikelihoodWarning, WaveformTerm
+                from .likelihood.waveform import IllPosedLikelihoodWarning, WaveformTerm
 
                 wt = WaveformTerm(term.recording, term.window, term.transient, term.dt,
                                   name=term.name)
