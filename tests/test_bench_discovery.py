@@ -43,10 +43,10 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
     the best (two 9-10 Hz ringing cycles), so the reported set decides the loop and holds the
     truth, and no structural choice is decided wrong; the row's ranking and the summary are the
     row's own, and the exit status is the goal's verdict."""
-    import discovery.structure.discover as discover
+    import discovery.structure.structure_search as structure_search
     import studies.benchmarks.discovery as bench
 
-    monkeypatch.setitem(discover.SEARCHES, "standard", discover.SearchSizes(
+    monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
         pop=3, gens=3, open_pop=3, open_gens=3, nfev=4, rank_nfev=2))
 
     def no_reference_path(*args, **kwargs):

@@ -13,12 +13,9 @@ from pathlib import Path
 import pytest
 
 from discovery.structure.coordinates import SearchSpace
-from discovery.structure.discover import (
-    RANK_OPEN_LOOP_REFINEMENT,
-    TEMPLATE,
-    transferred,
-)
+from discovery.structure.ranking import RANK_OPEN_LOOP_REFINEMENT
 from discovery.structure.search import Objective, refine
+from discovery.structure.structure_search import TEMPLATE, transferred
 from discovery.structure.targets import make_target
 from models.hypotheses import ActuatorParams
 from models.recording import load_recording

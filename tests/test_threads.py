@@ -48,11 +48,11 @@ def test_threaded_discovery_is_the_loop_discovery(tmp_path, monkeypatch):
     concurrently. Every cost, score, coordinate and verdict equals the sequential run's, and
     so does the count of simulated sets. The searches are cut short (the test is about the
     threads, not the search)."""
-    import discovery.structure.discover as discover
+    import discovery.structure.structure_search as structure_search
 
-    monkeypatch.setitem(discover.SEARCHES, "standard", discover.SearchSizes(
+    monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
         pop=3, gens=4, open_pop=3, open_gens=4, nfev=6, rank_nfev=3))
-    monkeypatch.setattr(discover, "OPEN_LOOP_RESTARTS", (2, 2))
+    monkeypatch.setattr(structure_search, "OPEN_LOOP_RESTARTS", (2, 2))
     s = Structure("velocity", "output", friction=True, backlash=True, bandpass=False)
     scenario = shortened(draw_scenario(5, structure=s), closed=10.0, open_=5.0)
     paths = write_recordings(scenario, tmp_path, dt=5e-4)  # coarse: any data will do here

@@ -160,14 +160,14 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     mcmc : bool
         Calibrate the winner after the ranking.
     search : {"standard", "thorough", ...}
-        Search sizes (:data:`discovery.structure.discover.SEARCHES`).
+        Search sizes (:data:`discovery.structure.structure_search.SEARCHES`).
 
     Returns
     -------
     DiscoveryResult
 
-    ``search`` names the search sizes (:data:`discovery.structure.discover.SEARCHES`); ``quick``
-    only shortens the chain.
+    ``search`` names the search sizes (:data:`discovery.structure.structure_search.SEARCHES`);
+    ``quick`` only shortens the chain.
 
     A finished ranking of the same inputs already in ``out`` is reused (``resumed_ranking``), and
     an interrupted chain resumes from its checkpoint.

@@ -1,4 +1,4 @@
-"""Structure discovery by closed- and open-loop simulation (issue 11).
+"""Structure discovery by closed- and open-loop simulation.
 
 Stages, one module each:
 
@@ -6,12 +6,20 @@ Stages, one module each:
   output error with the sensor offset profiled out);
 * :mod:`.coordinates` -- the search box of a structure, in coordinates that follow what the data
   determine;
-* :mod:`.search` -- the batch objective, global search, least-squares refinement, local spread;
-* :mod:`.discover` -- :class:`StructureDiscovery`, every structure of
-  :func:`models.structures.structure_space` fitted and ranked out of sample.
+* :mod:`.search` -- one structure's batch objective, global search, least-squares refinement,
+  local spread;
+* :mod:`.structure_search` -- every structure of :func:`models.structures.structure_space`
+  searched and refined in-sample (search sizes, staged searches, nested fits, seeds, repairs);
+* :mod:`.ranking` -- the two-fold out-of-sample ranking of the fits (:class:`StructureFit`);
+* :mod:`.indistinguishable` -- the set rule: the structures the recordings cannot tell from the
+  best, and the merges;
+* :mod:`.estimator` -- :class:`StructureDiscovery`, which runs them in turn, and
+  :func:`validate_recordings`;
+* :mod:`.discrimination` -- which further test would tell the set's members apart.
 """
 from .coordinates import SearchSpace, UnknownParameterError
-from .discover import DiscoveryInputError, StructureDiscovery, StructureFit, validate_recordings
+from .estimator import DiscoveryInputError, StructureDiscovery, validate_recordings
+from .ranking import StructureFit
 from .targets import NoCycleError
 
 __all__ = [

@@ -1,8 +1,8 @@
 """Which test would tell apart the structures the recordings cannot: model discrimination.
 
-:class:`.discover.StructureDiscovery` reports the structures whose held-out scores the recordings
-cannot separate (:func:`.discover.indistinguishable_set`). This module asks which further test
-would separate them. Each candidate test (:class:`discovery.prediction.design.Candidate`: an
+:class:`.estimator.StructureDiscovery` reports the structures whose held-out scores the recordings
+cannot separate (:func:`.indistinguishable.indistinguishable_set`). This module asks which further
+test would separate them. Each candidate test (:class:`discovery.prediction.design.Candidate`: an
 open-loop square, sine or step, or a controller setting) is recorded synthetically from the best
 member with the recordings' sensor noise and turned into the discovery's own target
 (:func:`.targets.make_target`: limit-cycle features, or the output error of a simulation from
@@ -38,7 +38,7 @@ from models.experiments import CONTROLLER_A, CONTROLLER_B, OpenLoop
 from models.structures import Structure
 
 from ..prediction.design import Candidate
-from .discover import TOL_ABS
+from .indistinguishable import TOL_ABS
 from .targets import NoCycleError, make_target
 
 __all__ = ["DiscriminationRanking", "default_candidates", "discriminating_tests", "DECIDES"]
@@ -152,7 +152,7 @@ def discriminating_tests(members, candidates=None, noise_sd=1e-5, dt=5e-4, seed=
     seed : int
         Seed of the synthetic records' noise.
     recorded : sequence of targets, optional
-        The recordings the members were fitted to (:attr:`.discover.StructureDiscovery.targets_`
+        The recordings the members were fitted to (:attr:`.estimator.StructureDiscovery.targets_`
         or :func:`.targets.make_target` of each): with them the ``n_refit`` best candidates at
         fixed parameters are weighed again with the members refitted; without
         them only the comparison at fixed parameters is made (a refit to the new test alone

@@ -14,7 +14,7 @@ Threads: the batch kernel releases the GIL, so the recordings of one evaluation 
 concurrently (a refinement's one-set batches otherwise keep one core busy), and so are the
 refinements of a search's distinct candidates (:func:`refine_all`) and other independent tasks
 (:func:`concurrent_map`). Every evaluation is deterministic, so the results do not depend on the
-threads' order (``tests/test_threads.py``).
+threads' order (``tests/test_threads.py``). :func:`progress_bar` is a bar such tasks may advance.
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from scipy.optimize import differential_evolution, least_squares
 from scipy.stats import qmc
 
 __all__ = ["Objective", "FitResult", "global_search", "refine", "refine_all", "concurrent_map",
-           "local_sd", "distinct_members"]
+           "local_sd", "distinct_members", "progress_bar"]
 
 #: Finite-difference step of the Jacobian in internal coordinates (0.2 % in the logs).
 FD_STEP = 2e-3
@@ -115,7 +115,8 @@ class FitResult:
     evaluations : int
         Parameter sets simulated.
     restarts : int
-        Independent searches this fit is the best of (:func:`.discover.best_of_restarts`).
+        Independent searches this fit is the best of
+        (:func:`.structure_search.best_of_restarts`).
     """
 
     theta: np.ndarray
@@ -234,12 +235,22 @@ def concurrent_map(fn, items):
     return _map("tasks", REFINE_THREADS, fn, items)
 
 
+def progress_bar(work, desc, enabled):
+    """A tqdm bar, silent unless ``enabled``: over ``work`` when it is a sequence, else of
+    ``work`` steps that concurrent tasks advance (tqdm's ``update`` holds a lock)."""
+    from tqdm.auto import tqdm
+
+    if isinstance(work, int):
+        return tqdm(total=work, desc=desc, leave=False, disable=not enabled)
+    return tqdm(work, desc=desc, leave=False, disable=not enabled)
+
+
 def local_sd(space, objective, theta, targets=None):
     """Gauss-Newton spread of each coordinate at ``theta`` (change raising the cost by one unit).
 
     ``inf`` along directions the recordings do not determine at all.
     """
-    lo, hi = space.low, space.high
+    hi = space.high
     steps = np.where(theta + FD_STEP <= hi, FD_STEP, -FD_STEP)
     pts = np.vstack([theta, theta + np.diag(steps)])
     r = objective.residuals([space.params(p) for p in pts], targets)

@@ -300,7 +300,7 @@ class CycleTarget(_Target):
         self.unit = np.sqrt(floor**2 + self.wander**2)
         #: cost the generating model pays for the simulated window's own wander alone (a window
         #: of WINDOW_PERIODS wanders as PERIODS / WINDOW_PERIODS times the pieces' variance); a
-        #: cost difference of that size is no evidence (:func:`.discover.margin_floors`)
+        #: cost difference of that size is no evidence (:func:`.indistinguishable.margin_floors`)
         self.window_cost = float(np.mean(self.wander**2 * (PERIODS / WINDOW_PERIODS) / self.unit**2))
         self._observed = self._features(self.omega, self.harmonics)
         self._tail = (t, d, np.asarray(ups))

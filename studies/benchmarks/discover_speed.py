@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from discovery.structure.discover import SEARCHES
+from discovery.structure.structure_search import SEARCHES
 from models import CONTROLLER_A, CONTROLLER_B, OpenLoop, hypothesis, simulate
 from models.recording import recording_from_trajectory, save_recording
 

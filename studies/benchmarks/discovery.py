@@ -36,7 +36,7 @@ at every scale is held by its data, not by the margin), to ``DIR/floor_scan.json
 
 Goals: right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
 parameters within 5 % in >= 90 %. Every draw runs the ``standard`` search sizes
-(:data:`discovery.structure.discover.SEARCHES`, the default of ``tvcid discover``); without
+(:data:`discovery.structure.structure_search.SEARCHES`, the default of ``tvcid discover``); without
 ``--quick`` SINDy seeds them, as in ``tvcid discover``. ``--quick`` (CI) runs a handful of draws
 without SINDy's seeds on the same data (full-length records at the generator's step: cut to 12 s, a band-pass cycle's
 wander rests on two pieces of six periods and draw 1000's truth misses its own record by 13.6 cost
@@ -168,7 +168,8 @@ def run_draw(seed, out_dir, quick):
 
 def set_verdict(ranked, truth):
     """How a ranking (winner first, its indistinguishable set marked:
-    :func:`discovery.structure.discover.indistinguishable_set`) stands to the ``truth`` structure.
+    :func:`discovery.structure.indistinguishable.indistinguishable_set`) stands to the ``truth``
+    structure.
 
     Returns ``winner``; ``right_winner``; ``set`` (every structure in the set, merged ones too);
     ``members`` (the unmerged ones) and ``set_size`` (their number); ``truth_member`` (the member
@@ -190,8 +191,8 @@ def set_verdict(ranked, truth):
 def as_well_as_truth(row, against="truth"):
     """The structures no fit-based rule can tell from the truth on ``row``'s recordings, reduced
     to the minimal ones (a structure containing another of them,
-    :func:`discovery.structure.discover._contains`, is that one at its added components' zero),
-    the truth's own structure among them.
+    :func:`discovery.structure.indistinguishable._contains`, is that one at its added components'
+    zero), the truth's own structure among them.
 
     ``against="truth"``: every ranked structure whose fitted in-sample cost is at most the cost of
     the true parameters themselves (``cost_at_truth``). The recordings are at least as likely
@@ -205,7 +206,7 @@ def as_well_as_truth(row, against="truth"):
     bounds on the draws whose truth a set of at most 3 can hold. Rows without a stored truth
     cost give ``None``.
     """
-    from discovery.structure.discover import _contains
+    from discovery.structure.indistinguishable import _contains
 
     if against not in ("truth", "fit"):
         raise ValueError(f"against must be 'truth' or 'fit', not {against!r}")
@@ -313,9 +314,10 @@ def summarise(rows, key=structure_class):
 
 
 def draw_floors(seed, out_dir):
-    """The margin floors (:func:`discovery.structure.discover.margin_floors`) of draw ``seed``'s
-    recordings, regenerated into ``out_dir/drawNNN`` unless they are there."""
-    from discovery.structure.discover import margin_floors, validate_recordings
+    """The margin floors (:func:`discovery.structure.indistinguishable.margin_floors`) of draw
+    ``seed``'s recordings, regenerated into ``out_dir/drawNNN`` unless they are there."""
+    from discovery.structure.estimator import validate_recordings
+    from discovery.structure.indistinguishable import margin_floors
     from discovery.structure.targets import make_target
 
     paths = write_recordings(draw_scenario(seed), Path(out_dir) / f"draw{seed:03d}", reuse=True)
@@ -326,13 +328,15 @@ def draw_floors(seed, out_dir):
 def rederived(row, floors, commit=CODE_COMMIT):
     """``row`` with its indistinguishable set, winner and verdict derived again from its stored
     ranking (every ranked structure's held-out fold costs) by the current set rule
-    (:func:`discovery.structure.discover.indistinguishable_set`), with ``floors`` per recording.
+    (:func:`discovery.structure.indistinguishable.indistinguishable_set`), with ``floors`` per
+    recording.
 
     No search runs: the fits and scores are the row's own. Structures the row did not rank join
     the set where they contain a member (as in the discovery). A changed verdict keeps the old one
     under ``previous``; ``set_rule_check`` says which commit's rule and what changed.
     """
-    from discovery.structure.discover import StructureFit, indistinguishable_set
+    from discovery.structure.indistinguishable import indistinguishable_set
+    from discovery.structure.ranking import StructureFit
     from models.structures import structure_space
 
     def fit(structure, score, cost, folds=None):
@@ -380,7 +384,8 @@ class FloorScan:
     Attributes
     ----------
     scales : tuple of float
-        Factors on every recording's floor (:func:`discovery.structure.discover.margin_floors`).
+        Factors on every recording's floor
+        (:func:`discovery.structure.indistinguishable.margin_floors`).
     right_or_in_set_le3, truth_in_set, mean_set_size : tuple of float
         Per scale, over the draws.
     misses : tuple of tuple of int

@@ -1,0 +1,533 @@
+"""The structure search: every structure of the space fitted to all recordings, in-sample.
+
+* :data:`SEARCHES` -- the search sizes (:class:`SearchSizes`) by name;
+* :class:`StructureSearch` -- the stages: a global search (staged, open-loop tests first, when
+  there are both kinds of recording) for the largest structure of every (dead-zone position,
+  delay position, band-pass loop) class, cross-seeded between delay positions; every nested
+  structure refined from its parent's optimum; the repairs (a superset refitted from a nested
+  structure that fits better; every structure refitted from the best optimum of all);
+* :func:`best_of_restarts` -- independent short searches repeated until the best two agree;
+* the starts carried from one structure to another: :func:`delay_moved` (the delay moved with
+  the linear block matched in frequency), :func:`transferred` (any structure's optimum as a start
+  for another), and the seeds a structure can take (:func:`_valid`).
+
+One structure's global search and refinement are :mod:`.search`'s; the ranking of the fits is
+:mod:`.ranking`'s.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq, least_squares
+
+from models.hypotheses import KICK_X0, DeadZonePosition, DelayPosition
+from models.linear import second_order_response
+from models.structures import Structure
+
+from .indistinguishable import TOL_ABS, _contains
+from .ranking import StructureFit
+from .search import (
+    concurrent_map,
+    distinct_members,
+    global_search,
+    local_sd,
+    progress_bar,
+    refine,
+    refine_all,
+)
+
+__all__ = ["StructureSearch", "SearchSizes", "SEARCHES", "TEMPLATE", "best_of_restarts",
+           "delay_moved", "transferred"]
+
+#: Template of the fields a search does not set (paper 001's linear block, only a placeholder; the
+#: papers' kick x0 so that a reported model, simulated in closed loop, leaves the equilibrium).
+TEMPLATE = dict(gain=305500.0, damping=202.1, stiffness=14520.0, dead_zone=1e-3,
+                dead_zone_position=DeadZonePosition.ERROR, backlash=0.0, delay=2e-3,
+                delay_position=DelayPosition.OUTPUT, x0=KICK_X0)
+#: Distinct members of a global search's final population refined locally (the best among them).
+N_STARTS = 3
+#: Independent short searches of one stage (:func:`best_of_restarts`): at least the first number,
+#: then more until the best two agree, up to the second; the open-loop stage, and a search of the
+#: whole box (recordings of one kind). With open-loop tests the limit cycles are searched once,
+#: in the box the open-loop fit narrowed. The band-pass loop's wandering cycles rarely let two
+#: searches agree, so a whole-box search often runs to its maximum, and that maximum is 4.
+OPEN_LOOP_RESTARTS = (3, 8)
+WHOLE_BOX_RESTARTS = (2, 4)
+#: Half-width of the box kept around the open-loop stage's fit, in local spreads of each coordinate.
+OPEN_LOOP_BOX = 6.0
+#: Band over which :func:`delay_moved` matches the moved block's frequency response, in units of
+#: the block's natural frequency ``sqrt(K3)``: the limit cycles (2-10 Hz) and the open-loop tests'
+#: edges ring below it (M000: 19 Hz).
+MATCHED_BAND = (0.05, 1.5)
+#: Factor within which each coefficient of the moved block stays of the given one's.
+MATCHED_RANGE = 10.0
+
+
+@dataclass(frozen=True)
+class SearchSizes:
+    """Sizes of every search and refinement of :class:`.estimator.StructureDiscovery`.
+
+    Attributes
+    ----------
+    pop, gens : int
+        Differential evolution on all recordings: population per coordinate, generations.
+    open_pop, open_gens : int
+        The same for each of the open-loop stage's searches (:func:`best_of_restarts`).
+    nfev : int
+        Least-squares evaluations of a refinement (global searches, nested structures, repairs).
+    rank_nfev : int
+        Least-squares evaluations of each fold's refit in the out-of-sample ranking.
+    """
+
+    pop: int
+    gens: int
+    open_pop: int
+    open_gens: int
+    nfev: int
+    rank_nfev: int
+
+
+#: ``standard`` is what the discovery benchmark measures (``studies.benchmarks.discovery``) and what
+#: ``tvcid discover`` runs by default; ``thorough`` searches about 1.8x as many parameter sets
+#: (M000's four records: 123,000 against 69,000 simulations, 816 s against 507 s on 2 idle cores)
+#: and is not covered by the benchmark.
+SEARCHES = {
+    "standard": SearchSizes(pop=5, gens=15, open_pop=5, open_gens=15, nfev=15, rank_nfev=6),
+    "thorough": SearchSizes(pop=8, gens=45, open_pop=6, open_gens=25, nfev=30, rank_nfev=12),
+}
+
+
+class StructureSearch:
+    """The searches and refinements that fit the structures of a space to one objective.
+
+    Parameters
+    ----------
+    objective : .search.Objective
+        Every recording's target.
+    sizes : SearchSizes
+    rng : numpy.random.Generator
+        The global searches' draws, taken in the order the searches run.
+    spaces : dict, optional
+        Structure -> :class:`.coordinates.SearchSpace` of every structure to fit.
+    progress : bool
+        Progress bars (tqdm).
+
+    Attributes
+    ----------
+    searches : dict
+        Independent searches run per stage (``open_loop``, ``global``; :func:`best_of_restarts`).
+    open_loop_seconds : float
+        Wall time of the open-loop stages (s).
+    """
+
+    def __init__(self, objective, sizes, rng, spaces=None, progress=False):
+        self.objective = objective
+        self.sizes = sizes
+        self.rng = rng
+        self.spaces = dict(spaces or {})
+        self.progress = progress
+        self.searches = {"open_loop": 0, "global": 0}
+        self.open_loop_seconds = 0.0
+
+    # -- the stages ----------------------------------------------------------------------------
+    def search_classes(self, structures, sindy):
+        """Global search of the largest structure of every class, then cross-seeding.
+
+        A class is a (dead-zone position, delay position) pair, without and with the band-pass
+        loop. Each search is seeded with SINDy's proposals (``sindy``: structure name -> list of
+        ActuatorParams) for the structure and for the structures nested in it; a band-pass
+        structure also with its class's fit without the loop, the loop switched on small.
+        Returns the fits, structure -> :class:`.ranking.StructureFit`.
+        """
+        classes = sorted({(s.dead_zone_position, s.delay_position) for s in structures},
+                         key=lambda c: (c[0].value, c[1].value))
+        tops = []
+        for cls in classes:
+            members = [s for s in structures if (s.dead_zone_position, s.delay_position) == cls]
+            for bandpass in (False, True):
+                group = [s for s in members if s.bandpass == bandpass]
+                if group:
+                    tops.append(max(group, key=lambda s: len(s.components)))
+        fits = {}
+        for s in progress_bar(tops, "global search", self.progress):
+            seeds = list(sindy.get(s.name, []))
+            for other, plist in sindy.items():  # nested proposals seed their parents too
+                o = Structure.parse(other)
+                if (o.dead_zone_position, o.delay_position) == (s.dead_zone_position, s.delay_position):
+                    seeds += [p for p in plist if p not in seeds]
+            if s.bandpass:
+                parent = fits.get(s.without("bandpass"))
+                if parent is not None:
+                    seeds += [parent.params.replace(bandpass_gain=g, bandpass_saturation=k * parent.params.gain
+                                                    / parent.params.stiffness)
+                              for g, k in ((40.0, 5e-4), (80.0, 3e-4))]
+            fr = self.fit_global(self.spaces[s], _valid(seeds, s))
+            fits[s] = self._record(s, fr, "global search (differential evolution, then least "
+                                   "squares)", sindy.get(s.name, []))
+        self.cross_seed(fits)
+        return fits
+
+    def fit_nested(self, structures, fits, sindy):
+        """Fit every structure of ``structures`` not in ``fits`` (adding it there), then repair.
+
+        Level by level, largest first: each structure is refined from the best fit of the
+        structures it is nested in (same positions, same band-pass flag) with the component
+        removed, or searched globally where there is none. Then the superset repair
+        (:meth:`repair_supersets`) and the refits from the best optimum of all
+        (:meth:`seed_from_best`). Returns the names of the structures the repairs refitted.
+        """
+        rest = [s for s in structures if s not in fits]
+        bar = progress_bar(len(rest), "nested structures", self.progress)
+        # level by level, largest first: a parent has more components, so the structures of one
+        # level are refined concurrently from parents already fitted (the loop's result)
+        for size in sorted({len(s.components) for s in rest}, reverse=True):
+            level = [s for s in rest if len(s.components) == size]
+            parents = {s: min((f for f in fits.values() if _is_nested(s, f.structure)),
+                              key=lambda f: f.cost, default=None) for s in level}
+            done = {}
+            for s in (s for s in level if parents[s] is None):  # in order: the rng's draws
+                done[s] = (self.fit_global(self.spaces[s], []), "global search")
+                bar.update()
+
+            def from_parent(s):
+                parent = parents[s]
+                start = s.to_params(parent.params, **_reduced_values(parent.params, s))
+                fr = refine(self.spaces[s], self.objective, self.spaces[s].coordinates(start),
+                            max_nfev=self.sizes.nfev)
+                bar.update()
+                return fr, f"least squares from {parent.structure.name} with the component removed"
+
+            adopted = [s for s in level if parents[s] is not None]
+            done.update(zip(adopted, concurrent_map(from_parent, adopted)))
+            for s in level:
+                fr, origin = done[s]
+                fits[s] = self._record(s, fr, origin, sindy.get(s.name, []))
+        bar.close()
+        repaired = self.repair_supersets(fits)
+        repaired += self.seed_from_best(fits)
+        return repaired
+
+    # -- one structure's global search ---------------------------------------------------------
+    def fit_global(self, space, seeds):
+        """Global search of one structure on all recordings, then least squares.
+
+        With open-loop and closed-loop recordings together the search is staged: the open-loop
+        output error, smooth in the parameters, is fitted first (:meth:`fit_open_loop`); the
+        search on all recordings then keeps, for every coordinate the open-loop tests pin, only
+        ``OPEN_LOOP_BOX`` local spreads around that fit. The limit cycles' features jump where the
+        cycle changes shape, and a cycle at the scale of the dead zone does so within a fraction
+        of a percent of the linear block (benchmark draw 1002: costs 100-50,000 within 1 % of the
+        true static gain), where a search of the whole box finds no basin. Least squares then
+        runs in the whole box.
+
+        On limit cycles alone the whole box is searched, and one short search often ends in
+        another basin (benchmark draw 1023, the true structure: searches from independent starts
+        end at 0.17-113 against the truth's 0.35), so the search is repeated until its best two
+        agree (:func:`best_of_restarts`, at most ``WHOLE_BOX_RESTARTS``).
+
+        ``seeds``: parameter objects of the structure (:func:`_valid`) placed in the first
+        population. Returns a :class:`.search.FitResult`.
+        """
+        objective = self.objective
+        pop, gens, nfev = self.sizes.pop, self.sizes.gens, self.sizes.nfev
+        starts = [space.coordinates(p) for p in seeds]
+        box = space
+        open_targets = [t for t in objective.targets if t.kind == "open"]
+        restarts = WHOLE_BOX_RESTARTS
+        if open_targets and len(open_targets) < len(objective.targets):
+            t0 = time.perf_counter()
+            first = self.fit_open_loop(space, open_targets, starts)
+            self.open_loop_seconds += time.perf_counter() - t0
+            sd = local_sd(space, objective, first.theta, targets=open_targets)
+            box = space.narrowed(first.theta, OPEN_LOOP_BOX * sd)
+            starts = [first.theta] + starts
+            restarts = (1, 1)
+        best = best_of_restarts(
+            lambda: _searched(box, space, objective, self.rng, starts, pop, gens, nfev),
+            len(objective.targets), *restarts)
+        self.searches["global"] += best.restarts
+        for s in starts[:1]:  # the best seed, refined too
+            alt = refine(space, objective, s, max_nfev=nfev)
+            if alt.cost < best.cost:
+                best = alt
+        return best
+
+    def fit_open_loop(self, space, open_targets, starts):
+        """Short searches on the open-loop recordings alone, repeated until the best two agree
+        (:func:`best_of_restarts`, at most ``OPEN_LOOP_RESTARTS``).
+
+        One search alone often stops in another basin, and short searches from independent
+        starts fail independently. Some draws need many: on benchmark draw 1019 (a dead zone with
+        a backlash, two squares at 200 Hz) most searches end at 27-42 and few near the truth's
+        0.72. ``tests/test_discover.py::test_open_loop_stage_reaches_the_open_loop_optimum``
+        checks the stage on benchmark draw 1002.
+        """
+        pop, gens = self.sizes.open_pop, self.sizes.open_gens
+        best = best_of_restarts(
+            lambda: _searched(space, space, self.objective, self.rng, starts, pop, gens, 30,
+                              open_targets),
+            len(open_targets), *OPEN_LOOP_RESTARTS)
+        self.searches["open_loop"] += best.restarts
+        return best
+
+    # -- refits from other structures' optima --------------------------------------------------
+    def cross_seed(self, fits, n_sources=2):
+        """Refine each searched structure from the better optima of its delay-position siblings.
+
+        Structures that differ only in where the delay sits describe nearly the same loop (a delay
+        inside the second-order block's own feedback reads, at low frequency, as a changed K2 and
+        K3 plus a delay after it), so one's optimum is a good start for another; a search that
+        missed its basin is caught here rather than ranked as if the structure were wrong.
+        """
+        for s in list(fits):
+            siblings = sorted((f for o, f in fits.items()
+                               if o != s and o.dead_zone_position == s.dead_zone_position
+                               and o.bandpass == s.bandpass and f.cost < fits[s].cost),
+                              key=lambda f: f.cost)[:n_sources]
+            for other in siblings:
+                moved = delay_moved(other.params, s.delay_position)
+                start = s.to_params(moved, **_widen(moved, s))
+                self.keep_better(fits, s, start,
+                                 f"least squares from the optimum of {other.structure.name}")
+
+    def seed_from_best(self, fits):
+        """Refine every structure from the best fit of all, carried over (:func:`transferred`).
+
+        The global searches run per (dead-zone position, delay position, band-pass loop) class and
+        the cross-seeding within a class; a class whose search misses its basin (benchmark draw
+        1019: the generating structure's search can end at 2.2 where its band-pass superset
+        reaches 1.44 and the true parameters give 1.56) is reached here from the others' best
+        optimum. Returns the structures the superset repair that follows refits.
+        """
+        best = min(fits.values(), key=lambda f: f.cost)
+        chosen = [s for s in sorted(fits, key=lambda s: s.name)
+                  if s != best.structure and fits[s].cost > best.cost]
+        refined = concurrent_map(  # independent refinements from one start each
+            lambda s: refine(self.spaces[s], self.objective,
+                             self.spaces[s].coordinates(transferred(best.params, s)),
+                             max_nfev=self.sizes.nfev), chosen)
+        for s, fr in zip(chosen, refined):
+            self.keep_better(fits, s, None,
+                             f"least squares from the optimum of {best.structure.name}", fr)
+        return self.repair_supersets(fits)
+
+    def repair_supersets(self, fits):
+        """Refit a structure that fits worse than one of its nested structures.
+
+        A superset can always reproduce its nested structure (the added component at zero), so
+        a higher cost is a search failure (the friction offset's discontinuity makes the
+        landscape rugged); the superset is refined from the nested optimum with the component
+        switched on small. Returns the names of the structures refitted.
+        """
+        def repair(s):
+            fixed = False
+            for comp in s.components:
+                sub = fits.get(s.without(comp))
+                if sub is None or fits[s].cost <= sub.cost * (1 + 1e-3):
+                    continue
+                start = s.to_params(sub.params, **_widen(sub.params, s))
+                fixed |= self.keep_better(fits, s, start,
+                                          f"least squares from {sub.structure.name} with {comp} added")
+            return fixed
+
+        repaired = []
+        order = sorted(fits, key=lambda s: len(s.components))
+        # level by level, smallest first: a structure's nested ones have fewer components, so
+        # one level's repairs read only fits already final (the loop's result, concurrently)
+        for size in sorted({len(s.components) for s in order}):
+            level = [s for s in order if len(s.components) == size]
+            repaired += [s.name for s, fixed in zip(level, concurrent_map(repair, level)) if fixed]
+        return repaired
+
+    def keep_better(self, fits, s, start, origin, fr=None):
+        """Refine ``s`` from ``start`` (or take the refined ``fr``); replace its fit (keeping
+        SINDy's seeds) if the cost drops. Returns whether it did."""
+        if fr is None:
+            fr = refine(self.spaces[s], self.objective, self.spaces[s].coordinates(start),
+                        max_nfev=self.sizes.nfev)
+        if fr.cost >= fits[s].cost:
+            return False
+        seeds = fits[s].sindy_seeds
+        fits[s] = self._record(s, fr, origin, [])
+        fits[s].sindy_seeds = seeds
+        return True
+
+    def _record(self, s, fr, origin, seeds):
+        names = [t.name for t in self.objective.targets]
+        return StructureFit(structure=s, params=self.spaces[s].params(fr.theta), theta=fr.theta,
+                            cost=fr.cost, cost_by_recording=dict(zip(names, map(float, fr.cost_by_target))),
+                            origin=origin, sindy_seeds=[p.to_dict() for p in seeds])
+
+
+def best_of_restarts(search, n_recordings, min_restarts, max_restarts):
+    """The best of repeated independent searches (``search()`` returns a fit with ``cost``).
+
+    At least ``min_restarts`` searches, then more until the best two costs agree within
+    ``TOL_ABS`` per recording (the floor of what the ranking tells apart: two independent
+    searches that reach the same cost make a better basin unlikely) or ``max_restarts`` have run.
+    Returns the best fit with its ``restarts`` set to the number of searches run.
+    """
+    if not 1 <= min_restarts <= max_restarts:
+        raise ValueError(f"restarts must satisfy 1 <= min ({min_restarts}) <= max ({max_restarts})")
+    fits = []
+    while len(fits) < max_restarts:
+        fits.append(search())
+        if len(fits) >= min_restarts:
+            a, b = (sorted(f.cost for f in fits) + [math.inf])[:2]
+            if b - a <= TOL_ABS * n_recordings:
+                break
+    best = min(fits, key=lambda f: f.cost)
+    best.restarts = len(fits)
+    return best
+
+
+def _searched(box, space, objective, rng, starts, pop, gens, nfev, targets=None):
+    """Differential evolution in ``box``, then least squares (in the whole ``space``) from the best
+    member and from the runners-up in other basins (a short search often ends before one basin has
+    won); the best refined fit."""
+    de = global_search(box, objective, rng, seeds=starts, popsize=pop, maxiter=gens, targets=targets)
+    fits = refine_all(space, objective,
+                      distinct_members(de.population, de.population_costs, box, N_STARTS),
+                      max_nfev=nfev, targets=targets)
+    return min(fits, key=lambda f: f.cost)
+
+
+def delay_moved(params, position):
+    """``params`` with the delay moved to ``position`` and the linear block changed to match.
+
+    Inside the second-order block's loop (``before_first_integrator``,
+    ``y'' = [K1 e - K2 y' - K3 y](t - Td)``) the block is ``K1 / (s^2 e^{s Td} + K2 s + K3)``;
+    after it, ``K1 e^{-s Td} / (s^2 + K2 s + K3)`` (:func:`models.linear.second_order_response`).
+    The moved block is the one whose frequency response matches the given one over
+    ``MATCHED_BAND`` of the given block's natural frequency ``sqrt(K3)`` (log gain and phase, least
+    squares), started from the first-order match (:func:`_first_order_moved`). The first-order
+    match alone fails where ``K2 Td`` is not small: benchmark draw 1019's delay-inside fit (K2 Td =
+    0.4) moved outside by it is 29 % off in gain and 0.27 rad in phase within the band, Td 7.8 ms
+    for the truth's 3.7 ms, and least squares from there stops at cost 133 against 0.72; matched
+    over the band it is within 0.1 % and 0.005 rad, and least squares lands at the truth's block
+    within 2 % (Td 3.9 ms). M000's 1.7 ms inside reads as 2.1 ms outside. The two outer positions
+    (before the integrator, at the output) share the block.
+    """
+    inner = DelayPosition.BEFORE_FIRST_INTEGRATOR
+    if (params.delay_position is inner) == (position is inner):
+        return params.replace(delay_position=position)
+    start = _first_order_moved(params, position)
+    if not params.delay > 0:
+        return start
+    omega = np.geomspace(MATCHED_BAND[0], MATCHED_BAND[1], 48) * math.sqrt(params.stiffness)
+    target = second_order_response(params.gain, params.damping, params.stiffness, params.delay,
+                                   params.delay_position is inner, omega)
+
+    def mismatch(x):
+        k1, k2, k3, td = np.exp(x)
+        ratio = second_order_response(k1, k2, k3, td, position is inner, omega) / target
+        return np.concatenate([np.log(np.abs(ratio)), np.angle(ratio)])
+
+    # within MATCHED_RANGE of the given block: a resonant inner block (long delay) has no outer
+    # match, and the fit would drift off with every coefficient growing together
+    source = np.log([params.gain, params.damping, params.stiffness, params.delay])
+    lo, hi = source - math.log(MATCHED_RANGE), source + math.log(MATCHED_RANGE)
+    x0 = np.clip(np.log([start.gain, start.damping, start.stiffness, start.delay]), lo, hi)
+    fit = least_squares(mismatch, x0, bounds=(lo, hi), xtol=1e-10, ftol=1e-12)
+    if not (np.all(np.isfinite(fit.x)) and fit.cost < 0.5 * float(np.sum(mismatch(x0) ** 2))):
+        return start
+    k1, k2, k3, td = map(float, np.exp(fit.x))
+    return start.replace(gain=k1, damping=k2, stiffness=k3, delay=td)
+
+
+def _first_order_moved(params, position):
+    """:func:`delay_moved` to first order in ``s Td``.
+
+    With ``D = 1 + K2 Td`` of the outer form, ``K1, K3`` inside are the outer ones over ``D``,
+    ``K2`` inside is ``(K2 + K3 Td) / D`` and the delay inside is ``Td / D``.
+    """
+    inner = DelayPosition.BEFORE_FIRST_INTEGRATOR
+    k1, k2, k3, td = params.gain, params.damping, params.stiffness, params.delay
+    if position is inner:  # outer -> inner
+        d = 1.0 + k2 * td
+        return params.replace(gain=k1 / d, damping=(k2 + k3 * td) / d, stiffness=k3 / d,
+                              delay=td / d, delay_position=position)
+    # inner -> outer: the D whose outer block maps onto this inner one (K2 outer = (D - 1) / Td)
+    def mismatch(d):
+        return k2 * d - (d - 1.0) / (td * d) - k3 * td * d * d
+
+    if td <= 0 or mismatch(1.0) <= 0 or mismatch(20.0) >= 0:
+        return params.replace(delay_position=position)
+    d = brentq(mismatch, 1.0, 20.0)
+    return params.replace(gain=k1 * d, damping=(d - 1.0) / (td * d), stiffness=k3 * d,
+                          delay=td * d, delay_position=position)
+
+
+def transferred(params, structure):
+    """Another structure's ``params`` as a start for ``structure``.
+
+    The delay is moved with :func:`delay_moved`; a dead zone moved between the error and the
+    velocity signal keeps its threshold in rad of error (``z_error = (z - off) / g0``, ``g0 = K1/K3``
+    the second-order block's static gain, the search coordinate ``log_c_e``); a component removed
+    leaves the moving threshold as it was (:func:`_reduced_values`), one added starts small
+    (:func:`_widen`; the band-pass loop at gain 40 and a saturation of 5e-4 rad of error).
+    """
+    p = delay_moved(params, structure.delay_position)
+    g0 = p.gain / p.stiffness
+    values = _reduced_values(p, structure)
+    moving = values.get("dead_zone", p.dead_zone - p.friction_offset)
+    if p.dead_zone_position is not structure.dead_zone_position:
+        if structure.dead_zone_position is DeadZonePosition.VELOCITY:
+            values["dead_zone"] = moving * g0
+        else:
+            values["dead_zone"] = moving / g0
+        values["friction_offset"] = 0.0
+    elif not structure.friction:
+        values["friction_offset"] = 0.0
+    if structure.bandpass and p.bandpass_gain == 0.0:
+        values.update(bandpass_gain=40.0, bandpass_saturation=5e-4 * g0)
+    start = structure.to_params(p, **values)
+    return structure.to_params(start, **_widen(start, structure))
+
+
+def _fixed_for(structure, fixed):
+    """Fixed values that apply to ``structure`` (a component's value only where it is present)."""
+    out = dict(fixed)
+    for key, comp in (("friction_offset", "friction"), ("backlash", "backlash"),
+                      ("bandpass_gain", "bandpass"), ("bandpass_saturation", "bandpass")):
+        if key in out and not getattr(structure, comp):
+            out.pop(key)
+    return out
+
+
+def _is_nested(s, parent):
+    """``s`` is ``parent`` with components removed (same positions, same band-pass flag)."""
+    return s.bandpass == parent.bandpass and _contains(parent, s)
+
+
+def _reduced_values(params, s):
+    """Start values for nested ``s`` from its parent's ``params``: the moving threshold kept."""
+    values = {}
+    if not s.friction and params.friction_offset != 0.0:
+        values["dead_zone"] = params.dead_zone - params.friction_offset
+    return values
+
+
+def _widen(p, s):
+    """A nested proposal as a start for a larger structure: small values for its absent parts."""
+    extra = {}
+    if s.backlash and p.backlash == 0.0:
+        extra["backlash"] = 1e-5
+    if s.friction and p.friction_offset == 0.0:
+        extra["friction_offset"] = -0.1 * p.dead_zone
+    return extra
+
+
+def _valid(seeds, s):
+    """The seeds as starts of ``s`` (its absent parts widened, :func:`_widen`); a seed ``s`` cannot
+    take (a value its parameters refuse) is dropped, never raised."""
+    out = []
+    for p in seeds:
+        try:
+            out.append(s.to_params(p, **_widen(p, s)))
+        except ValueError:
+            continue
+    return out
