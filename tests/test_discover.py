@@ -205,8 +205,8 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
 def test_discovery_result_reads_saves_reports_and_plots(straight_discover, tmp_path):
     """``tvcid.DiscoveryResult`` of a finished run: loads its ``discovery.json``, which is strict
     JSON (no NaN/Infinity tokens); saves the same summary elsewhere; its report starts with the
-    one-screen summary (the structure, every physical parameter of the winner with its unit and
-    90 % interval, the next test) with 4 significant digits; plots the ranking."""
+    one-screen summary (the structure, every physical quantity with its unit and 90 % interval
+    over the set, the next test) with 4 significant digits; plots the ranking."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -224,10 +224,14 @@ def test_discovery_result_reads_saves_reports_and_plots(straight_discover, tmp_p
     head = report.split("## Recordings")[0]
     assert head.startswith("# tvcid discover\n\n## Summary\n")
     assert f"The recordings name one structure: `{result.best['structure']}`." in head
-    q = result.posterior["parameters"]["dead_zone"]
-    assert f"| dead_zone | {q['q50']:.4g} | [{q['q05']:.4g}, {q['q95']:.4g}] | rad/s |" in head
-    assert "| delay | " in head and "| s | MCMC of the best structure |" in head
-    assert "| gain | " in head and "| 1/s^3 | fit of the best structure |" in head
+    combined = result.summary["set_posterior"]["quantities"]
+    q = combined["dead_zone[velocity]"]
+    assert f"| dead_zone[velocity] | {q['q50']:.4g} | [{q['q05']:.4g}, {q['q95']:.4g}] | rad/s |" in head
+    for name, unit in (("delay", "s"), ("threshold", "rad/s"), ("dc_gain", "rad/rad"),
+                       ("bandwidth", "rad/s")):
+        q = combined[name]
+        assert f"| {name} | {q['q50']:.4g} | [{q['q05']:.4g}, {q['q95']:.4g}] | {unit} |  |" in head
+    assert "| backlash | 0.0001163 | [0.0001163, 0.0001163] | rad | fixed or absent |" in head
     assert "Next test: none needed (one structure left)." in head
     ax = result.plot()
     assert len(ax.patches) == len(result.summary["structures"])

@@ -17,7 +17,6 @@ import hashlib
 import json
 import math
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,8 +26,9 @@ from models.strict_json import jsonable, write_json
 
 __all__ = ["DiscoveryResult", "discover", "next_test", "inputs_hash"]
 
-#: Parameters the MCMC samples when the winner has them (the linear block stays at its fit).
-CALIBRATED = ("dead_zone", "friction_offset", "backlash", "delay")
+#: Distinct members of the set calibrated at most (best score first); the rest are listed in
+#: ``set_posterior.not_calibrated``.
+MAX_MEMBERS = 6
 
 
 def _json_default(v):
@@ -174,8 +174,7 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     """
     from discovery.structure import validate_recordings
     from discovery.structure.targets import make_target
-    from models import params_from_dict
-    from models.structures import Structure, shared_choices
+    from models.structures import shared_choices
 
     out = Path(out)
     recs = validate_recordings(files)
@@ -185,14 +184,12 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     if previous is not None:
         summary = previous
         summary["resumed_ranking"] = True
-        best_params = params_from_dict("custom", summary["structures"][0]["params"])
-        best_structure = Structure.parse(summary["structures"][0]["structure"])
         closed = [make_target(r, 5e-4) for r in recs if r.kind == "closed"][:1]
         offsets = summary["sensor_offset"]
         t_disc = summary["timings"].get("discovery", 0.0)
         summary.setdefault("decided", shared_choices(summary["indistinguishable"]))
     else:
-        summary, best_params, best_structure, closed, offsets, t_disc = _rank_structures(
+        summary, closed, offsets, t_disc = _rank_structures(
             recs, fixed, seed, search, progress, inputs)
         _write(out, summary)  # the ranking survives whatever happens to the chain
     if "next_test" not in summary:
@@ -201,8 +198,8 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
         summary["timings"]["next_test"] = time.perf_counter() - t0
         _write(out, summary)
     if mcmc:
-        summary = _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixed,
-                             seed, quick, max_steps, progress, out)
+        summary = _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps,
+                             progress, out)
     summary["timings"]["discovery"] = t_disc
     _write(out, summary)
     return DiscoveryResult(summary, out)
@@ -301,53 +298,68 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs):
     }
     summary["timings"]["discovery"] = t_disc
     closed = [t for t in disc.targets_ if t.kind == "closed"]
-    return summary, disc.best_.params, disc.best_.structure, closed, disc.offsets_, t_disc
+    return summary, closed, disc.offsets_, t_disc
 
 
-def _calibrate(summary, recs, best_params, best_structure, closed, offsets, fixed, seed, quick,
-               max_steps, progress, out):
-    """MCMC of the winner on all recordings (offsets removed), checkpointed; adds ``posterior``."""
-    from discovery.calibration import Calibration
-    from discovery.calibration.priors import Uniform
-    from discovery.calibration.runner import ConvergenceWarning
+def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
+    """MCMC of one member of the set (:func:`discovery.structure.set_posterior.calibrate_member`)
+    on all recordings with their offsets removed, checkpointed in ``out``. Returns
+    ``(posterior, priors, chain file name)``."""
+    from discovery.structure.set_posterior import calibrate_member
+    from models import params_from_dict
+    from models.structures import Structure
+
+    p = params_from_dict("custom", row["params"])
+    # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
+    p = p.replace(**closed[0].initial_conditions(p)) if closed else p
+    tag = hashlib.sha256(json.dumps([row["params"], "set member", quick, seed],
+                                    sort_keys=True, default=str).encode()).hexdigest()[:10]
+    post, priors = calibrate_member(p, Structure.parse(row["structure"]), _corrected(recs, offsets),
+                                    fixed=fixed, seed=seed,
+                                    max_steps=max_steps or (150 if quick else 2000),
+                                    backend=out / f"chain-{tag}.h5", progress=progress)
+    return post, priors, f"chain-{tag}.h5"
+
+
+def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
+    """The posterior over the set: every distinct member calibrated
+    (:func:`_calibrate_member`, at most :data:`MAX_MEMBERS`, best score first), then combined
+    with equal weights (:func:`discovery.structure.set_posterior.combine`). Adds ``posterior``
+    (the winner's) and ``set_posterior`` (the members' and the combined one)."""
+    from discovery.structure.set_posterior import (
+        MemberPosterior,
+        combine,
+        member_quantities,
+        not_pinned,
+    )
 
     t0 = time.perf_counter()
-    # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
-    p = best_params.replace(**closed[0].initial_conditions(best_params)) if closed else best_params
-    names = [n for n in CALIBRATED
-             if n in best_structure.parameter_names() and n not in (fixed or {})]
-    c = p.dead_zone - p.friction_offset
-    priors, start = {}, {}
-    if "delay" in names:
-        priors["delay"] = Uniform(1.2e-3 if p.delay > 1.2e-3 else 6e-4, max(3 * p.delay, 0.01))
-        start["delay"] = min(max(p.delay, priors["delay"].low * 1.05), priors["delay"].high * 0.95)
-    if "friction_offset" in names:
-        priors["friction_offset"] = Uniform(-1.5 * c, 0.3 * c)
-    # sigma is not sampled: the records' own noise estimate sets it. Sampled, it mixed 5x slower
-    # than the physical parameters (tau 40 against 6-9 on the M000 records), so the chain ran to
-    # the 2000-step cap (13 min); without it the same chain converges in 100-110 steps (112 s).
-    # A misfit beyond the noise is the discrepancy factor's business, not sigma's.
-    sampled = tuple(names) or ("sigma",)
-    tag = hashlib.sha256(json.dumps([summary["structures"][0]["params"], sampled, "sigma fixed"
-                                     if "sigma" not in sampled else "", quick, seed],
-                                    sort_keys=True, default=str).encode()).hexdigest()[:10]
-    steps = max_steps or (150 if quick else 2000)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        cal = Calibration(p, params=sampled, priors=priors, start=start,
-                          likelihood="features", window=10.0, n_walkers=max(16, 4 * len(names) + 4),
-                          max_steps=steps, seed=seed, backend=out / f"chain-{tag}.h5",
-                          progress=progress, global_search=False).fit(_corrected(recs, offsets))
-    post = cal.posterior_
-    s = post.summary()
-    summary["posterior"] = {k: s[k] for k in ("parameters", "converged", "tau", "correlation",
-                                             "iterations", "acceptance", "n_over_tau")}
-    summary["posterior"]["structure"] = best_structure.name
-    summary["posterior"]["chain"] = f"chain-{tag}.h5"
-    summary["timings"]["mcmc"] = time.perf_counter() - t0
-    from .figures import write_posterior_figures
+    rows = [s for s in summary["structures"]
+            if s["indistinguishable_from_best"] and s["merged_into"] is None]
+    best_score = rows[0]["score"]
+    members = []
+    for i, row in enumerate(rows[:MAX_MEMBERS]):
+        post, priors, chain = _calibrate_member(row, recs, closed, offsets, fixed, seed, quick,
+                                                max_steps, progress, out)
+        s = post.summary()
+        kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
+                                  "acceptance", "n_over_tau", "at_prior_bound")}
+        kept["not_pinned"] = not_pinned(post, priors)
+        kept["structure"], kept["chain"] = row["structure"], chain
+        if i == 0:
+            summary["posterior"] = kept
+            from .figures import write_posterior_figures
 
-    write_posterior_figures(post, out, seed=seed)
+            write_posterior_figures(post, out, seed=seed)
+        draws = {n: post.samples[:, j] for j, n in enumerate(post.names)}
+        margin = row.get("margin")
+        ratio = (row["score"] - best_score) / margin if margin else 0.0
+        members.append(MemberPosterior(row["structure"], member_quantities(row["params"], draws),
+                                       kept, float(ratio)))
+    combined = combine(members, seed=seed).to_dict()
+    combined["not_calibrated"] = [r["structure"] for r in rows[MAX_MEMBERS:]]
+    summary["set_posterior"] = combined
+    summary["timings"]["mcmc"] = time.perf_counter() - t0
     return summary
 
 

@@ -40,21 +40,42 @@ def summary_lines(summary) -> list:
     open_ = [CHOICE_LABELS[c] for c, v in summary["decided"].items() if v is None]
     lines.append("Decided: " + (", ".join(decided) or "no structural choice") + ". Not decided: "
                  + (", ".join(open_) or "nothing") + ".")
-    lines += ["", "| parameter | value | 90 % interval | unit | from |", "|---|---|---|---|---|"]
-    post = summary.get("posterior") or {}
-    sampled = post.get("parameters", {})
-    position = best["params"].get("dead_zone_position", "error")
-    for name in PHYSICAL:
-        if name not in best["params"]:
-            continue
-        unit = parameter_unit(name, position)
-        if name in sampled:
-            q = sampled[name]
+    combined = (summary.get("set_posterior") or {}).get("quantities")
+    if combined:
+        n = len(summary["set_posterior"]["members"])
+        lines += ["", (f"Over the set's {n} calibrated structures, {summary['set_posterior']['criterion']}:"
+                       if n > 1 else "The calibrated structure's posterior:"), "",
+                  "| quantity | median | 90 % interval | unit | |", "|---|---|---|---|---|"]
+        for name, q in combined.items():
+            verdict = ("fixed or absent" if q["q05"] == q["q95"] else
+                       "depends on the structure" if q["depends_on_structure"] else
+                       "decided regardless of the structure" if q["members"] > 1 else "")
             lines.append(f"| {name} | {_num(q['q50'])} | [{_num(q['q05'])}, {_num(q['q95'])}] | "
-                         f"{unit} | MCMC of the best structure |")
-        else:
-            lines.append(f"| {name} | {_num(best['params'][name])} | not sampled | {unit} | "
-                         "fit of the best structure |")
+                         f"{q['unit']} | {verdict} |")
+        open_params = sorted({n for m in summary["set_posterior"]["members"]
+                              for n in m["posterior"].get("not_pinned", [])})
+        if open_params:
+            lines += ["", "Not pinned by the recordings (their intervals span most of the prior): "
+                      + ", ".join(f"`{n}`" for n in open_params) + "."]
+        if summary["set_posterior"].get("not_calibrated"):
+            lines += ["", "Not calibrated (more structures than the cap): " + ", ".join(
+                f"`{n}`" for n in summary["set_posterior"]["not_calibrated"]) + "."]
+    else:
+        lines += ["", "| parameter | value | 90 % interval | unit | from |", "|---|---|---|---|---|"]
+        post = summary.get("posterior") or {}
+        sampled = post.get("parameters", {})
+        position = best["params"].get("dead_zone_position", "error")
+        for name in PHYSICAL:
+            if name not in best["params"]:
+                continue
+            unit = parameter_unit(name, position)
+            if name in sampled:
+                q = sampled[name]
+                lines.append(f"| {name} | {_num(q['q50'])} | [{_num(q['q05'])}, {_num(q['q95'])}] | "
+                             f"{unit} | MCMC of the best structure |")
+            else:
+                lines.append(f"| {name} | {_num(best['params'][name])} | not sampled | {unit} | "
+                             "fit of the best structure |")
     nt = summary.get("next_test")
     lines.append("")
     if not nt:
@@ -167,14 +188,30 @@ def discovery_report(summary) -> str:
     if post:
         lines += ["## MCMC calibration of the best structure", "",
                   f"Converged: {post['converged']} ({post['iterations']} steps, acceptance "
-                  f"{post['acceptance']:.2f}). Sampled: the winner's thresholds, friction offset and "
-                  "delay; its linear block and band-pass loop stay at their fit, the sensor noise "
-                  "sd at the records' noise estimate (second differences, rms over the records).", "",
+                  f"{post['acceptance']:.2f}). Sampled: every parameter of the winner's structure "
+                  "but the fixed ones, the linear block included; the sensor noise sd stays at the "
+                  "records' noise estimate (second differences, rms over the records).", "",
                   "| parameter | median | 90 % interval |", "|---|---|---|"]
         for n, q in post["parameters"].items():
             lines.append(f"| {n} | {_num(q['q50'])} | [{_num(q['q05'])}, {_num(q['q95'])}] |")
         lines += ["", "![corner](corner.png)", "", "![posterior predictive](predictive.png)", "",
                   "![traces](traces.png)", ""]
+    sp = summary.get("set_posterior")
+    if sp and len(sp["members"]) > 1:
+        names = list(sp["quantities"])
+        lines += ["## Each calibrated structure", "",
+                  "Median and 90 % interval of each quantity, per structure of the set (equal "
+                  "weights make the summary's combined intervals).", "",
+                  "| structure | converged | " + " | ".join(names) + " |",
+                  "|---|---|" + "---|" * len(names)]
+        for m in sp["members"]:
+            cells = []
+            for n in names:
+                q = m["quantities"].get(n)
+                cells.append("" if q is None or q["q50"] is None else
+                             f"{_num(q['q50'])} [{_num(q['q05'])}, {_num(q['q95'])}]")
+            lines.append(f"| `{m['structure']}` | {m['converged']} | " + " | ".join(cells) + " |")
+        lines.append("")
     lines += ["## Time", "", f"Search sizes: {summary.get('search', 'standard')}.", "",
               ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()
                         if isinstance(v, (int, float))), ""]

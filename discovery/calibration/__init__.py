@@ -1,4 +1,4 @@
-"""tvcid.discovery.calibration: Bayesian calibration of a hypothesis with emcee (issue 5).
+"""tvcid.discovery.calibration: Bayesian calibration of a hypothesis with emcee.
 
 * :class:`Calibration` -- sklearn-style estimator: posterior over any subset of a hypothesis'
   parameters (plus the sensor-noise sd ``sigma``) given closed-loop and open-loop recordings,

@@ -7,7 +7,7 @@ also makes the dead-zone/backlash ridge, a power law ``zm ~ f^a``, close to a st
 differential-evolution moves follow. A log-uniform prior can also be sampled in the parameter
 itself (``linear=True``, the density then carries the ``1/x`` Jacobian): where the identifiable
 combination is a difference, as the dead zone minus the friction offset of the velocity forms
-(MODELS.md "Ridges"), the ridge is a straight line there and a strongly curved one in ``ln x``
+(docs/models.md#what-a-recording-pins), the ridge is a straight line there and a strongly curved one in ``ln x``
 (:func:`ridge_coordinates`).
 """
 from __future__ import annotations
@@ -181,7 +181,7 @@ def default_prior(name, value, dt=None) -> Prior:
 
 
 #: Pairs ``(width, offset)`` whose identifiable combination is a difference ``width - offset``:
-#: the velocity-form dead zone and the friction offset (MODELS.md, "Ridges": while the actuator
+#: the velocity-form dead zone and the friction offset (docs/models.md#what-a-recording-pins: while the actuator
 #: moves, ``w = v - (z - off) sign(v)``; a limit cycle pins ``z - off`` and barely the rest).
 DIFFERENCE_RIDGES = (("dead_zone", "friction_offset"),)
 

@@ -8,11 +8,11 @@ of ``ln f`` and ``ln zm``, marginal 90 % widths, the whole correlation matrix, a
 samples over the DF family.
 
 The DF family comes from :func:`discovery.describing.paper002_family` (paper 002 eqs. 13-18 with
-MODELS.md's corrections) for the recorded amplitude and frequency, the controller and the
+the corrections of docs/models.md#errata) for the recorded amplitude and frequency, the controller and the
 hypothesis' structure; where that does not apply (another structure, no controller given) from
-MODELS.md's tabulated corrected family at controller A (computed for the HWIL cycle 4.89e-3 rad
+the tabulated corrected family of docs/models.md#errata at controller A (computed for the HWIL cycle 4.89e-3 rad
 at 8.57 rad/s, Td = 7 ms), scaled to the recorded amplitude by the homogeneity of both DFs. The
-iso-frequency line ``f/zm = const`` (MODELS.md homogeneity: frequency and
+iso-frequency line ``f/zm = const`` (docs/models.md#what-a-recording-pins: frequency and
 shape depend only on the ratio) is drawn through the posterior median. The DF method is an
 approximation here (it predicts 8.88 rad/s where the simulation gives 8.60): the family shows the
 direction of the trade-off, not its exact place.
@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["RidgeAnalysis", "df_family", "robust_amplitude", "PAPER002_FAMILY_A"]
 
-#: MODELS.md, "Describing-function facts": paper 002's family at controller A with the three
+#: docs/models.md#errata: paper 002's family at controller A with the three
 #: algebra slips corrected (K1 = 4.89e-3 rad, w = 8.57 rad/s, Td = 7 ms, f as the play half width):
 #: (f, zm) pairs in rad.
 PAPER002_FAMILY_A = {
@@ -59,8 +59,8 @@ def df_family(amplitude, frequency=None, controller=None, params=None, backlash=
     """(backlash, dead_zone) arrays of paper 002's DF family for a cycle of ``amplitude`` (rad).
 
     Uses :func:`discovery.describing.paper002_family` (variant "corrected") when ``frequency``,
-    ``controller`` and ``params`` are given and the structure is paper 002's; otherwise MODELS.md's
-    tabulated family scaled by homogeneity. Returns ``(f, zm, source)``.
+    ``controller`` and ``params`` are given and the structure is paper 002's; otherwise the tabulated family of docs/models.md#errata,
+    scaled by homogeneity. Returns ``(f, zm, source)``.
     """
     if frequency is not None and controller is not None and params is not None:
         try:
@@ -79,7 +79,7 @@ def df_family(amplitude, frequency=None, controller=None, params=None, backlash=
     k = float(amplitude) / PAPER002_FAMILY_A["amplitude"]
     f = k * np.asarray(PAPER002_FAMILY_A["backlash"])
     zm = k * np.asarray(PAPER002_FAMILY_A["dead_zone"])
-    return f, zm, ("MODELS.md paper 002 family at controller A (corrected algebra), scaled by "
+    return f, zm, ("docs/models.md#errata paper 002 family at controller A (corrected algebra), scaled by "
                    f"homogeneity to amplitude {amplitude:.4g} rad")
 
 

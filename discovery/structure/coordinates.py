@@ -8,13 +8,13 @@ coupled, so every structure is searched in coordinates that follow what the data
   ``gain``, ``damping``, ``stiffness`` (e.g. from an ARX step-test fit, as paper 002 did), and the
   others are then searched as ``log K1``, ``log K2``, ``log K3``;
 * dead zone on the error: ``log z`` (rad);
-* dead zone on the velocity signal: the threshold while moving, ``c = z - off`` (MODELS.md,
-  "Identifiability facts": only ``z - off`` is pinned by motion), as ``log(c / g0)`` (rad of error),
+* dead zone on the velocity signal: the threshold while moving, ``c = z - off``
+  (docs/models.md#what-a-recording-pins: only ``z - off`` is pinned by motion), as ``log(c / g0)`` (rad of error),
   and with friction the split ``lam = z / c`` (``off = z - c``; ``lam < 1`` is paper 001's negative
   offset);
 * ``log r`` (backlash), ``Td`` (linear), ``log G`` and ``log(s / g0)`` (band-pass loop).
 
-Bounds span the papers' values by a factor of 10 or more (issue 11: structures and values not tuned
+Bounds span the papers' values by a factor of 10 or more (structures and values are not tuned
 to the papers). Any field may be fixed (``fixed``); fixed fields leave the box.
 """
 from __future__ import annotations
@@ -199,7 +199,7 @@ class SearchSpace:
         """Coordinates of a parameter object (clipped into the box); the inverse of :meth:`params`.
 
         A value a log coordinate cannot hold (a SINDy seed with ``K2 = 0`` or a negative
-        stiffness, issue 11) goes to the box's edge on its side instead of raising.
+        stiffness) goes to the box's edge on its side instead of raising.
         """
         p = params
         k1, k2, k3 = (max(v, TINY) for v in (p.gain, p.damping, p.stiffness))

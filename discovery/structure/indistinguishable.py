@@ -41,8 +41,8 @@ def indistinguishable_set(ranked, n_recordings, floors=None):
     for f in ranked[1:]:
         if not math.isfinite(f.score):
             break
-        if f.score - best.score <= indistinguishable_margin(best.fold_costs, f.fold_costs, n,
-                                                            floors):
+        f.margin = indistinguishable_margin(best.fold_costs, f.fold_costs, n, floors)
+        if f.score - best.score <= f.margin:
             inside.append(f)
     names = {f.structure: f for f in inside}
     for f in inside:

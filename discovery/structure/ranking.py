@@ -61,6 +61,9 @@ class StructureFit:
         Held-out cost per recording.
     fold_costs : ndarray or None
         Held-out costs ``(2 folds, n recordings)``; ``None`` when not ranked.
+    margin : float or None
+        How much worse than the best score this one's may be and still be indistinguishable
+        from it (:func:`.indistinguishable.indistinguishable_margin`); ``None`` when not weighed.
     """
 
     structure: Structure
@@ -77,6 +80,7 @@ class StructureFit:
     merged_into: str | None = None
     held_out: dict = field(default_factory=dict)
     fold_costs: np.ndarray | None = None
+    margin: float | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -89,6 +93,7 @@ class StructureFit:
             "cost_by_recording": self.cost_by_recording,
             "held_out": self.held_out,
             "fold_costs": None if self.fold_costs is None else np.asarray(self.fold_costs).tolist(),
+            "margin": self.margin,
             "indistinguishable_from_best": self.indistinguishable_from_best,
             "merged_into": self.merged_into,
             "coordinate_sd": self.coordinate_sd,

@@ -2,7 +2,7 @@
 
 Every target turns a batch of simulated parameter sets into residuals in units of what the
 recording can resolve, scaled so that each recording's cost (the sum of its squared residuals) is
-their mean: about 1 for the generating model, whatever the experiment design (issue 11, item 2).
+their mean: about 1 for the generating model, whatever the experiment design.
 Each recording then counts alike, however many samples it holds.
 
 * :class:`CycleTarget` (closed loop): the frequency (unit: ``FREQUENCY_TOLERANCE`` = 0.1 %) and the
@@ -11,7 +11,7 @@ Each recording then counts alike, however many samples it holds.
   each unit widened by the record's own wander between pieces of ``PERIODS`` periods (a cycle that
   is not periodic, as the band-pass loop's, differs from piece to piece); the simulated cycle's
   features are taken over ``WINDOW_PERIODS`` periods, so that they too average its wander.
-  The frequency comes from mean crossings as MODELS.md measures it; the harmonics are Fourier
+  The frequency comes from mean crossings as docs/models.md#conventions measures it; the harmonics are Fourier
   coefficients over whole periods. They need no phase alignment of the simulated cycle with the
   record, and they stay defined for a cycle that is not periodic (the band-pass loop's), where a
   phase-aligned waveform is not. A constant sensor offset only moves the mean, which is not
@@ -70,9 +70,10 @@ PERIODS = 6
 #: Periods of the record's cycle the simulated window holds (30 % more time is simulated). The
 #: record's features average over its whole tail (20-60 periods); a cycle that wanders (a
 #: band-pass loop not locked to it, a controller held at 200 Hz) gives a short window's features
-#: far from that mean: issue 11's paper-000 case at the truth, cost 0.28-0.65 on the first cycle
-#: from windows of 6 periods, 0.04-0.10 from 12, 0.04-0.05 from 24, while periodic wrong
-#: structures fitted 0.04-0.1 and took the truth's place.
+#: far from that mean: on M000 held at 200 Hz and recorded at 200 Hz
+#: (:mod:`studies.benchmarks.heldout_cases`) the truth costs 0.28-0.65 on the first cycle from
+#: windows of 6 periods, 0.04-0.10 from 12 and 0.04-0.05 from 24, while periodic wrong structures
+#: fit at 0.04-0.1.
 WINDOW_PERIODS = 12
 #: Output rate (Hz) of the closed-loop simulations: 35x the 7th harmonic of a 2 Hz cycle.
 SIMULATED_RATE = 500.0
@@ -371,10 +372,10 @@ class CycleTarget(_Target):
     def initial_conditions(self, params=None):
         """Actuator initial conditions (fields of ActuatorParams) of a simulation of ``params``.
 
-        ``x' = FRIC(DZ(y + p))`` (MODELS.md): while the actuator moves, the velocity signal ``y``
+        ``x' = FRIC(DZ(y + p))`` (docs/models.md#m001f): while the actuator moves, the velocity signal ``y``
         exceeds the recorded rate ``x'`` by the threshold ``z - off`` (dead zone on the velocity
         signal) or ``-off`` (on the error), in the direction of motion. Started with ``y = x'``
-        instead, inside the dead zone, a model with coexisting cycles (MODELS.md: "initial
+        instead, inside the dead zone, a model with coexisting cycles (docs/models.md#what-a-recording-pins: "initial
         conditions select the limit cycle") can settle on one the record does not show
         (benchmark draw 1005: cost 89 at the truth; 0.17 with this start).
         """

@@ -7,6 +7,7 @@ import json
 
 from models.controllers import BendingMode, TransferFunction
 from models.experiments import CONTROLLER_A, ClosedLoop
+from models.strict_json import jsonable
 
 
 def parse_assignments(pairs):
@@ -134,7 +135,8 @@ def closed_loop_from_args(args) -> ClosedLoop:
 
 
 def print_json(obj):
-    print(json.dumps(obj, indent=2, sort_keys=True))
+    """``obj`` on stdout as strict JSON (non-finite numbers as null), keys sorted."""
+    print(json.dumps(jsonable(obj), indent=2, sort_keys=True, allow_nan=False))
 
 
 class Formatter(argparse.ArgumentDefaultsHelpFormatter):

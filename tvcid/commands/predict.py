@@ -1,12 +1,15 @@
 """``tvcid predict``: the limit cycle of a calibrated actuator under a controller, with its band."""
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from types import SimpleNamespace
 
-from ._common import add_controller_arguments, add_compensator_options, bending_from_args
+from ._common import (
+    add_compensator_options,
+    add_controller_arguments,
+    bending_from_args,
+)
 
 
 def register(sub):
@@ -74,6 +77,7 @@ def run(args) -> int:
         parse_grid,
         predict_cycle,
     )
+    from models import strict_json
     from models.strict_json import write_json
 
     grid = dict(parse_grid(g) for g in args.grid)
@@ -98,7 +102,7 @@ def run(args) -> int:
         pred = predict_cycle(draws, setting, config, describing=not args.no_df)
         result = pred.to_dict()
         if args.json:
-            print(json.dumps(result, indent=2))
+            print(strict_json.dumps(result))
             return 0
         print(f"{len(draws)} posterior draws of {draws.base.name} ({draws.source})")
         for name, unit, scale in (("amplitude", "mrad", 1e3), ("frequency", "rad/s", 1.0)):
