@@ -109,16 +109,22 @@ def upward_mean_crossings(t, x, level, hysteresis):
     return t[k - 1] + frac * (t[k] - t[k - 1])
 
 
-def white_noise_sd(x) -> float:
-    """Robust sd of white noise on a sampled signal: the median absolute deviation of its second
-    differences over ``sqrt(6)`` (white noise of sd s gives second differences of sd
-    ``sqrt(6) s``; a cycle sampled well above its frequency adds little, and its corners are few
-    enough for the median to ignore)."""
+#: Variance of the ``order``-th difference of unit white noise: ``binomial(2 order, order)``.
+_DIFFERENCE_VARIANCE = {1: 2.0, 2: 6.0, 3: 20.0, 4: 70.0}
+
+
+def white_noise_sd(x, order=2) -> float:
+    """Robust sd of white noise on a sampled signal: the median absolute deviation of its
+    ``order``-th differences over ``sqrt(binomial(2 order, order))`` (white noise of sd s gives
+    second differences of sd ``sqrt(6) s``, third differences ``sqrt(20) s``; a cycle sampled
+    well above its frequency adds little, and its corners are few enough for the median to
+    ignore). Higher orders suppress a smooth signal more (the weak-SINDy stage uses 3); 0 for a
+    signal of ``order`` samples or fewer."""
     x = np.asarray(x, dtype=float)
-    if x.size < 3:
+    if x.size <= order:
         return 0.0
-    d2 = np.diff(x, 2)
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+    d = np.diff(x, order)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(_DIFFERENCE_VARIANCE[order]))
 
 
 def crossing_hysteresis(x, amplitude) -> float:

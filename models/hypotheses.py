@@ -94,6 +94,9 @@ _POSITIVE = (
 )
 
 
+#: Fields whose default is infinite (open); strict JSON writes them as ``null``.
+OPEN_FIELDS = ("bandpass_saturation",)
+
 #: Unit of each numeric parameter of :class:`ActuatorParams` (the dead zone's depends on its
 #: position: :func:`parameter_unit`).
 UNITS = {
@@ -409,7 +412,11 @@ def params_from_dict(name: str, parameters: dict) -> ActuatorParams:
 
     ``name`` is a hypothesis name or ``"custom"`` (the general :class:`ActuatorParams`); this is how
     a recording's sidecar (keys ``hypothesis`` and ``parameters``) is turned back into a model.
+    ``None`` (JSON ``null``, as tvcid's strict JSON writes an infinite value) stands for the open
+    value of a field whose default is infinite (``bandpass_saturation``: no saturation).
     """
+    parameters = {k: (math.inf if v is None and k in OPEN_FIELDS else v)
+                  for k, v in parameters.items()}
     if str(name).lower() == ActuatorParams.name:
         known = set(ActuatorParams.parameter_names())
         unknown = sorted(set(parameters) - known)

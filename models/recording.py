@@ -20,6 +20,7 @@ import numpy as np
 
 from .controllers import BendingMode, TransferFunction
 from .experiments import ClosedLoop
+from .strict_json import jsonable
 
 __all__ = [
     "RecordingError",
@@ -377,7 +378,9 @@ def save_recording(path, columns: dict, meta: dict) -> Path:
         writer.writerow(names)
         for row in zip(*(columns[n] for n in names)):
             writer.writerow([repr(float(v)) for v in row])
-    sidecar_path(path).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    # strict JSON: an infinite parameter (no saturation) as null, read back by params_from_dict
+    text = json.dumps(jsonable(meta, str), indent=2, sort_keys=True, allow_nan=False)
+    sidecar_path(path).write_text(text + "\n", encoding="utf-8")
     return path
 
 

@@ -14,7 +14,7 @@ from .cycles import (
     predict_cycle,
     simulate_cycles,
 )
-from .draws import NoPosteriorError, PosteriorDraws, load_posterior_draws
+from .draws import NoPosteriorError, PosteriorDraws, load_posterior_draws, load_set_draws
 from .settings import GRID_KEYS, ControllerSetting, parse_grid
 
 __all__ = [
@@ -28,6 +28,7 @@ __all__ = [
     "PredictionConfig",
     "cycle_map",
     "load_posterior_draws",
+    "load_set_draws",
     "parse_grid",
     "predict_cycle",
     "simulate_cycles",

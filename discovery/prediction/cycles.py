@@ -415,6 +415,19 @@ class CycleMap:
     def shape(self) -> tuple:
         return tuple(v.size for v in self.values)
 
+    def point_bands(self, index) -> dict:
+        """The bands at one grid point (``index`` into :attr:`shape`), in the form of
+        :meth:`CyclePrediction.to_dict`: ``amplitude`` and ``frequency`` quantiles (``None``
+        where no draw oscillates) and ``fraction_oscillating``."""
+        def q(name):
+            v = [float(self.summary[f"{name}_{k}"][index]) for k in ("q05", "q50", "q95")]
+            if not all(np.isfinite(v)):
+                return {"q05": None, "q50": None, "q95": None}
+            return dict(zip(("q05", "q50", "q95"), v))
+
+        return {"amplitude": q("amplitude"), "frequency": q("frequency"),
+                "fraction_oscillating": float(self.summary["fraction_oscillating"][index])}
+
     def to_dict(self) -> dict:
         def clean(a):
             return [None if not np.isfinite(v) else float(v) for v in np.ravel(a)]

@@ -17,7 +17,8 @@ from models.hypotheses import ActuatorParams, params_from_dict
 
 from ..calibration.priors import SIGMA, LogUniform, Uniform
 
-__all__ = ["NoPosteriorError", "PosteriorDraws", "load_posterior_draws"]
+__all__ = ["NoPosteriorError", "PosteriorDraws", "load_chain_draws", "load_posterior_draws",
+           "load_set_draws"]
 
 _PRIOR_KINDS = {"Uniform": Uniform, "LogUniform": LogUniform}
 
@@ -142,10 +143,17 @@ def load_posterior_draws(directory, n_draws=200, seed=0) -> PosteriorDraws:
     NoPosteriorError
         When the directory holds no chain, or the chain no samples.
     """
+    return load_chain_draws(_chain_file(Path(directory)), n_draws=n_draws, seed=seed)
+
+
+def load_chain_draws(path, n_draws=200, seed=0) -> PosteriorDraws:
+    """:func:`load_posterior_draws` from one chain file (a discover directory holds one per
+    member of its set)."""
     from ..calibration.backend import CheckpointBackend
 
-    directory = Path(directory)
-    path = _chain_file(directory)
+    path = Path(path)
+    if not path.is_file():
+        raise NoPosteriorError(f"{path}: no such chain file")
     if not isinstance(n_draws, (int, np.integer)) or n_draws < 1:
         raise ValueError(f"n_draws must be a positive integer (got {n_draws!r})")
     backend = CheckpointBackend(str(path), name="mcmc", read_only=True)
@@ -178,3 +186,26 @@ def load_posterior_draws(directory, n_draws=200, seed=0) -> PosteriorDraws:
     return PosteriorDraws(names=names, samples=x, internal=z, base=base, priors=priors,
                           config=config, source=str(path),
                           fixed_sigma=None if fixed_sigma is None else float(fixed_sigma))
+
+
+def load_set_draws(directory, n_draws=200, seed=0) -> dict:
+    """Posterior draws of every calibrated member of a ``tvcid discover`` directory's set, as
+    structure name -> :class:`PosteriorDraws` (best score first; ``n_draws`` each); a
+    ``tvcid fit`` directory, or a discover directory without a set posterior, gives its one
+    chain under the name of its hypothesis."""
+    directory = Path(directory)
+    discovery = directory / "discovery.json"
+    members = []
+    if discovery.is_file() and not (directory / "chain.h5").is_file():
+        try:
+            members = json.loads(discovery.read_text())["set_posterior"]["members"]
+        except (ValueError, KeyError, TypeError):
+            members = []
+    if not members:
+        draws = load_posterior_draws(directory, n_draws=n_draws, seed=seed)
+        return {draws.base.name: draws}
+    out = {}
+    for m in members:
+        chain = m["posterior"]["chain"]
+        out[m["structure"]] = load_chain_draws(directory / chain, n_draws=n_draws, seed=seed)
+    return out

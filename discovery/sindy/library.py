@@ -5,7 +5,7 @@ zone ``DZ_z`` (paper 002 eq. 3), the saturation ``sat_s`` (paper 001 section 3),
 friction offset ``FRIC(q) = q + off*sign(q)`` (paper 001 section 3), the backlash as a play operator
 of half width ``r`` (paper 002 eqs. 4-5; a memory term computed along the trajectory) and the
 delayed command ``u(t - Td)`` (papers 002, 001, 000). Thresholds and the delay enter nonlinearly, so
-they are fixed arguments of the library; :mod:`discovery.sindy.estimator` scans them.
+they are fixed arguments of the library; :mod:`discovery.sindy.threshold_scan` scans them.
 """
 from __future__ import annotations
 

@@ -18,6 +18,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.polynomial import polynomial as P
 from scipy.signal import savgol_coeffs, savgol_filter
 
+from models.features import white_noise_sd
+
 from .library import command_jumps, delayed_command
 
 __all__ = [
@@ -174,15 +176,10 @@ class PreparedSignals:
 
 
 def estimate_noise(delta):
-    """Robust rms of white sensor noise on a smooth signal, from its third differences.
-
-    The third difference of white noise has variance ``20 sigma^2``; the smooth actuator output
-    contributes little at 200 Hz-1 kHz. Median absolute deviation, so steps do not count.
-    """
-    d3 = np.diff(np.asarray(delta, dtype=float), 3)
-    if d3.size == 0:
-        return 0.0
-    return float(1.4826 * np.median(np.abs(d3 - np.median(d3))) / math.sqrt(20.0))
+    """Robust rms of white sensor noise on a smooth signal, from its third differences
+    (:func:`models.features.white_noise_sd` of order 3: the smooth actuator output contributes
+    little at 200 Hz-1 kHz; the median absolute deviation ignores steps)."""
+    return white_noise_sd(delta, order=3)
 
 
 def prepare_signals(t, u, delta, test_functions, delay_margin=0.0, smoothing=0.012,

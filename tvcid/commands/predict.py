@@ -22,7 +22,11 @@ def register(sub):
         "frequency (rad/s): median and 90 % band over the draws, the fractions of draws that "
         "oscillate and that diverge, and the describing-function cycle of the median model. "
         "With --grid (once or twice) it maps them over controller values and writes "
-        "MAP_DIR/map.json, map.csv and map.png (medians, band width, stability boundary).",
+        "MAP_DIR/map.json, map.csv and map.png (medians, band width, stability boundary). On a "
+        "discover directory whose set holds several structures, every member predicts with its "
+        "own posterior, the band is their equal-weight mixture, and the output says whether the "
+        "members agree at that controller or the choice of structure changes the answer (with "
+        "--grid: MAP_DIR/disagreement.png, where they disagree).",
     )
     p.add_argument("directory", metavar="DIR", help="output directory of tvcid fit or tvcid discover")
     add_controller_arguments(p)
@@ -73,7 +77,7 @@ def run(args) -> int:
     from discovery.prediction import (
         PredictionConfig,
         cycle_map,
-        load_posterior_draws,
+        load_set_draws,
         parse_grid,
         predict_cycle,
     )
@@ -97,7 +101,10 @@ def run(args) -> int:
             except ValueError as exc:
                 raise ValueError(f"--grid {key}: {exc}") from None
     config = PredictionConfig(transient=args.transient, window=args.window, pilot=args.pilot)
-    draws = load_posterior_draws(args.directory, n_draws=args.draws, seed=args.seed)
+    members = load_set_draws(args.directory, n_draws=args.draws, seed=args.seed)
+    if len(members) > 1:
+        return _run_over_set(args, members, setting, grid, config)
+    draws = next(iter(members.values()))
     if not grid:
         pred = predict_cycle(draws, setting, config, describing=not args.no_df)
         result = pred.to_dict()
@@ -140,4 +147,58 @@ def run(args) -> int:
     fig.savefig(out / "map.png", dpi=110)
     plt.close(fig)
     print(f"wrote {out / 'map.json'}, {out / 'map.csv'}, {out / 'map.png'}", file=sys.stderr)
+    return 0
+
+
+def _band(q, scale, unit) -> str:
+    if q["q50"] is None:
+        return "no draw oscillates"
+    return f"{q['q50'] * scale:.4g} {unit}  90 % [{q['q05'] * scale:.4g}, {q['q95'] * scale:.4g}]"
+
+
+def _run_over_set(args, members, setting, grid, config) -> int:
+    """Every member of a discover directory's set predicts; the mixture's band, and whether the
+    members agree (:mod:`discovery.prediction.set_prediction`)."""
+    from discovery.prediction.set_prediction import cycle_map_over_set, predict_cycle_over_set
+    from models import strict_json
+    from models.strict_json import write_json
+
+    if not grid:
+        result = predict_cycle_over_set(members, setting, config, describing=not args.no_df).to_dict()
+        if args.json:
+            print(strict_json.dumps(result))
+            return 0
+        n = len(next(iter(members.values())))
+        print(f"the set's {len(members)} structures, {n} posterior draws each, equal weights "
+              f"({args.directory})")
+        print(f"  amplitude  {_band(result['amplitude'], 1e3, 'mrad')}")
+        print(f"  frequency  {_band(result['frequency'], 1.0, 'rad/s')}")
+        if result["members_agree"]:
+            print("  the members agree at this controller (their bands overlap): the choice of "
+                  "structure does not change the answer here")
+        else:
+            why = "; ".join(f"{d['members'][0]} / {d['members'][1]}: {d['why']}"
+                            for d in result["disagreeing"])
+            print(f"  the choice of structure changes the answer here ({why})")
+        for name, b in result["members"].items():
+            print(f"  {name}: amplitude {_band(b['amplitude'], 1e3, 'mrad')}; frequency "
+                  f"{_band(b['frequency'], 1.0, 'rad/s')}; oscillating {b['fraction_oscillating']:.0%}")
+        return 0
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    smap = cycle_map_over_set(members, setting, grid, config, describing=not args.no_df,
+                              progress=not args.no_progress)
+    write_json(out / "map.json", smap.to_dict(), indent=1)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ax = smap.plot()
+    ax.figure.tight_layout()
+    ax.figure.savefig(out / "disagreement.png", dpi=110)
+    plt.close(ax.figure)
+    dis = smap.disagreement()
+    print(f"the members disagree at {int(dis.sum())} of {dis.size} grid points; wrote "
+          f"{out / 'map.json'}, {out / 'disagreement.png'}", file=sys.stderr)
     return 0

@@ -1,0 +1,198 @@
+"""Coverage of ``tvcid discover``'s printed intervals: structure and linear block unknown.
+
+``python -m studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--jobs J]
+[--out DIR]``
+
+Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded; the discovery benchmark's
+seeds by default) is a truth over every structure of the grammar and a test design over the
+generator's ranges (limit cycles at 1-3 controller settings, continuous or held at 200 Hz,
+open-loop squares and sines or none, acquisition at 200 Hz or 1 kHz, noise, sensor offset,
+quantisation). Its recordings are made by the plain-Python reference simulator and written with
+measured-style sidecars (commands only as samples); the whole ``tvcid discover`` runs on them
+(:func:`tvcid.pipeline.discover`): the structure search, the set, the calibration of every member
+and their combination. The row records, for each quantity of the combined posterior
+(:mod:`discovery.structure.set_posterior`), whether the truth lies inside the printed 90 %
+interval.
+
+Goals, over at least 30 draws: the truth inside the combined 90 % interval in 80-97 % of the
+draws for each of the dead zone (the threshold ``z - off`` where the truth's dead zone acts on the
+velocity signal: what motion pins), the backlash and the delay; every member's chain converged.
+Rows are written to ``DIR/bench.json`` as each draw ends (a rerun resumes); each names the commit
+of the code that ran it.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from discovery.structure.set_posterior import member_quantities
+from models.strict_json import write_json
+
+from ..common import code_commit
+from .goals import Goal
+from .goals import report as goal_report
+from .scenarios import draw_scenario, write_recordings
+
+CODE_COMMIT = code_commit()
+#: The band the share of truths inside a 90 % interval must fall in.
+GOAL_BAND = (0.80, 0.97)
+#: Quantities the goals are stated for; ``dead zone`` is the threshold for a velocity-form truth.
+GOAL_QUANTITIES = ("dead zone", "backlash", "delay")
+#: Draws at least, for the goals to be judged.
+MIN_DRAWS = 30
+
+
+def truth_quantities(truth) -> dict:
+    """The combined quantities of the truth itself (:func:`member_quantities` with no draws)."""
+    return {k: float(v[0]) for k, v in member_quantities(truth.to_dict(), {}).items()}
+
+
+def goal_quantity(name, truth_values) -> str:
+    """The combined quantity a goal's ``name`` reads for this truth."""
+    if name != "dead zone":
+        return name
+    return "threshold" if "threshold" in truth_values else "dead_zone[error]"
+
+
+def coverage_row(seed, truth, structure, summary) -> dict:
+    """The row of one draw: per quantity the truth, the combined interval and whether it holds
+    the truth (a quantity the set lacks, such as the dead zone at the truth's place, counts as
+    outside)."""
+    values = truth_quantities(truth)
+    combined = summary["set_posterior"]["quantities"]
+    inside = {}
+    for name, value in values.items():
+        q = combined.get(name)
+        held = q is not None and q["q05"] is not None and q["q05"] <= value <= q["q95"]
+        inside[name] = {"truth": value, "q05": None if q is None else q["q05"],
+                        "q95": None if q is None else q["q95"], "inside": bool(held)}
+    members = summary["set_posterior"]["members"]
+    return {
+        "seed": seed,
+        "structure": structure.name,
+        "truth_in_set": structure.name in set(summary["indistinguishable"]),
+        "members": [m["structure"] for m in members],
+        "converged": all(m["converged"] for m in members),
+        "not_pinned": sorted({n for m in members for n in m["posterior"].get("not_pinned", [])}),
+        "quantities": inside,
+        "goals": {g: inside[goal_quantity(g, values)]["inside"] for g in GOAL_QUANTITIES},
+        "commit": CODE_COMMIT,
+    }
+
+
+def run_draw(seed, out_dir, quick) -> dict:
+    """Make one draw's recordings, run ``tvcid discover`` on them, and score its intervals."""
+    from tvcid.pipeline import discover
+
+    scenario = draw_scenario(seed)
+    draw_dir = Path(out_dir) / f"draw{seed:03d}"
+    t0 = time.perf_counter()
+    paths = write_recordings(scenario, draw_dir / "recordings", reuse=True)
+    t_data = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    summary = discover(paths, draw_dir / "discover", seed=seed, quick=quick, progress=False).summary
+    row = coverage_row(seed, scenario.truth, scenario.structure, summary)
+    row.update(design=scenario.to_dict(), seconds_data=t_data,
+               seconds_discover=time.perf_counter() - t0,
+               seconds_by_stage={k: round(float(v), 1) for k, v in summary["timings"].items()
+                                 if isinstance(v, (int, float))})
+    return row
+
+
+def guarded_draw(seed, out_dir, quick) -> dict:
+    """:func:`run_draw`, a failure recorded as a row (the benchmark goes on)."""
+    try:
+        return run_draw(seed, out_dir, quick)
+    except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
+        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "commit": CODE_COMMIT}
+
+
+def summarise(rows) -> dict:
+    """Share of finished draws with the truth inside, per goal quantity and per combined
+    quantity; draws converged; truth in the set."""
+    done = [r for r in rows if "error" not in r]
+    n = len(done)
+    per_goal = {g: sum(r["goals"][g] for r in done) for g in GOAL_QUANTITIES}
+    names = sorted({q for r in done for q in r["quantities"]})
+    per_quantity = {q: {"inside": sum(r["quantities"][q]["inside"] for r in done if q in r["quantities"]),
+                        "draws": sum(q in r["quantities"] for r in done)} for q in names}
+    return {"draws": n, "failed": len(rows) - n, "inside": per_goal, "quantities": per_quantity,
+            "converged": sum(r["converged"] for r in done),
+            "truth_in_set": sum(r["truth_in_set"] for r in done)}
+
+
+def coverage_goals(table) -> list:
+    """The goals of the module's docstring; not met under :data:`MIN_DRAWS` draws."""
+    n = table["draws"]
+    lo, hi = GOAL_BAND
+    goals = []
+    for g in GOAL_QUANTITIES:
+        k = table["inside"][g]
+        share = k / n if n else None
+        goals.append(Goal(f"{g}: truth inside the combined 90 % interval",
+                          share if n >= MIN_DRAWS else None, low=lo, high=hi, fmt="{:.0%}",
+                          shown=f"{k} of {n}" + (f" = {share:.0%}" if share is not None else ""),
+                          target=f"{lo:.0%} to {hi:.0%} over >= {MIN_DRAWS} draws"))
+    goals.append(Goal.count("draws with every member's chain converged", table["converged"], n))
+    return goals
+
+
+def main(argv=None) -> int:
+    import json
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="short chains (150 steps), 2 draws")
+    parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
+    parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
+    parser.add_argument("--jobs", type=int, default=1, help="draws run at once, one process each")
+    parser.add_argument("--out", default="results/bench_set_coverage", help="output directory")
+    args = parser.parse_args(argv)
+    n = args.draws or (2 if args.quick else MIN_DRAWS)
+    if n < 1 or args.jobs < 1:
+        raise SystemExit("--draws and --jobs must be at least 1")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "bench.json"
+    rows = []
+    if path.exists():  # resume: keep finished draws of the same mode
+        old = json.loads(path.read_text())
+        if old.get("quick") == args.quick:
+            rows = [r for r in old["rows"] if args.seed <= r["seed"] < args.seed + n]
+
+    def record(seed, row):
+        rows.append(row)
+        rows.sort(key=lambda r: r["seed"])
+        if "error" in row:
+            print(f"draw {seed}: FAILED {row['error']}", flush=True)
+        else:
+            inside = ", ".join(f"{g} {'in' if v else 'OUT'}" for g, v in row["goals"].items())
+            print(f"draw {seed}: truth {row['structure']}, set of {len(row['members'])}, "
+                  f"converged {row['converged']}: {inside} [{row['seconds_discover']:.0f} s]",
+                  flush=True)
+        write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows)})
+
+    done = {r["seed"] for r in rows}
+    seeds = [s for s in range(args.seed, args.seed + n) if s not in done]
+    if args.jobs > 1 and len(seeds) > 1:
+        from discovery.parallel import process_pool
+
+        with process_pool(args.jobs) as pool:
+            k = len(seeds)
+            for seed, row in zip(seeds, pool.map(guarded_draw, seeds, [out] * k, [args.quick] * k)):
+                record(seed, row)
+    else:
+        for seed in seeds:
+            record(seed, guarded_draw(seed, out, args.quick))
+    table = summarise(rows)
+    print(f"\n{table['draws']} draws ({table['failed']} failed); truth in the set "
+          f"{table['truth_in_set']}; chains converged in {table['converged']}")
+    for q, c in table["quantities"].items():
+        print(f"  {q:22s} inside {c['inside']} of {c['draws']}")
+    return goal_report(coverage_goals(table))
+
+
+if __name__ == "__main__":
+    from discovery.parallel import run_interruptible
+
+    raise SystemExit(run_interruptible(main))

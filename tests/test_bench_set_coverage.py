@@ -1,0 +1,42 @@
+"""studies.benchmarks.set_coverage: a draw's row says, per combined quantity, whether the printed
+90 % interval holds the truth; the goals read the threshold for a velocity-form truth."""
+from studies.benchmarks.set_coverage import coverage_goals, coverage_row, summarise
+from models import M000, M002
+from models.structures import Structure
+
+
+def _summary(intervals, members=("a",), converged=True, in_set=()):
+    return {"indistinguishable": list(in_set),
+            "set_posterior": {"quantities": {k: {"q05": lo, "q95": hi} for k, (lo, hi) in intervals.items()},
+                              "members": [{"structure": m, "converged": converged,
+                                           "posterior": {"not_pinned": []}} for m in members]}}
+
+
+def test_row_reads_the_threshold_for_a_velocity_truth_and_counts_a_missing_place_outside():
+    """M000 (dead zone on the velocity signal): the dead-zone goal is the threshold z - off; a
+    set whose members all put the dead zone on the error has no ``dead_zone[velocity]``, which
+    counts as outside; an interval just missing the truth is outside."""
+    truth = M000()
+    c = truth.dead_zone - truth.friction_offset
+    summary = _summary({"threshold": (0.9 * c, 1.1 * c), "backlash": (0.0, 0.5 * truth.backlash),
+                        "delay": (truth.delay, 2 * truth.delay), "dead_zone[error]": (1e-3, 2e-3)},
+                       in_set=[Structure.of_params(truth).name])
+    row = coverage_row(1, truth, Structure.of_params(truth), summary)
+    assert row["goals"] == {"dead zone": True, "backlash": False, "delay": True}
+    assert row["quantities"]["dead_zone[velocity]"]["inside"] is False
+    assert row["truth_in_set"] and row["converged"]
+
+
+def test_error_form_truth_and_the_goals_over_rows():
+    """M002 (dead zone on the error): the goal reads ``dead_zone[error]``; the table counts the
+    rows, and the goals are not met under 30 draws whatever the share."""
+    truth = M002()
+    summary = _summary({"dead_zone[error]": (0.5 * truth.dead_zone, 2 * truth.dead_zone),
+                        "backlash": (0.5 * truth.backlash, 2 * truth.backlash),
+                        "delay": (0.5 * truth.delay, 0.9 * truth.delay)}, converged=False)
+    row = coverage_row(2, truth, Structure.of_params(truth), summary)
+    assert row["goals"] == {"dead zone": True, "backlash": True, "delay": False}
+    table = summarise([row, {"seed": 3, "error": "boom"}])
+    assert table["draws"] == 1 and table["failed"] == 1 and table["converged"] == 0
+    assert table["inside"] == {"dead zone": 1, "backlash": 1, "delay": 0}
+    assert not any(g.met for g in coverage_goals(table))
