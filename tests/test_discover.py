@@ -23,7 +23,7 @@ def _write(path, delta, kind="closed", **meta):
 
 
 @pytest.mark.parametrize("case, expected", [
-    ("none", "the following arguments are required"),
+    ("none", "no recording given"),
     ("no_cycle", "no limit cycle"),
     ("unknown_fix", "unknown parameter(s) dead_band"),
 ])
@@ -35,15 +35,10 @@ def test_bad_input_is_one_line_error(tmp_path, capsys, case, expected):
         args.insert(1, _write(tmp_path / "flat.csv", 1e-3 * np.exp(-t)))
     elif case == "unknown_fix":
         args[1:1] = [DATA, "--fix", "dead_band=1e-3"]
-    if case == "none":
-        with pytest.raises(SystemExit) as exc:
-            main(args)
-        assert exc.value.code == 2
-    else:
-        assert main(args) == 2
+    assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert expected in err
-    assert "Traceback" not in err and (case == "none" or len(err.splitlines()) == 1)
+    assert "Traceback" not in err and len(err.splitlines()) == 1
 
 
 def test_unknown_search_size_names_the_choices():
@@ -142,20 +137,20 @@ def test_recovers_a_drawn_truth_with_known_positions(tmp_path, seed):
 
 @pytest.mark.slow
 def test_recovers_drawn_truths_with_known_positions_from_reference_data(tmp_path):
-    """As above over seeds 0-9, the records made by the plain-Python reference path (a second
+    """As above over seeds 0-6, the records made by the plain-Python reference path (a second
     implementation of the model) at the generator's 5e-5 s step: every generating structure in
-    its set, every pinned coordinate within :data:`PINNED_ERROR`, and at least 8 of the 10
-    designs pinning one (measured 9: draw 7, two limit cycles and no open-loop test, pins none)
-    (~18 CPU-min, most of it the data)."""
+    its set, every pinned coordinate within :data:`PINNED_ERROR`, and at least 6 of the 7 designs
+    pinning one (measured: all 7; over seeds 0-9 draw 7, two limit cycles and no open-loop test,
+    pins none) (~15 CPU-min, most of it the data)."""
     failures, pinned = {}, {}
-    for seed in range(10):
+    for seed in range(7):
         try:
             pinned[seed] = _recover_known_positions(seed, tmp_path / f"draw{seed}",
                                                     reference_path=True)
         except AssertionError as exc:
             failures[seed] = str(exc)[:300]
     assert not failures, failures
-    assert sum(bool(v) for v in pinned.values()) >= 8, pinned
+    assert sum(bool(v) for v in pinned.values()) >= 6, pinned
 
 
 #: One structure (M000's placement with its band-pass loop fixed) on one record: a discovery of

@@ -21,6 +21,7 @@ _EXPORTS = {
     # the end-to-end pipeline and its result
     "discover": "tvcid.pipeline",
     "DiscoveryResult": "tvcid.pipeline",
+    "add_recordings": "tvcid.pipeline",
     # models: hypotheses, experiments, simulation, recordings
     "hypothesis": "models.hypotheses",
     "HYPOTHESES": "models.hypotheses",

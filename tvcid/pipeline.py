@@ -24,8 +24,10 @@ import numpy as np
 
 from models.strict_json import jsonable, write_json
 
-__all__ = ["DiscoveryResult", "discover", "next_test", "inputs_hash"]
+__all__ = ["DiscoveryResult", "add_recordings", "discover", "next_test", "inputs_hash"]
 
+#: Layout of ``discovery.json``; ``--add`` refuses a directory written in another one.
+DISCOVERY_FORMAT = 2
 #: Distinct members of the set calibrated at most (best score first); the rest are listed in
 #: ``set_posterior.not_calibrated``.
 MAX_MEMBERS = 6
@@ -205,6 +207,83 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     return DiscoveryResult(summary, out)
 
 
+def _data_hash(rec) -> str:
+    h = hashlib.sha256()
+    for name in sorted(rec.columns):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(rec.columns[name], dtype=float).tobytes())
+    return h.hexdigest()
+
+
+def _earlier_run(out, fixed):
+    """The earlier run's ``discovery.json`` in ``out``, checked for ``--add``."""
+    path = out / "discovery.json"
+    if not path.is_file():
+        raise ValueError(f"--add: {out} holds no discovery.json (run tvcid discover --out {out} "
+                         "first)")
+    try:
+        earlier = json.loads(path.read_text())
+    except ValueError as exc:
+        raise ValueError(f"--add: {path} is not valid JSON ({exc})") from None
+    if not isinstance(earlier, dict) or earlier.get("format") != DISCOVERY_FORMAT:
+        found = earlier.get("format") if isinstance(earlier, dict) else None
+        raise ValueError(f"--add: {path} was written by another version of tvcid discover (layout "
+                         f"{found!r}, this one adds to {DISCOVERY_FORMAT}); run the discovery again")
+    given = {k: getattr(v, "value", v) for k, v in (fixed or {}).items()}
+    if given and given != earlier["fixed"]:
+        raise ValueError(f"--add: --fix {given} differs from the earlier run's fixed set-up "
+                         f"{earlier['fixed'] or 'none'} (--add keeps the earlier set-up; leave "
+                         "--fix out)")
+    return earlier
+
+
+def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc=True,
+                   progress=True) -> DiscoveryResult:
+    """The experiment loop: add recordings to an earlier :func:`discover` run in ``out``.
+
+    Every structure is refitted by least squares from its optimum of the earlier run on all the
+    recordings (:meth:`discovery.structure.StructureDiscovery.fit` with ``previous``), then
+    ranked; the set, its posterior and the next test are made again. The earlier run's fixed
+    set-up, seed and search sizes are kept. Refused with one line, before anything is written:
+    no earlier run in ``out``, one of another version, a different ``fixed``, or a recording
+    already in the run. Rerun after an interruption, the same ``--add`` resumes.
+    """
+    from discovery.structure import validate_recordings
+    from models import params_from_dict
+
+    out = Path(out)
+    earlier = _earlier_run(out, fixed)
+    added = earlier.get("added") or []
+    new = validate_recordings(new_files)
+    new_paths = [str(r.path) for r in new]
+    if added and new_paths == added[-len(new_paths):] and all(p in earlier["recordings"] for p in new_paths):
+        # the same --add, interrupted after its ranking: resume it
+        return discover(earlier["recordings"], out, fixed=earlier["fixed"], seed=earlier["seed"],
+                        quick=quick, max_steps=max_steps, mcmc=mcmc, progress=progress,
+                        search=earlier["search"])
+    old = validate_recordings(earlier["recordings"])
+    known = {Path(r.path).resolve(): r for r in old}
+    hashes = {_data_hash(r): r for r in old}
+    for r in new:
+        twin = known.get(Path(r.path).resolve()) or hashes.get(_data_hash(r))
+        if twin is not None:
+            raise ValueError(f"--add: {r.path} is already in the run (as {twin.path})")
+    recs = old + new
+    fixed, seed, search = earlier["fixed"], earlier["seed"], earlier["search"]
+    previous = {}
+    for row in earlier["structures"]:
+        if row.get("cost") is not None and math.isfinite(row["cost"]):
+            previous[row["structure"]] = params_from_dict("custom", row["params"])
+    inputs = inputs_hash(recs, fixed, seed, search)
+    summary, closed, offsets, t_disc = _rank_structures(recs, fixed, seed, search, progress,
+                                                        inputs, previous=previous)
+    summary["added"] = added + new_paths
+    summary["earlier_set"] = earlier["indistinguishable"]
+    _write(out, summary)  # the ranking survives whatever happens to the chains
+    return discover(summary["recordings"], out, fixed=fixed, seed=seed, quick=quick,
+                    max_steps=max_steps, mcmc=mcmc, progress=progress, search=search)
+
+
 def next_test(summary, recs, seed, out):
     """The test that would tell apart the structures the recordings cannot
     (:func:`discovery.structure.discrimination.discriminating_tests` on the set's unmerged
@@ -268,13 +347,15 @@ def _previous_ranking(out, inputs):
     return summary
 
 
-def _rank_structures(recs, fixed, seed, search, progress, inputs):
+def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None):
     from discovery.structure import StructureDiscovery
 
     t0 = time.perf_counter()
-    disc = StructureDiscovery(fixed=fixed, seed=seed, search=search, progress=progress).fit(recs)
+    disc = StructureDiscovery(fixed=fixed, seed=seed, search=search,
+                              progress=progress).fit(recs, previous=previous)
     t_disc = time.perf_counter() - t0
     summary = {
+        "format": DISCOVERY_FORMAT,
         "recordings": [str(r.path) for r in recs],
         "targets": [t.describe() for t in disc.targets_],
         "fixed": {k: (v if not hasattr(v, "value") else v.value) for k, v in (fixed or {}).items()},

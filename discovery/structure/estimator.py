@@ -171,12 +171,17 @@ class StructureDiscovery:
         self.progress = progress
         self.max_ranked = max_ranked
 
-    def fit(self, recordings):
-        """Screen, search, refine and rank every structure on ``recordings``; returns ``self``."""
-        with one_blas_thread():  # the kernels own the cores (:mod:`discovery.threads`)
-            return self._fit(recordings)
+    def fit(self, recordings, previous=None):
+        """Screen, search, refine and rank every structure on ``recordings``; returns ``self``.
 
-    def _fit(self, recordings):
+        ``previous`` (structure name -> ActuatorParams, an earlier run's optima on part of these
+        recordings) replaces SINDy's screening and the global searches by least squares from
+        those optima (:meth:`.structure_search.StructureSearch.refit_from`): the experiment
+        loop's update after new recordings."""
+        with one_blas_thread():  # the kernels own the cores (:mod:`discovery.threads`)
+            return self._fit(recordings, previous)
+
+    def _fit(self, recordings, previous=None):
         t_start = time.perf_counter()
         timings = {}
         if self.search not in SEARCHES:
@@ -204,7 +209,12 @@ class StructureDiscovery:
         objective = Objective(targets)
         rng = np.random.default_rng(self.seed)
         t0 = time.perf_counter()
-        sindy, sindy_error = ({}, "not run") if not self.use_sindy else self._sindy_seeds(recs)
+        if previous:
+            sindy, sindy_error = {}, "not run: the earlier run's optima seed the searches"
+        elif not self.use_sindy:
+            sindy, sindy_error = {}, "not run"
+        else:
+            sindy, sindy_error = self._sindy_seeds(recs)
         self.sindy_ = {"proposals": {k: [p.to_dict() for p in v] for k, v in sindy.items()},
                        "error": sindy_error}
         timings["sindy"] = time.perf_counter() - t0
@@ -212,13 +222,16 @@ class StructureDiscovery:
         spaces = {s: SearchSpace(s, base, _fixed_for(s, fixed), self.dt) for s in kept}
         search = StructureSearch(objective, self.sizes_, rng, spaces, self.progress)
         t0 = time.perf_counter()
-        fits = search.search_classes(kept, sindy)
-        timings["global"] = time.perf_counter() - t0
-        timings["global_open_loop_stage"] = search.open_loop_seconds
-
-        t0 = time.perf_counter()
-        self.repaired_ = search.fit_nested(kept, fits, sindy)
-        timings["nested"] = time.perf_counter() - t0
+        if previous:
+            fits, self.repaired_ = search.refit_from(kept, previous)
+            timings["refit"] = time.perf_counter() - t0
+        else:
+            fits = search.search_classes(kept, sindy)
+            timings["global"] = time.perf_counter() - t0
+            timings["global_open_loop_stage"] = search.open_loop_seconds
+            t0 = time.perf_counter()
+            self.repaired_ = search.fit_nested(kept, fits, sindy)
+            timings["nested"] = time.perf_counter() - t0
 
         best_fit = min(fits.values(), key=lambda f: f.cost)
         if best_fit.cost >= NO_FIT_COST * len(targets):

@@ -210,6 +210,33 @@ class StructureSearch:
         repaired += self.seed_from_best(fits)
         return repaired
 
+    def refit_from(self, structures, previous):
+        """The experiment loop's search: every structure refined by least squares from its
+        optimum of an earlier run (``previous``: structure name -> ActuatorParams) on the
+        objective's recordings, the new ones included; a structure without one is searched
+        globally. Then the cross-seeding, the superset repair and the refits from the best
+        optimum, as after a fresh search. Returns ``(fits, repaired)``."""
+        warm = [s for s in structures if s.name in previous]
+        bar = progress_bar(len(warm), "refits from the earlier run", self.progress)
+
+        def from_previous(s):
+            start = self.spaces[s].coordinates(s.to_params(previous[s.name]))
+            fr = refine(self.spaces[s], self.objective, start, max_nfev=self.sizes.nfev)
+            bar.update()
+            return fr
+
+        fits = {}
+        for s, fr in zip(warm, concurrent_map(from_previous, warm)):
+            fits[s] = self._record(s, fr, "least squares from the earlier run's optimum", [])
+        bar.close()
+        for s in structures:  # in order: the rng's draws
+            if s not in fits:
+                fits[s] = self._record(s, self.fit_global(self.spaces[s], []), "global search", [])
+        self.cross_seed(fits)
+        repaired = self.repair_supersets(fits)
+        repaired += self.seed_from_best(fits)
+        return fits, repaired
+
     # -- one structure's global search ---------------------------------------------------------
     def fit_global(self, space, seeds):
         """Global search of one structure on all recordings, then least squares.

@@ -18,7 +18,12 @@ def register(sub):
         "cannot tell apart, and calibrate the winner with MCMC. Sidecars need only kind (and kp, "
         "kd, mu, controller_rate in closed loop); hypothesis/parameters keys are ignored.",
     )
-    p.add_argument("files", nargs="+", metavar="FILE.csv", help="recordings (CSV + JSON sidecar)")
+    p.add_argument("files", nargs="*", metavar="FILE.csv", help="recordings (CSV + JSON sidecar)")
+    p.add_argument("--add", nargs="+", default=None, metavar="NEW.csv",
+                   help="add these recordings to the earlier run in --out (the experiment loop: "
+                   "every structure refitted from its earlier optimum, the set, its posterior "
+                   "and the next test made again; the earlier --fix, --seed and search sizes "
+                   "are kept)")
     p.add_argument("--fix", action="append", default=[], metavar="KEY=VALUE",
                    help="a known parameter or structural choice, used in every structure "
                    "(repeatable), e.g. --fix gain=305500 --fix delay_position=output")
@@ -36,13 +41,24 @@ def register(sub):
 
 
 def run(args) -> int:
-    from ..pipeline import discover
+    from ..pipeline import add_recordings, discover
 
     fixed = parse_assignments(args.fix)
-    result = discover(args.files, Path(args.out), fixed=fixed, seed=args.seed, quick=args.quick,
-                      search="thorough" if args.thorough else "standard",
-                      max_steps=args.max_steps, mcmc=not args.no_mcmc,
-                      progress=not args.no_progress)
+    if args.add is not None:
+        if args.files:
+            raise ValueError("--add takes the new recordings; the earlier ones are in --out's "
+                             "discovery.json (give no FILE.csv)")
+        result = add_recordings(args.add, Path(args.out), fixed=fixed, quick=args.quick,
+                                max_steps=args.max_steps, mcmc=not args.no_mcmc,
+                                progress=not args.no_progress)
+    else:
+        if not args.files:
+            raise ValueError("no recording given (FILE.csv ..., or --add NEW.csv with an earlier "
+                             "run in --out)")
+        result = discover(args.files, Path(args.out), fixed=fixed, seed=args.seed, quick=args.quick,
+                          search="thorough" if args.thorough else "standard",
+                          max_steps=args.max_steps, mcmc=not args.no_mcmc,
+                          progress=not args.no_progress)
     best = result.best
     print(f"best: {best['structure']} (score {best['score']:.4g}, {best['criterion']})")
     same = [s["structure"] for s in result.summary["structures"][1:] if s["indistinguishable_from_best"]]
