@@ -145,7 +145,8 @@ class ActuatorParams:
     bandpass_gain : float
         Loop gain ``G`` of the positive band-pass feedback (paper 001 G, paper 000 F); 0 = no loop.
     bandpass_saturation : float
-        Level ``s`` of the saturation after the gain (rad/s); ``inf`` for none.
+        Level ``s`` of the saturation after the gain (rad/s); ``inf`` for none (``None``, JSON
+        ``null``, reads as ``inf``).
     bandpass_low_hz, bandpass_high_hz : float
         Pass band of the Butterworth filter (Hz).
     bandpass_order : int
@@ -207,6 +208,8 @@ class ActuatorParams:
                     raise ValueError(f"noise_seed must be >= 0 (got {value})")
                 object.__setattr__(self, f.name, value)
                 continue
+            if value is None and f.name in OPEN_FIELDS:  # JSON null: the open value
+                value = math.inf
             try:
                 value = float(value)
             except (TypeError, ValueError):
@@ -413,10 +416,9 @@ def params_from_dict(name: str, parameters: dict) -> ActuatorParams:
     ``name`` is a hypothesis name or ``"custom"`` (the general :class:`ActuatorParams`); this is how
     a recording's sidecar (keys ``hypothesis`` and ``parameters``) is turned back into a model.
     ``None`` (JSON ``null``, as tvcid's strict JSON writes an infinite value) stands for the open
-    value of a field whose default is infinite (``bandpass_saturation``: no saturation).
+    value of a field whose default is infinite (``bandpass_saturation``: no saturation), as in
+    :class:`ActuatorParams` itself.
     """
-    parameters = {k: (math.inf if v is None and k in OPEN_FIELDS else v)
-                  for k, v in parameters.items()}
     if str(name).lower() == ActuatorParams.name:
         known = set(ActuatorParams.parameter_names())
         unknown = sorted(set(parameters) - known)
