@@ -51,7 +51,6 @@ band-pass saturation where it has none (infinite), are written as ``null``.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -63,12 +62,11 @@ import numpy as np
 from discovery.structure import StructureDiscovery
 from discovery.structure.coordinates import SearchSpace
 from discovery.structure.search import local_sd
-
+from models.strict_json import write_json
 from models.structures import CHOICES, Structure, shared_choices
 
 from ..common import code_commit
-from models.strict_json import write_json
-
+from .draws import finished_rows, run_draws
 from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
@@ -477,12 +475,8 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bench.json"
-    rows = []
-    if path.exists():  # resume: keep finished draws of the same mode
-        old = json.loads(path.read_text())
-        if old.get("quick") == args.quick:
-            rows = [undecided_marked(r) if "error" not in r else r
-                    for r in old["rows"] if args.seed <= r["seed"] < args.seed + n]
+    rows = [undecided_marked(r) if "error" not in r else r  # resume: finished draws are kept
+            for r in finished_rows(path, args.quick, args.seed, n)]
 
     def save():
         write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows),
@@ -521,16 +515,7 @@ def main(argv=None) -> int:
     done = {r["seed"] for r in rows}
     seeds = ([] if args.rederive or args.floor_scan
              else [s for s in range(args.seed, args.seed + n) if s not in done])
-    n = len(seeds)
-    if args.jobs > 1 and len(seeds) > 1:
-        from discovery.parallel import process_pool
-
-        with process_pool(args.jobs) as pool:
-            for seed, row in zip(seeds, pool.map(guarded_draw, seeds, [out] * n, [args.quick] * n)):
-                record(seed, row)
-    else:
-        for seed in seeds:
-            record(seed, guarded_draw(seed, out, args.quick))
+    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record)
     table = summarise(rows)
     print(f"\n{'class':42s} draws  winner  right|set<=3  set<=3  ceiling  oracle  ident<=5%  "
           "choices right  wrong  median s")
@@ -559,6 +544,8 @@ def discovery_goals(overall) -> list:
 
 
 if __name__ == "__main__":
-    from discovery.parallel import run_interruptible  # Ctrl-C, SIGTERM: workers stopped, one line, 130
+    from discovery.parallel import (
+        run_interruptible,  # Ctrl-C, SIGTERM: workers stopped, one line, 130
+    )
 
     sys.exit(run_interruptible(main))

@@ -30,6 +30,7 @@ from discovery.structure.set_posterior import member_quantities
 from models.strict_json import write_json
 
 from ..common import code_commit
+from .draws import finished_rows, run_draws
 from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
@@ -139,8 +140,6 @@ def coverage_goals(table) -> list:
 
 
 def main(argv=None) -> int:
-    import json
-
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="short chains (150 steps), 2 draws")
     parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
@@ -154,11 +153,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bench.json"
-    rows = []
-    if path.exists():  # resume: keep finished draws of the same mode
-        old = json.loads(path.read_text())
-        if old.get("quick") == args.quick:
-            rows = [r for r in old["rows"] if args.seed <= r["seed"] < args.seed + n]
+    rows = finished_rows(path, args.quick, args.seed, n)  # resume: finished draws are kept
 
     def record(seed, row):
         rows.append(row)
@@ -174,16 +169,7 @@ def main(argv=None) -> int:
 
     done = {r["seed"] for r in rows}
     seeds = [s for s in range(args.seed, args.seed + n) if s not in done]
-    if args.jobs > 1 and len(seeds) > 1:
-        from discovery.parallel import process_pool
-
-        with process_pool(args.jobs) as pool:
-            k = len(seeds)
-            for seed, row in zip(seeds, pool.map(guarded_draw, seeds, [out] * k, [args.quick] * k)):
-                record(seed, row)
-    else:
-        for seed in seeds:
-            record(seed, guarded_draw(seed, out, args.quick))
+    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record)
     table = summarise(rows)
     print(f"\n{table['draws']} draws ({table['failed']} failed); truth in the set "
           f"{table['truth_in_set']}; chains converged in {table['converged']}")
