@@ -207,11 +207,17 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     return DiscoveryResult(summary, out)
 
 
-def _data_hash(rec) -> str:
-    h = hashlib.sha256()
+def _hash_samples(h, rec):
+    """Feed a recording's columns (names and samples) to the hash ``h``."""
     for name in sorted(rec.columns):
         h.update(name.encode())
         h.update(np.ascontiguousarray(rec.columns[name], dtype=float).tobytes())
+
+
+def _data_hash(rec) -> str:
+    """Digest of a recording's samples: the same data under another file name match."""
+    h = hashlib.sha256()
+    _hash_samples(h, rec)
     return h.hexdigest()
 
 
@@ -326,9 +332,7 @@ def inputs_hash(recs, fixed, seed, search) -> str:
     """Hash of what determines the ranking: every recording's data and sidecar, the options."""
     h = hashlib.sha256()
     for r in recs:
-        for name in sorted(r.columns):
-            h.update(name.encode())
-            h.update(np.ascontiguousarray(r.columns[name], dtype=float).tobytes())
+        _hash_samples(h, r)
         h.update(json.dumps(r.meta, sort_keys=True, default=str).encode())
     h.update(json.dumps([{k: getattr(v, "value", v) for k, v in (fixed or {}).items()}, seed,
                          str(search)], sort_keys=True, default=str).encode())
