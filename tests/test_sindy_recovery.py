@@ -107,9 +107,7 @@ def test_open_loop_exact_terms_and_coefficients(open_fits):
     for seed, (truth, est) in open_fits.items():
         best = est.candidates_[0]
         assert set(best.terms) == TERMS, (seed, best.terms)
-        errors = [_relative(best.terms[DZ_TERM], truth.gain),
-                  _relative(-best.terms["delta''"], truth.damping),
-                  _relative(-best.terms["delta'"], truth.stiffness)]
+        errors = _linear_block_errors(best, truth)
         assert max(errors) < OPEN_TOL["coefficients"], (seed, errors)
 
 
@@ -152,6 +150,14 @@ def test_negative_control_no_backlash(tmp_path):
             NO_BACKLASH_TOL["dead_zone"], (seed, best.thresholds)
 
 
+def _linear_block_errors(best, truth):
+    """Relative errors of the fitted K1, K2, K3 (the dead-zone term's and the derivatives'
+    coefficients) against the truth's gain, damping and stiffness."""
+    return [_relative(best.terms[DZ_TERM], truth.gain),
+            _relative(-best.terms["delta''"], truth.damping),
+            _relative(-best.terms["delta'"], truth.stiffness)]
+
+
 def test_open_loop_at_200_hz(tmp_path):
     for seed in SEEDS_200_HZ:
         scenario = _draw(seed, rate=200.0)
@@ -159,9 +165,7 @@ def test_open_loop_at_200_hz(tmp_path):
         truth = scenario.truth
         best = _open_fit(scenario, tmp_path / f"draw{seed}").candidates_[0]
         assert set(best.terms) == TERMS, (seed, best.terms)
-        errors = [_relative(best.terms[DZ_TERM], truth.gain),
-                  _relative(-best.terms["delta''"], truth.damping),
-                  _relative(-best.terms["delta'"], truth.stiffness)]
+        errors = _linear_block_errors(best, truth)
         assert max(errors) < TOL_200_HZ["coefficients"], (seed, errors)
         thr = best.thresholds
         assert _relative(thr["dead_zone"], truth.dead_zone) < TOL_200_HZ["dead_zone"], (seed, thr)
@@ -242,7 +246,5 @@ def test_open_loop_recovery_on_the_generators_own_designs(tmp_path):
         truth = scenario.truth
         best = _open_fit(scenario, tmp_path / f"draw{seed}").candidates_[0]
         assert set(best.terms) == TERMS, (seed, best.terms)
-        errors = [_relative(best.terms[DZ_TERM], truth.gain),
-                  _relative(-best.terms["delta''"], truth.damping),
-                  _relative(-best.terms["delta'"], truth.stiffness)]
+        errors = _linear_block_errors(best, truth)
         assert max(errors) < OPEN_TOL["coefficients"], (seed, errors)
