@@ -1,7 +1,7 @@
 """Coverage benchmark of the calibration: do the 90 % intervals hold the truth 90 % of the time?
 
 ``python -m studies.benchmarks.coverage [--quick] [--likelihood features|waveform] [--draws N] [--seed S]
-[--jobs J] [--indices I] [--widening] [--out DIR]``
+[--jobs J | --dask ADDRESS] [--indices I] [--widening] [--out DIR]``
 
 Hypothesis: with the right structure, :class:`discovery.calibration.Calibration` returns 90 %
 intervals that contain the truth in 80-97 % of seeded draws per parameter, and the truth's rank
@@ -58,13 +58,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common import code_commit
 from models.strict_json import write_json
 
+from ..common import code_commit
+from .draws import add_executor_options
 from .goals import Goal
 from .goals import report as goal_report
-from .scenarios import (BACKLASH_CENTRE, DEAD_ZONE_CENTRE, DELAY_RANGE, RANGE_FACTOR, draw_scenario,
-                        shortened, write_recordings)
+from .scenarios import (
+    BACKLASH_CENTRE,
+    DEAD_ZONE_CENTRE,
+    DELAY_RANGE,
+    RANGE_FACTOR,
+    draw_scenario,
+    shortened,
+    write_recordings,
+)
 
 #: Parameters sampled when the truth's structure has them.
 SAMPLED = ("dead_zone", "backlash", "delay", "friction_offset")
@@ -205,36 +213,27 @@ def run_draw(index, config: Config, workdir: Path, discrepancy=True) -> dict:
 CODE_COMMIT = code_commit()
 
 
-def run_draws(todo, config: Config, workdir: Path, jobs: int, record, discrepancy=True) -> list:
-    """:func:`run_draw` for every index in ``todo``, ``jobs`` at a time, ``record(row)`` as each
-    finishes. A draw that raises is reported and skipped, not allowed to stop the others (a
+def run_draws(todo, config: Config, workdir: Path, jobs: int, record, discrepancy=True,
+              dask=None) -> list:
+    """:func:`run_draw` for every index in ``todo``, ``jobs`` at a time in worker processes or on
+    the Dask cluster ``dask`` (:func:`discovery.executors.executor_from`), ``record(row)`` as
+    each finishes. A draw that raises is reported and skipped, not allowed to stop the others (a
     benchmark of an hour must keep what it finished); returns the failed indices."""
+    from discovery.executors import executor_from
+
     failed = []
-
-    def failure(index, exc):
-        failed.append(index)
-        print(f"draw {index} FAILED: {exc!r}", flush=True)
-
-    if jobs > 1 and len(todo) > 1:
-        from concurrent.futures import as_completed
-
-        from discovery.parallel import process_pool
-
-        with process_pool(jobs) as pool:
-            futures = {pool.submit(run_draw, i, config, workdir, discrepancy): i for i in todo}
-            for fut in as_completed(futures):
-                try:
-                    row = fut.result()
-                except Exception as exc:  # noqa: BLE001 - one draw's failure must not stop the rest
-                    failure(futures[fut], exc)
-                else:
-                    record(row)
-    else:
-        for i in todo:
-            try:
-                row = run_draw(i, config, workdir, discrepancy)
-            except Exception as exc:  # noqa: BLE001 - as above
-                failure(i, exc)
+    todo = list(todo)
+    if not todo:
+        return failed
+    n = len(todo)
+    # locally, one draw (or --jobs 1 or less) runs in this process: a pool would only add its
+    # start-up
+    with executor_from(jobs if n > 1 and jobs > 1 else 1, dask) as executor:
+        for k, row, exc in executor.completed(run_draw, todo, [config] * n, [workdir] * n,
+                                               [discrepancy] * n):
+            if exc is not None:  # one draw's failure must not stop the rest
+                failed.append(todo[k])
+                print(f"draw {todo[k]} FAILED: {exc!r}", flush=True)
             else:
                 record(row)
     return failed
@@ -342,8 +341,7 @@ def main(argv=None) -> int:
     parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
     parser.add_argument("--seed", type=int, default=None, help="seed of the first draw (default 2000)")
     parser.add_argument("--max-steps", type=int, default=None, help="MCMC step cap per draw")
-    parser.add_argument("--jobs", type=int, default=1,
-                        help="draws calibrated at once, one process each (default 1)")
+    add_executor_options(parser, "draws calibrated at once, one process each (default 1)")
     parser.add_argument("--indices", default=None,
                         help="run only these draws of the config, e.g. '10,14-29' (to share a "
                              "benchmark between machines or runs; the table covers the rows done)")
@@ -398,7 +396,7 @@ def main(argv=None) -> int:
               f"{row['wall_s']:.0f} s", flush=True)
         write_json(path, {"config": asdict(config), "rows": rows, "summary": summarise(rows)})
 
-    failed = run_draws(todo, config, out / "data", args.jobs, record)
+    failed = run_draws(todo, config, out / "data", args.jobs, record, dask=args.dask)
     summary = summarise(rows)
     write_json(path, {"config": asdict(config), "rows": rows, "summary": summary})
     plot_ranks(summary, out / "ranks.png")
@@ -461,7 +459,8 @@ def _widening_main(args, config, out, rows) -> int:
                           if d["index"] == row["index"] for n, c in d["parameters"].items())
         print(f"draw {row['index']} without the term: widths with it {cells}", flush=True)
 
-    failed = run_draws(todo, config, out / "data", args.jobs, record, discrepancy=False)
+    failed = run_draws(todo, config, out / "data", args.jobs, record, discrepancy=False,
+                       dask=args.dask)
     result = widening(rows, plain)
     write_widening(path, plain, result, rows)
     print(f"{result['within_20_percent']} of {result['intervals']} intervals widened by at most "
@@ -481,6 +480,8 @@ def write_widening(path, plain, result, rows):
 
 
 if __name__ == "__main__":
-    from discovery.parallel import run_interruptible  # Ctrl-C, SIGTERM: workers stopped, one line, 130
+    from discovery.parallel import (
+        run_interruptible,  # Ctrl-C, SIGTERM: workers stopped, one line, 130
+    )
 
     sys.exit(run_interruptible(main))

@@ -1,7 +1,7 @@
 """Discovery benchmark: random truths and designs, data from the reference path, read as measured.
 
-``python -m studies.benchmarks.discovery [--quick] [--draws N] [--seed S] [--jobs J] [--out DIR]
-[--rederive] [--floor-scan]``
+``python -m studies.benchmarks.discovery [--quick] [--draws N] [--seed S] [--jobs J | --dask ADDRESS]
+[--out DIR] [--rederive] [--floor-scan]``
 
 Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded) is a truth over every structure of the
 grammar and an experiment design (limit cycles at 1-3 controller settings, open-loop squares and
@@ -66,7 +66,7 @@ from models.strict_json import write_json
 from models.structures import CHOICES, Structure, shared_choices
 
 from ..common import code_commit
-from .draws import finished_rows, run_draws
+from .draws import add_executor_options, finished_rows, run_draws
 from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
@@ -459,8 +459,7 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="a handful of draws, no SINDy seeds")
     parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
     parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
-    parser.add_argument("--jobs", type=int, default=1,
-                        help="draws run at once, one process each (default 1)")
+    add_executor_options(parser, "draws run at once, one process each (default 1)")
     parser.add_argument("--out", default="results/bench_discovery", help="output directory")
     parser.add_argument("--rederive", action="store_true",
                         help="no search: derive every finished row's set again from its stored "
@@ -515,7 +514,7 @@ def main(argv=None) -> int:
     done = {r["seed"] for r in rows}
     seeds = ([] if args.rederive or args.floor_scan
              else [s for s in range(args.seed, args.seed + n) if s not in done])
-    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record)
+    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record, dask=args.dask)
     table = summarise(rows)
     print(f"\n{'class':42s} draws  winner  right|set<=3  set<=3  ceiling  oracle  ident<=5%  "
           "choices right  wrong  median s")

@@ -22,7 +22,8 @@ Measured:
   solver's step-doubling error at the median model) brackets the generating model's cycle
   (amplitude and frequency measured the same way, at the simulator's default step).
 
-Usage: ``python -m studies.benchmarks.prediction [--quick] [--seed N]``; writes
+Usage: ``python -m studies.benchmarks.prediction [--quick] [--seed N] [--jobs J | --dask ADDRESS]``
+(``--jobs``, ``--dask``: the coverage cases calibrated at once, after the map); writes
 ``results/bench_prediction/bench.json`` (with the commit of the code; non-finite numbers as
 ``null``). The load average is recorded (other jobs inflate times). The speed goal is judged
 against the batch kernel's reference measured in the same run (:meth:`studies.benchmarks.goals.Goal.speed`),
@@ -41,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from discovery.calibration import Calibration
-from models.synthetic import synthetic_recording
+from discovery.executors import executor_from
 from discovery.prediction import (
     ControllerSetting,
     PredictionConfig,
@@ -51,11 +52,12 @@ from discovery.prediction import (
     simulate_cycles,
 )
 from models import ClosedLoop, simulate
+from models.strict_json import write_json
 from models.structures import Structure, structure_space
+from models.synthetic import synthetic_recording
 
 from ..common import code_commit
-from models.strict_json import write_json
-
+from .draws import add_executor_options
 from .goals import Goal, kernel_reference
 from .goals import report as goal_report
 from .scenarios import draw_truth, oscillates
@@ -167,7 +169,29 @@ def shortcut_accuracy(draws, settings, config, full_transient):
     return out
 
 
-def run(config: Config, seed: int, out: Path) -> dict:
+def coverage_row(s, config: Config, pconfig, out: Path, case=None) -> dict:
+    """Coverage case ``s``: whether the 90 % band at :data:`THIRD` brackets the generating
+    model's cycle. ``case``: its ``(fit directory, truth)`` if calibrated already, else
+    :func:`prediction_case` calibrates it under ``out``."""
+    case_dir, case_truth = case or prediction_case(s, out / f"case{s}", config.fit_steps)
+    d = load_posterior_draws(case_dir, n_draws=config.draws, seed=s)
+    third = ControllerSetting(*THIRD)
+    pred = predict_cycle(d, third, pconfig).to_dict()
+    f = measured_cycle(case_truth, third)
+    row = {"seed": s, "structure": Structure.of_params(case_truth).name,
+           "truth_amplitude": f.amplitude, "truth_frequency": f.frequency}
+    for name, value in (("amplitude", f.amplitude), ("frequency", f.frequency)):
+        q = pred[name]
+        row[name] = q
+        row[f"{name}_inside"] = bool(q["q05"] is not None and q["q05"] <= value <= q["q95"])
+        row[f"{name}_width"] = (None if q["q05"] is None
+                                else (q["q95"] - q["q05"]) / q["q50"])
+    return row
+
+
+def run(config: Config, seed: int, out: Path, jobs: int = 1, dask=None) -> dict:
+    """The benchmark; the coverage cases other than ``seed``'s ``jobs`` at a time in worker
+    processes, or on the Dask cluster ``dask`` (:func:`discovery.executors.executor_from`)."""
     out.mkdir(parents=True, exist_ok=True)
     pconfig = PredictionConfig()
     reference = kernel_reference()
@@ -190,25 +214,14 @@ def run(config: Config, seed: int, out: Path) -> dict:
                                  pconfig, config.full_transient)
     # full-length cost of the whole map, scaled from the checked settings
     full_map_seconds = accuracy["seconds_full"] / len(points) * config.grid**2
-    coverage = []
-    for s in config.seeds:
-        if s == seed:
-            case_dir, case_truth = directory, truth
-        else:
-            case_dir, case_truth = prediction_case(s, out / f"case{s}", config.fit_steps)
-        d = load_posterior_draws(case_dir, n_draws=config.draws, seed=s)
-        third = ControllerSetting(*THIRD)
-        pred = predict_cycle(d, third, pconfig).to_dict()
-        f = measured_cycle(case_truth, third)
-        row = {"seed": s, "structure": Structure.of_params(case_truth).name,
-               "truth_amplitude": f.amplitude, "truth_frequency": f.frequency}
-        for name, value in (("amplitude", f.amplitude), ("frequency", f.frequency)):
-            q = pred[name]
-            row[name] = q
-            row[f"{name}_inside"] = bool(q["q05"] is not None and q["q05"] <= value <= q["q95"])
-            row[f"{name}_width"] = (None if q["q05"] is None
-                                    else (q["q95"] - q["q05"]) / q["q50"])
-        coverage.append(row)
+    # the other cases calibrated meanwhile (after the timed map: they do not slow it down); no
+    # cluster started for none, no pool for one
+    others = [s for s in config.seeds if s != seed]
+    n = len(others)
+    with executor_from(jobs if n > 1 and jobs > 1 else 1, dask if n else None) as executor:
+        rows = executor.map(coverage_row, others, [config] * n, [pconfig] * n, [out] * n)
+        coverage = [coverage_row(s, config, pconfig, out, (directory, truth)) if s == seed
+                    else next(rows) for s in config.seeds]
     summary = {
         "config": asdict(config),
         "prediction_config": asdict(pconfig),
@@ -248,8 +261,10 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="small map, one case (CI)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the speed case")
     parser.add_argument("--out", default=str(OUT), help="output directory")
+    add_executor_options(parser, "coverage cases calibrated at once, one process each, after the "
+                                 "timed map (default 1)")
     args = parser.parse_args(argv)
-    s = run(QUICK if args.quick else Config(), args.seed, Path(args.out))
+    s = run(QUICK if args.quick else Config(), args.seed, Path(args.out), args.jobs, args.dask)
     m, a, c = s["map"], s["shortcut_accuracy"], s["coverage"]
     print(f"map {m['shape'][0]}x{m['shape'][1]} x {m['draws']} draws = {m['runs']} runs: "
           f"{m['seconds']:.1f} s ({m['seconds_without_df']:.1f} s without the DF); full-length "
