@@ -1,6 +1,6 @@
 """Coverage of ``tvcid discover``'s printed intervals: structure and linear block unknown.
 
-``python -m studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--jobs J]
+``python -m studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--jobs J | --dask ADDRESS]
 [--out DIR]``
 
 Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded; the discovery benchmark's
@@ -30,7 +30,7 @@ from discovery.structure.set_posterior import member_quantities
 from models.strict_json import write_json
 
 from ..common import code_commit
-from .draws import finished_rows, run_draws
+from .draws import add_executor_options, finished_rows, run_draws
 from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
@@ -144,12 +144,12 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="short chains (150 steps), 2 draws")
     parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
     parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
-    parser.add_argument("--jobs", type=int, default=1, help="draws run at once, one process each")
+    add_executor_options(parser, "draws run at once, one process each")
     parser.add_argument("--out", default="results/bench_set_coverage", help="output directory")
     args = parser.parse_args(argv)
     n = args.draws or (2 if args.quick else MIN_DRAWS)
-    if n < 1 or args.jobs < 1:
-        raise SystemExit("--draws and --jobs must be at least 1")
+    if n < 1:
+        raise SystemExit("--draws must be at least 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bench.json"
@@ -169,7 +169,7 @@ def main(argv=None) -> int:
 
     done = {r["seed"] for r in rows}
     seeds = [s for s in range(args.seed, args.seed + n) if s not in done]
-    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record)
+    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record, dask=args.dask)
     table = summarise(rows)
     print(f"\n{table['draws']} draws ({table['failed']} failed); truth in the set "
           f"{table['truth_in_set']}; chains converged in {table['converged']}")

@@ -1,0 +1,150 @@
+"""Is the set closed? Whether the structures the recordings cannot tell apart would answer a
+user's questions alike.
+
+A set is *closed* when it holds one structure, or when its calibrated members agree on
+
+* every test of the menu (:func:`.discrimination.default_candidates`): each member's posterior
+  draws are simulated through the test as the discovery would see it (the target made from the
+  first member's median model, residuals in noise units as in
+  :mod:`.discrimination`). Two members agree on a test when the median squared distance between
+  a draw of one and a draw of the other is no larger than the 90th percentile of the distances
+  between two draws of the same member (their difference is inside their own spread), or below
+  :data:`.discrimination.DECIDES` (no recording of the test could tell them apart);
+* the limit cycle at controller settings the recordings did not use
+  (:func:`discovery.prediction.set_prediction.predict_cycle_over_set`: both oscillate or both not,
+  and their 90 % bands of amplitude and frequency overlap).
+
+Then the choice between them does not matter to what a user would measure or design for; a set
+that is not closed says at which test or setting the members part.
+"""
+from __future__ import annotations
+
+import itertools
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .discrimination import DECIDES, _target_of
+
+__all__ = ["SetClosure", "menu_agreement", "set_closure"]
+
+#: Percentile of the within-member distances a cross-member distance is compared with.
+WITHIN_PERCENTILE = 90.0
+
+
+def _squared_distances(a, b):
+    """Squared Euclidean distances between the rows of ``a`` and those of ``b``."""
+    return np.maximum(np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2 * a @ b.T, 0.0)
+
+
+def _within(r):
+    d = _squared_distances(r, r)
+    iu = np.triu_indices(len(r), 1)
+    return float(np.percentile(d[iu], WITHIN_PERCENTILE)) if len(iu[0]) else 0.0
+
+
+def menu_agreement(member_sets: dict, candidate, noise_sd, dt=5e-4, seed=0) -> dict:
+    """Whether the members agree on one test (the module's rule).
+
+    ``member_sets``: structure name -> list of :class:`models.ActuatorParams` (posterior draws;
+    the first member's first set makes the target). Returns ``{"name", "agree", "pairs": [{"members",
+    "cross", "within", "agree"}]}`` or, where the test cannot be simulated for that model,
+    ``{"name", "skipped"}``."""
+    names = list(member_sets)
+    with tempfile.TemporaryDirectory() as tmp:
+        target = _target_of(member_sets[names[0]][0], candidate, noise_sd, dt, seed,
+                            Path(tmp) / "test.csv")
+    if isinstance(target, str):
+        return {"name": candidate.name, "skipped": target}
+    residuals = {}
+    for n in names:
+        sets = member_sets[n]
+        if target.initial_conditions():
+            sets = [p.replace(**target.initial_conditions(p)) for p in sets]
+        r = np.asarray(target.residuals(sets), dtype=float)
+        residuals[n] = r[np.all(np.isfinite(r), axis=1)]
+    pairs = []
+    for a, b in itertools.combinations(names, 2):
+        ra, rb = residuals[a], residuals[b]
+        if len(ra) < 2 or len(rb) < 2:  # most draws diverge or stop oscillating: they differ
+            pairs.append({"members": [a, b], "cross": None, "within": None, "agree": False})
+            continue
+        cross = float(np.median(_squared_distances(ra, rb)))
+        within = max(_within(ra), _within(rb))
+        pairs.append({"members": [a, b], "cross": cross, "within": within,
+                      "agree": bool(cross <= within or cross < DECIDES)})
+    return {"name": candidate.name, "agree": all(p["agree"] for p in pairs), "pairs": pairs}
+
+
+@dataclass
+class SetClosure:
+    """Whether a set is closed, test by test and setting by setting.
+
+    Attributes
+    ----------
+    members : list of str
+    tests : list of dict
+        :func:`menu_agreement` of every test of the menu.
+    settings : list of dict
+        Per controller setting: its values, ``members_agree`` and the disagreeing pairs.
+    """
+
+    members: list
+    tests: list = field(default_factory=list)
+    settings: list = field(default_factory=list)
+
+    @property
+    def closed(self) -> bool:
+        return len(self.members) <= 1 or (
+            all(t.get("agree", True) for t in self.tests)
+            and all(s["members_agree"] for s in self.settings))
+
+    @property
+    def parting(self) -> list:
+        """Names of the tests and settings at which the members part."""
+        return ([t["name"] for t in self.tests if not t.get("agree", True)]
+                + [s["setting"] for s in self.settings if not s["members_agree"]])
+
+    def to_dict(self) -> dict:
+        return {"closed": self.closed, "members": self.members, "parting": self.parting,
+                "tests": self.tests, "settings": self.settings}
+
+
+def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, dt=5e-4,
+                seed=0, config=None) -> SetClosure:
+    """Whether the members of a set agree on every test of ``candidates`` and on the cycle at
+    every controller setting of ``settings``.
+
+    Parameters
+    ----------
+    member_draws : dict
+        Structure name -> :class:`discovery.prediction.draws.PosteriorDraws`
+        (:func:`discovery.prediction.draws.load_set_draws` of a discover directory).
+    candidates : sequence of :class:`discovery.prediction.design.Candidate`
+        The menu (:func:`.discrimination.default_candidates`).
+    settings : sequence of :class:`discovery.prediction.settings.ControllerSetting`
+    noise_sd : float
+        Sensor noise sd (rad) of the simulated tests.
+    n_draws : int
+        Posterior draws per member (the first ``n_draws`` of each, which
+        :func:`~discovery.prediction.draws.load_set_draws` already drew at random).
+    """
+    from discovery.prediction.cycles import PredictionConfig
+    from discovery.prediction.set_prediction import predict_cycle_over_set
+
+    names = list(member_draws)
+    if len(names) <= 1:
+        return SetClosure(names)
+    sets = {n: [d.params(i) for i in range(min(n_draws, len(d)))] for n, d in member_draws.items()}
+    median = {n: d.median_params() for n, d in member_draws.items()}
+    ordered = {n: [median[n], *sets[n]] for n in names}  # the target from the median model
+    tests = [menu_agreement(ordered, c, noise_sd, dt, seed) for c in candidates]
+    rows = []
+    for s in settings:
+        pred = predict_cycle_over_set(member_draws, s, config or PredictionConfig(),
+                                      describing=False).to_dict()
+        rows.append({"setting": f"Kp {s.kp:.3g}, Kd {s.kd:.3g}, mu {s.mu:.3g}",
+                     "members_agree": pred["members_agree"], "disagreeing": pred["disagreeing"]})
+    return SetClosure(names, tests, rows)

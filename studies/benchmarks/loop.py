@@ -1,0 +1,275 @@
+"""Does following the suggested tests close the set? The experiment-loop benchmark.
+
+``python -m studies.benchmarks.loop [--quick] [--draws N] [--seed S] [--jobs J | --dask ADDRESS]
+[--out DIR]``
+
+For each draw of the discovery benchmark (:func:`studies.benchmarks.scenarios.draw_scenario`,
+the same seeds), ``tvcid discover`` runs on the draw's recordings (:func:`tvcid.pipeline.discover`,
+the set calibrated); then, up to ``--rounds`` times while the set is not closed, the suggested
+next test is recorded from the truth by the plain-Python reference path, measured by the draw's
+sensor and read back as a measured recording, and added to the run
+(:func:`tvcid.pipeline.add_recordings`). After every round the row records:
+
+* the set (its unmerged members), whether it holds the truth's structure;
+* the fit ceiling: the minimal structures that fit the recordings at least as well as the true
+  parameters themselves (:func:`studies.benchmarks.discovery.as_well_as_truth`); no rule based on
+  the fit can report a set smaller than that;
+* whether the set is *closed* (:func:`discovery.structure.closure.set_closure`): one structure,
+  or members whose posterior responses to every test of the menu and whose predicted cycles at
+  three controller settings the recordings did not use agree within their bands.
+
+Goals, over at least 30 draws: the truth in the set in at least 29 of 30 draws at every round;
+the set closed in at least 90 % of the draws after at most two rounds; the set no larger than the
+fit ceiling's + 1 in at least 90 % of the draws (round 0). Rows are written to ``DIR/bench.json``
+as each draw ends (a rerun resumes), each naming the commit of the code that ran it.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from models.strict_json import write_json
+
+from ..common import code_commit
+from .discovery import as_well_as_truth
+from .draws import add_executor_options, finished_rows, run_draws
+from .goals import Goal
+from .goals import report as goal_report
+from .next_test import _design_of
+from .scenarios import draw_scenario, write_recording, write_recordings
+
+CODE_COMMIT = code_commit()
+#: Rounds of the loop at most (suggested tests added one after the other).
+ROUNDS = 2
+#: Goals: truth in the set (draws of 30), closed after the rounds, set within ceiling + 1.
+TRUTH_IN_SET = 29 / 30
+CLOSED = 0.90
+AT_CEILING = 0.90
+MIN_DRAWS = 30
+#: Controller settings the closure is judged at: drawn over the generator's range for a
+#: third setting (Kp, Kd, mu), seeded by the draw.
+UNSEEN_SETTINGS = 3
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopConfig:
+    """What one draw of the loop runs.
+
+    Attributes
+    ----------
+    rounds : int
+        Suggested tests added at most.
+    max_steps : int or None
+        Chain length of every member's calibration (``None``: the pipeline's, 2000).
+    closure_draws : int
+        Posterior draws per member the closure simulates.
+    fixed : dict or None
+        Structural choices given to the discovery (tests cut the search with it).
+    """
+
+    rounds: int = ROUNDS
+    max_steps: int | None = None
+    closure_draws: int = 24
+    fixed: dict | None = None
+
+
+FULL = LoopConfig()
+QUICK = LoopConfig(rounds=1, max_steps=150, closure_draws=8)
+
+
+def unseen_settings(seed, controller_rate, n=UNSEEN_SETTINGS):
+    """``n`` controller settings drawn over the scenario generator's range for a free setting
+    (Kp U(4, 12), Kd U(0.04, 0.08), mu U(4, 14)) by ``default_rng([seed, 7])``."""
+    from discovery.prediction.settings import ControllerSetting
+
+    rng = np.random.default_rng([seed, 7])
+    return [ControllerSetting(float(rng.uniform(4, 12)), float(rng.uniform(0.04, 0.08)),
+                              float(rng.uniform(4, 14)), sample_rate=controller_rate)
+            for _ in range(n)]
+
+
+def cost_at_truth(recordings, truth) -> float:
+    """The discovery's in-sample cost of the true parameters on ``recordings`` (the search's
+    targets, each recording's own initial state and sensor offset)."""
+    from discovery.structure.search import Objective
+    from discovery.structure.targets import make_target
+    from models.recording import load_recordings
+
+    targets = [make_target(r, 5e-4) for r in load_recordings(recordings)]
+    return float(Objective(targets).costs([truth])[0].sum())
+
+
+def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
+    """What round ``k`` of a draw leaves: the set, the truth in it, the fit ceiling, closure."""
+    from discovery.prediction.draws import load_set_draws
+    from discovery.structure.closure import set_closure
+    from discovery.structure.discrimination import default_candidates
+    from models.recording import load_recordings
+
+    truth = scenario.structure
+    members = [s["structure"] for s in summary["structures"]
+               if s["indistinguishable_from_best"] and s["merged_into"] is None]
+    inside = {s["structure"]: s.get("merged_into") or s["structure"] for s in summary["structures"]
+              if s["indistinguishable_from_best"]}
+    own = next((s for s in summary["structures"] if s["structure"] == truth.name), None)
+    at_truth = cost_at_truth(summary["recordings"], scenario.truth)
+    ceiling_row = {"structure": truth.name, "cost_at_truth": at_truth,
+                   "truth_structure_cost": None if own is None else own["cost"],
+                   "ranking": [{"structure": s["structure"], "cost": s["cost"]} for s in summary["structures"]
+                               if s.get("cost") is not None and math.isfinite(s["cost"])]}
+    ceiling = as_well_as_truth(ceiling_row)
+    rate = max(r.sample_rate for r in load_recordings(summary["recordings"]))
+    noises = [v for v in summary["sensor_noise"].values() if isinstance(v, (int, float)) and v > 0]
+    noise = float(np.median(noises)) if noises else 1e-6
+    t0 = time.perf_counter()
+    controller_rate = next((r.controller_rate for r in scenario.recordings if r.kind == "closed"), None)
+    closure = set_closure(load_set_draws(out_dir, n_draws=config.closure_draws, seed=seed),
+                          default_candidates(rate), unseen_settings(seed, controller_rate), noise,
+                          n_draws=config.closure_draws, seed=seed)
+    best = (summary.get("next_test") or {}).get("best")
+    return {"round": k, "recordings": len(summary["recordings"]), "set": members,
+            "set_size": len(members), "truth_in_set": truth.name in inside,
+            "truth_member": inside.get(truth.name), "winner": summary["structures"][0]["structure"],
+            "ceiling": ceiling, "ceiling_size": len(ceiling),
+            "closed": closure.closed, "parting": closure.parting,
+            "suggested": None if best is None else best["name"],
+            "seconds_discover": summary["timings"].get("discovery"),
+            "seconds_mcmc": summary["timings"].get("mcmc"),
+            "seconds_closure": time.perf_counter() - t0}
+
+
+def run_draw(seed, out_dir, quick, config=None) -> dict:
+    """The draw's discovery, then up to ``config.rounds`` suggested tests added."""
+    from discovery.structure.discrimination import default_candidates
+    from tvcid.pipeline import add_recordings, discover
+
+    config = config or (QUICK if quick else FULL)
+    scenario = draw_scenario(seed)
+    out_dir = Path(out_dir)
+    paths = write_recordings(scenario, out_dir / f"draw{seed:03d}", reuse=True)
+    run_dir = out_dir / f"draw{seed:03d}_loop"
+    t0 = time.perf_counter()
+    result = discover(paths, run_dir, fixed=config.fixed, seed=seed, quick=quick,
+                      max_steps=config.max_steps, progress=False)
+    rounds = [round_row(0, result.summary, run_dir, scenario, config, seed)]
+    rounds[-1]["seconds"] = time.perf_counter() - t0
+    extended = scenario
+    for k in range(1, config.rounds + 1):
+        suggested = rounds[-1]["suggested"]
+        if rounds[-1]["closed"] or suggested is None:
+            break
+        rate = max(r.rate for r in scenario.recordings)
+        menu = {c.name: c for c in default_candidates(rate)}
+        design = _design_of(menu[suggested], rate)
+        extended = dataclasses.replace(extended, recordings=extended.recordings + (design,))
+        index = len(extended.recordings) - 1
+        new = out_dir / f"draw{seed:03d}_next" / f"rec{index:02d}_{design.kind}.csv"
+        new.parent.mkdir(parents=True, exist_ok=True)
+        if not (new.exists() and new.with_suffix(".json").exists()):
+            write_recording(extended, index, new)
+        t0 = time.perf_counter()
+        result = add_recordings([new], run_dir, quick=quick, max_steps=config.max_steps,
+                                progress=False)
+        rounds.append(round_row(k, result.summary, run_dir, scenario, config, seed))
+        rounds[-1]["seconds"] = time.perf_counter() - t0
+    return {"seed": seed, "structure": scenario.structure.name, "design": scenario.to_dict(),
+            "rounds": rounds, "commit": CODE_COMMIT}
+
+
+def guarded_draw(seed, out_dir, quick) -> dict:
+    """:func:`run_draw`, a failure recorded as a row (counted against every goal)."""
+    try:
+        return run_draw(seed, out_dir, quick)
+    except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
+        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "commit": CODE_COMMIT}
+
+
+def summarise(rows, rounds=ROUNDS) -> dict:
+    """Per round (a draw whose loop ended earlier keeps its last round): draws with the truth in
+    the set, closed, the set within the ceiling + 1; the set sizes against the ceiling's."""
+    done = [r for r in rows if "error" not in r]
+    per_round = []
+    for k in range(rounds + 1):
+        at = [r["rounds"][min(k, len(r["rounds"]) - 1)] for r in done]
+        per_round.append({
+            "round": k, "draws": len(at),
+            "truth_in_set": sum(a["truth_in_set"] for a in at),
+            "closed": sum(a["closed"] for a in at),
+            "within_ceiling_plus_one": sum(a["set_size"] <= a["ceiling_size"] + 1 for a in at),
+            "set_sizes": [a["set_size"] for a in at], "ceiling_sizes": [a["ceiling_size"] for a in at],
+        })
+    return {"draws": len(done), "failed": len(rows) - len(done), "rounds": per_round}
+
+
+def loop_goals(table, n_total) -> list:
+    """The goals of the module's docstring; failed draws count against each; not judged under
+    :data:`MIN_DRAWS` draws."""
+    judged = n_total >= MIN_DRAWS
+    rounds = table["rounds"]
+    worst = min((r["truth_in_set"] for r in rounds), default=0)
+    last, first = rounds[-1], rounds[0]
+    share = lambda k: k / n_total if n_total else None  # noqa: E731
+    return [
+        Goal("truth in the set at every round (worst round)", share(worst) if judged else None,
+             low=TRUTH_IN_SET, fmt="{:.0%}", shown=f"{worst} of {n_total}",
+             target=f">= 29 of 30 over >= {MIN_DRAWS} draws"),
+        Goal(f"set closed after at most {last['round']} rounds", share(last["closed"]) if judged else None,
+             low=CLOSED, fmt="{:.0%}", shown=f"{last['closed']} of {n_total}",
+             target=f">= {CLOSED:.0%} over >= {MIN_DRAWS} draws"),
+        Goal("set no larger than the fit ceiling's + 1", share(first["within_ceiling_plus_one"])
+             if judged else None, low=AT_CEILING, fmt="{:.0%}",
+             shown=f"{first['within_ceiling_plus_one']} of {n_total}",
+             target=f">= {AT_CEILING:.0%} over >= {MIN_DRAWS} draws"),
+    ]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="one round, 150-step chains, 8 draws per member in the closure, 1 draw")
+    parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 1)")
+    parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
+    add_executor_options(parser, "draws run at once, one process each")
+    parser.add_argument("--out", default="results/bench_loop", help="output directory")
+    args = parser.parse_args(argv)
+    n = args.draws or (1 if args.quick else MIN_DRAWS)
+    if n < 1:
+        raise SystemExit("--draws must be at least 1")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "bench.json"
+    rows = finished_rows(path, args.quick, args.seed, n)
+    rounds = (QUICK if args.quick else FULL).rounds
+
+    def record(seed, row):
+        rows.append(row)
+        rows.sort(key=lambda r: r["seed"])
+        if "error" in row:
+            print(f"draw {seed}: FAILED {row['error']}", flush=True)
+        else:
+            steps = " -> ".join(f"{r['set_size']} (ceiling {r['ceiling_size']}, truth "
+                                f"{'in' if r['truth_in_set'] else 'OUT'}, "
+                                f"{'closed' if r['closed'] else 'open'})" for r in row["rounds"])
+            print(f"draw {seed}: truth {row['structure']}: {steps}", flush=True)
+        write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows, rounds)})
+
+    done = {r["seed"] for r in rows}
+    run_draws(guarded_draw, [s for s in range(args.seed, args.seed + n) if s not in done], out,
+              args.quick, args.jobs, record, dask=args.dask)
+    table = summarise(rows, rounds)
+    print(f"\n{table['draws']} draws ({table['failed']} failed)")
+    for r in table["rounds"]:
+        print(f"  round {r['round']}: truth in the set {r['truth_in_set']}, closed {r['closed']}, "
+              f"set <= ceiling + 1 {r['within_ceiling_plus_one']}")
+    return goal_report(loop_goals(table, len(rows)))
+
+
+if __name__ == "__main__":
+    from discovery.parallel import run_interruptible
+
+    raise SystemExit(run_interruptible(main))

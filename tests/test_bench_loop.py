@@ -1,0 +1,85 @@
+"""The experiment-loop benchmark (studies.benchmarks.loop) and the closure rule it reports
+(discovery.structure.closure)."""
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from discovery.structure.closure import SetClosure, _squared_distances, _within
+
+BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
+
+
+def test_squared_distances_and_the_within_member_spread():
+    """The distances are those of numpy's norm; the within-member spread is the 90th
+    percentile over distinct pairs of draws."""
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal((5, 3)), rng.standard_normal((4, 3))
+    direct = np.array([[np.sum((x - y) ** 2) for y in b] for x in a])
+    assert np.allclose(_squared_distances(a, b), direct)
+    pairs = [np.sum((a[i] - a[j]) ** 2) for i in range(5) for j in range(i + 1, 5)]
+    assert _within(a) == pytest.approx(np.percentile(pairs, 90))
+
+
+def test_a_set_is_closed_when_one_or_when_nothing_parts_it():
+    """One member: closed. Several: closed only when every test and setting agrees; the
+    parting names the ones that do not."""
+    assert SetClosure(["a"]).closed
+    agree = SetClosure(["a", "b"], [{"name": "t1", "agree": True}, {"name": "t2", "skipped": "x"}],
+                       [{"setting": "s1", "members_agree": True}])
+    assert agree.closed and agree.parting == []
+    part = SetClosure(["a", "b"], [{"name": "t1", "agree": False}],
+                      [{"setting": "s1", "members_agree": False}])
+    assert not part.closed and part.parting == ["t1", "s1"]
+
+
+@pytest.mark.slow
+def test_quick_loop_on_one_cycle_adds_the_suggested_test_from_the_truth(tmp_path, monkeypatch, capsys):
+    """``python -m studies.benchmarks.loop --quick --draws 1`` on the discovery benchmark's first
+    draw cut to its first limit cycle (its recording bundled), the search cut short and the dead
+    zone's place and the friction given: one cycle leaves a set of several structures that parts
+    on the menu, so a test is suggested; it is recorded from the truth by the reference path as
+    a measured recording and added to the run, which then holds both recordings. Every round's
+    closure verdict agrees with its parting list; the table is the rows' own; the goals are not
+    judged on one draw (exit status 1)."""
+    import discovery.structure.structure_search as structure_search
+    import studies.benchmarks.loop as loop
+    from models.strict_json import write_json
+    from studies.benchmarks.scenarios import draw_scenario, provenance
+
+    monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
+        pop=3, gens=3, open_pop=3, open_gens=3, nfev=4, rank_nfev=2))
+    full = draw_scenario(1000)
+    one = dataclasses.replace(full, recordings=full.recordings[:1])
+    monkeypatch.setattr(loop, "draw_scenario", lambda seed: one)
+    monkeypatch.setattr(loop, "QUICK", loop.LoopConfig(
+        rounds=1, max_steps=40, closure_draws=6,
+        fixed={"dead_zone_position": "velocity", "friction_offset": 0.0}))
+    draw = tmp_path / "draw1000"
+    (draw / "truth").mkdir(parents=True)
+    for f in BUNDLED.glob("rec00_closed.*"):  # recording 0 of a draw does not depend on the others
+        shutil.copy(f, draw / f.name)
+    write_json(draw / "truth" / "scenario.json", provenance(one))
+
+    status = loop.main(["--quick", "--draws", "1", "--out", str(tmp_path)])
+    bench = json.loads((tmp_path / "bench.json").read_text())
+    (row,) = bench["rows"]
+    first, second = row["rounds"]
+    assert first["set_size"] >= 2 and not first["closed"] and first["parting"]
+    assert first["suggested"] is not None and first["ceiling_size"] >= 1
+    new = tmp_path / "draw1000_next" / ("rec01_open.csv" if first["suggested"].startswith("open")
+                                        else "rec01_closed.csv")
+    meta = json.loads(new.with_suffix(".json").read_text())
+    assert "reference path" in meta["generator"] and "parameters" not in meta
+    run = json.loads((tmp_path / "draw1000_loop" / "discovery.json").read_text())
+    assert second["recordings"] == 2 and run["added"] == [str(new)]
+    for r in row["rounds"]:
+        assert r["closed"] == (r["set_size"] == 1 or not r["parting"])
+        assert r["truth_in_set"] == (r["truth_member"] is not None)
+    table = bench["table"]["rounds"]
+    assert [t["set_sizes"] for t in table] == [[first["set_size"]], [second["set_size"]]]
+    assert table[1]["closed"] == int(second["closed"])
+    assert status == 1 and "NOT met" in capsys.readouterr().out
