@@ -83,3 +83,26 @@ def test_quick_loop_on_one_cycle_adds_the_suggested_test_from_the_truth(tmp_path
     assert [t["set_sizes"] for t in table] == [[first["set_size"]], [second["set_size"]]]
     assert table[1]["closed"] == int(second["closed"])
     assert status == 1 and "NOT met" in capsys.readouterr().out
+
+
+def test_members_agree_on_a_test_when_their_difference_is_inside_their_own_spread():
+    """Paper 002's model with its dead zone scattered by 2 %: two members drawn alike agree on an
+    open-loop square; a member with twice the dead zone parts from them, its distance to them many
+    times their own spread."""
+    from discovery.structure.closure import menu_agreement
+    from discovery.structure.discrimination import default_candidates
+    from models import M002
+
+    base = M002()
+
+    def member(factor, seed, n=6):
+        rng = np.random.default_rng(seed)
+        return [base.replace(dead_zone=base.dead_zone * factor * float(np.exp(0.02 * e)))
+                for e in rng.standard_normal(n)]
+
+    square = next(c for c in default_candidates(1000.0) if c.name == "open-loop square 5 mrad 1 Hz")
+    alike = menu_agreement({"a": member(1.0, 0), "b": member(1.0, 1)}, square, noise_sd=2e-5)
+    assert alike["agree"], alike
+    apart = menu_agreement({"a": member(1.0, 0), "c": member(2.0, 2)}, square, noise_sd=2e-5)
+    (pair,) = apart["pairs"]
+    assert not apart["agree"] and pair["cross"] > 10 * pair["within"], pair
