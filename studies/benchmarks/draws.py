@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-__all__ = ["add_executor_options", "finished_rows", "run_draws"]
+__all__ = ["add_draw_options", "add_executor_options", "finished_rows", "run_benchmark", "run_draws"]
 
 
 def finished_rows(path, quick, first, n) -> list:
@@ -59,3 +59,41 @@ def run_draws(draw, seeds, out, quick, jobs, record, dask=None):
     with executor_from(jobs if n > 1 and jobs > 1 else 1, dask) as executor:
         for seed, row in zip(seeds, executor.map(draw, seeds, [out] * n, [quick] * n)):
             record(seed, row)
+
+
+def add_draw_options(parser, quick_help, quick_draws, out):
+    """The options every draw benchmark takes: ``--quick`` (help ``quick_help``), ``--draws N``
+    (default 30, ``quick_draws`` with ``--quick``), ``--seed S`` of the first draw (1000),
+    ``--jobs J`` or ``--dask ADDRESS``, and ``--out DIR`` (default ``out``)."""
+    parser.add_argument("--quick", action="store_true", help=quick_help)
+    parser.add_argument("--draws", type=int, default=None,
+                        help=f"number of draws (default 30, quick {quick_draws})")
+    parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
+    add_executor_options(parser, "draws run at once, one process each")
+    parser.add_argument("--out", default=out, help="output directory")
+    parser.set_defaults(quick_draws=quick_draws)
+
+
+def run_benchmark(args, draw, describe, save) -> list:
+    """The draws ``args.seed .. args.seed + n - 1`` (``n`` from ``--draws``) of a benchmark whose
+    options are :func:`add_draw_options`'s: the finished rows of ``args.out/bench.json`` kept, the others run
+    (:func:`run_draws`); as each ends, its line printed (``describe(row)``, or its failure) and
+    ``save(path, rows)`` called. Returns the rows, in seed order."""
+    n = args.draws if args.draws is not None else (args.quick_draws if args.quick else 30)
+    if n < 1:
+        raise SystemExit(f"--draws must be at least 1 (got {n})")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "bench.json"
+    rows = finished_rows(path, args.quick, args.seed, n)  # resume: finished draws are kept
+
+    def record(seed, row):
+        rows.append(row)
+        rows.sort(key=lambda r: r["seed"])
+        print(f"draw {seed}: FAILED {row['error']}" if "error" in row else describe(row), flush=True)
+        save(path, rows)
+
+    done = {r["seed"] for r in rows}
+    run_draws(draw, [s for s in range(args.seed, args.seed + n) if s not in done], out, args.quick,
+              args.jobs, record, dask=args.dask)
+    return rows

@@ -37,7 +37,7 @@ from models.strict_json import write_json
 
 from ..common import code_commit
 from .discovery import as_well_as_truth
-from .draws import add_executor_options, finished_rows, run_draws
+from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report
 from .next_test import _design_of
@@ -230,37 +230,21 @@ def loop_goals(table, n_total) -> list:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true",
-                        help="one round, 150-step chains, 8 draws per member in the closure, 1 draw")
-    parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 1)")
-    parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
-    add_executor_options(parser, "draws run at once, one process each")
-    parser.add_argument("--out", default="results/bench_loop", help="output directory")
+    add_draw_options(parser, "one round, 150-step chains, 8 draws per member in the closure, 1 draw",
+                     1, "results/bench_loop")
     args = parser.parse_args(argv)
-    n = args.draws or (1 if args.quick else MIN_DRAWS)
-    if n < 1:
-        raise SystemExit("--draws must be at least 1")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "bench.json"
-    rows = finished_rows(path, args.quick, args.seed, n)
     rounds = (QUICK if args.quick else FULL).rounds
 
-    def record(seed, row):
-        rows.append(row)
-        rows.sort(key=lambda r: r["seed"])
-        if "error" in row:
-            print(f"draw {seed}: FAILED {row['error']}", flush=True)
-        else:
-            steps = " -> ".join(f"{r['set_size']} (ceiling {r['ceiling_size']}, truth "
-                                f"{'in' if r['truth_in_set'] else 'OUT'}, "
-                                f"{'closed' if r['closed'] else 'open'})" for r in row["rounds"])
-            print(f"draw {seed}: truth {row['structure']}: {steps}", flush=True)
+    def describe(row):
+        steps = " -> ".join(f"{r['set_size']} (ceiling {r['ceiling_size']}, truth "
+                            f"{'in' if r['truth_in_set'] else 'OUT'}, "
+                            f"{'closed' if r['closed'] else 'open'})" for r in row["rounds"])
+        return f"draw {row['seed']}: truth {row['structure']}: {steps}"
+
+    def save(path, rows):
         write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows, rounds)})
 
-    done = {r["seed"] for r in rows}
-    run_draws(guarded_draw, [s for s in range(args.seed, args.seed + n) if s not in done], out,
-              args.quick, args.jobs, record, dask=args.dask)
+    rows = run_benchmark(args, guarded_draw, describe, save)
     table = summarise(rows, rounds)
     print(f"\n{table['draws']} draws ({table['failed']} failed)")
     for r in table["rounds"]:

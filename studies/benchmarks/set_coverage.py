@@ -30,7 +30,7 @@ from discovery.structure.set_posterior import member_quantities
 from models.strict_json import write_json
 
 from ..common import code_commit
-from .draws import add_executor_options, finished_rows, run_draws
+from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
@@ -141,35 +141,18 @@ def coverage_goals(table) -> list:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="short chains (150 steps), 2 draws")
-    parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
-    parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
-    add_executor_options(parser, "draws run at once, one process each")
-    parser.add_argument("--out", default="results/bench_set_coverage", help="output directory")
+    add_draw_options(parser, "short chains (150 steps), 2 draws", 2, "results/bench_set_coverage")
     args = parser.parse_args(argv)
-    n = args.draws or (2 if args.quick else MIN_DRAWS)
-    if n < 1:
-        raise SystemExit("--draws must be at least 1")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "bench.json"
-    rows = finished_rows(path, args.quick, args.seed, n)  # resume: finished draws are kept
 
-    def record(seed, row):
-        rows.append(row)
-        rows.sort(key=lambda r: r["seed"])
-        if "error" in row:
-            print(f"draw {seed}: FAILED {row['error']}", flush=True)
-        else:
-            inside = ", ".join(f"{g} {'in' if v else 'OUT'}" for g, v in row["goals"].items())
-            print(f"draw {seed}: truth {row['structure']}, set of {len(row['members'])}, "
-                  f"converged {row['converged']}: {inside} [{row['seconds_discover']:.0f} s]",
-                  flush=True)
+    def describe(row):
+        inside = ", ".join(f"{g} {'in' if v else 'OUT'}" for g, v in row["goals"].items())
+        return (f"draw {row['seed']}: truth {row['structure']}, set of {len(row['members'])}, "
+                f"converged {row['converged']}: {inside} [{row['seconds_discover']:.0f} s]")
+
+    def save(path, rows):
         write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows)})
 
-    done = {r["seed"] for r in rows}
-    seeds = [s for s in range(args.seed, args.seed + n) if s not in done]
-    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record, dask=args.dask)
+    rows = run_benchmark(args, guarded_draw, describe, save)
     table = summarise(rows)
     print(f"\n{table['draws']} draws ({table['failed']} failed); truth in the set "
           f"{table['truth_in_set']}; chains converged in {table['converged']}")
