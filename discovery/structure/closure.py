@@ -45,16 +45,16 @@ def _within(r):
     return float(np.percentile(d[iu], WITHIN_PERCENTILE)) if len(iu[0]) else 0.0
 
 
-def menu_agreement(member_sets: dict, candidate, noise_sd, dt=5e-4, seed=0) -> dict:
+def menu_agreement(member_sets: dict, candidate, noise_sd, dt=5e-4, seed=0, reference=None) -> dict:
     """Whether the members agree on one test (the module's rule).
 
-    ``member_sets``: structure name -> list of :class:`models.ActuatorParams` (posterior draws;
-    the first member's first set makes the target). Returns ``{"name", "agree", "pairs": [{"members",
+    ``member_sets``: structure name -> list of :class:`models.ActuatorParams` (posterior draws);
+    ``reference`` (default: the first member's first set) makes the target. Returns ``{"name", "agree", "pairs": [{"members",
     "cross", "within", "agree"}]}`` or, where the test cannot be simulated for that model,
     ``{"name", "skipped"}``."""
     names = list(member_sets)
     with tempfile.TemporaryDirectory() as tmp:
-        target = _target_of(member_sets[names[0]][0], candidate, noise_sd, dt, seed,
+        target = _target_of(reference or member_sets[names[0]][0], candidate, noise_sd, dt, seed,
                             Path(tmp) / "test.csv")
     if isinstance(target, str):
         return {"name": candidate.name, "skipped": target}
@@ -138,9 +138,8 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
     if len(names) <= 1:
         return SetClosure(names)
     sets = {n: [d.params(i) for i in range(min(n_draws, len(d)))] for n, d in member_draws.items()}
-    median = {n: d.median_params() for n, d in member_draws.items()}
-    ordered = {n: [median[n], *sets[n]] for n in names}  # the target from the median model
-    tests = [menu_agreement(ordered, c, noise_sd, dt, seed) for c in candidates]
+    reference = member_draws[names[0]].median_params()
+    tests = [menu_agreement(sets, c, noise_sd, dt, seed, reference) for c in candidates]
     rows = []
     for s in settings:
         pred = predict_cycle_over_set(member_draws, s, config or PredictionConfig(),
