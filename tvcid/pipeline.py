@@ -290,6 +290,14 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
                     max_steps=max_steps, mcmc=mcmc, progress=progress, search=search)
 
 
+def median_sensor_noise(summary) -> float:
+    """The median of a discovery's per-recording sensor-noise estimates (rad); 1e-6 rad for
+    noise-free recordings, where the code's own tolerance sets the units."""
+    noises = [float(v) for v in summary["sensor_noise"].values()
+              if isinstance(v, (int, float)) and math.isfinite(v) and v > 0]
+    return float(np.median(noises)) if noises else 1e-6
+
+
 def next_test(summary, recs, seed, out):
     """The test that would tell apart the structures the recordings cannot
     (:func:`discovery.structure.discrimination.discriminating_tests` on the set's unmerged
@@ -307,11 +315,7 @@ def next_test(summary, recs, seed, out):
                if s["indistinguishable_from_best"] and s["merged_into"] is None]
     if len(members) < 2:
         return None
-    noises = [float(v) for v in summary["sensor_noise"].values()
-              if isinstance(v, (int, float)) and math.isfinite(v) and v > 0]
-    if not noises:  # noise-free recordings: the code's own tolerance sets the units
-        noises = [1e-6]
-    noise = float(np.median(noises))
+    noise = median_sensor_noise(summary)
     rate = max(r.sample_rate for r in recs)
     recorded = [make_target(r, 5e-4) for r in recs]  # the targets ignore a constant offset
     ranking = discriminating_tests(members, default_candidates(rate), noise_sd=noise, seed=seed,

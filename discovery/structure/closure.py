@@ -49,9 +49,9 @@ def menu_agreement(member_sets: dict, candidate, noise_sd, dt=5e-4, seed=0, refe
     """Whether the members agree on one test (the module's rule).
 
     ``member_sets``: structure name -> list of :class:`models.ActuatorParams` (posterior draws);
-    ``reference`` (default: the first member's first set) makes the target. Returns ``{"name", "agree", "pairs": [{"members",
-    "cross", "within", "agree"}]}`` or, where the test cannot be simulated for that model,
-    ``{"name", "skipped"}``."""
+    ``reference`` (default: the first member's first set) makes the target. Returns ``{"name",
+    "agree", "pairs": [{"members", "cross", "within", "agree"}]}`` or, where the test cannot be
+    simulated for that model, ``{"name", "skipped"}``."""
     names = list(member_sets)
     with tempfile.TemporaryDirectory() as tmp:
         target = _target_of(reference or member_sets[names[0]][0], candidate, noise_sd, dt, seed,

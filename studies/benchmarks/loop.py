@@ -94,13 +94,12 @@ def unseen_settings(seed, controller_rate, n=UNSEEN_SETTINGS):
 
 
 def cost_at_truth(recordings, truth) -> float:
-    """The discovery's in-sample cost of the true parameters on ``recordings`` (the search's
-    targets, each recording's own initial state and sensor offset)."""
+    """The discovery's in-sample cost of the true parameters on ``recordings`` (loaded; the
+    search's targets, each recording's own initial state and sensor offset)."""
     from discovery.structure.search import Objective
     from discovery.structure.targets import make_target
-    from models.recording import load_recordings
 
-    targets = [make_target(r, 5e-4) for r in load_recordings(recordings)]
+    targets = [make_target(r, 5e-4) for r in recordings]
     return float(Objective(targets).costs([truth])[0].sum())
 
 
@@ -110,22 +109,23 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     from discovery.structure.closure import set_closure
     from discovery.structure.discrimination import default_candidates
     from models.recording import load_recordings
+    from tvcid.pipeline import median_sensor_noise
 
     truth = scenario.structure
+    recordings = load_recordings(summary["recordings"])
     members = [s["structure"] for s in summary["structures"]
                if s["indistinguishable_from_best"] and s["merged_into"] is None]
     inside = {s["structure"]: s.get("merged_into") or s["structure"] for s in summary["structures"]
               if s["indistinguishable_from_best"]}
     own = next((s for s in summary["structures"] if s["structure"] == truth.name), None)
-    at_truth = cost_at_truth(summary["recordings"], scenario.truth)
+    at_truth = cost_at_truth(recordings, scenario.truth)
     ceiling_row = {"structure": truth.name, "cost_at_truth": at_truth,
                    "truth_structure_cost": None if own is None else own["cost"],
                    "ranking": [{"structure": s["structure"], "cost": s["cost"]} for s in summary["structures"]
                                if s.get("cost") is not None and math.isfinite(s["cost"])]}
     ceiling = as_well_as_truth(ceiling_row)
-    rate = max(r.sample_rate for r in load_recordings(summary["recordings"]))
-    noises = [v for v in summary["sensor_noise"].values() if isinstance(v, (int, float)) and v > 0]
-    noise = float(np.median(noises)) if noises else 1e-6
+    rate = max(r.sample_rate for r in recordings)
+    noise = median_sensor_noise(summary)
     t0 = time.perf_counter()
     controller_rate = next((r.controller_rate for r in scenario.recordings if r.kind == "closed"), None)
     closure = set_closure(load_set_draws(out_dir, n_draws=config.closure_draws, seed=seed),
