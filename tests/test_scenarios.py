@@ -13,7 +13,9 @@ from studies.benchmarks.scenarios import (
     draw_design,
     draw_scenario,
     draw_truth,
+    RecordingDesign,
     oscillates,
+    record_added_test,
     shortened,
     write_recordings,
 )
@@ -142,3 +144,21 @@ def test_heldout_cases_are_the_papers_placements_and_oscillate():
                    for r in scenario.recordings if r.kind == "closed"), name
         errors = compared(scenario.truth.to_dict(), scenario.truth)
         assert errors and all(v == 0.0 for v in errors.values()), name
+
+
+def test_an_added_test_is_recorded_once_and_again_when_its_scenario_changes(tmp_path):
+    """The loop's and the next-test benchmark's added test: recorded from the truth beside the
+    draw, kept on a rerun of the same scenario, made again for another one."""
+    sc = shortened(draw_scenario(24), closed=6.0, open_=4.0)
+    square = RecordingDesign("open", 1.0, 1000.0, waveform="square", amplitude=0.01, frequency=2.0)
+    extended, path = record_added_test(sc, square, tmp_path)
+    assert extended.recordings == sc.recordings + (square,)
+    assert path.name == f"rec{len(sc.recordings):02d}_open.csv"
+    rec = load_recording(path)
+    assert rec.kind == "open" and len(rec.t) == 1001
+    made = path.stat().st_mtime_ns
+    record_added_test(sc, square, tmp_path)
+    assert path.stat().st_mtime_ns == made
+    other = RecordingDesign("open", 1.0, 1000.0, waveform="square", amplitude=0.02, frequency=2.0)
+    _, again = record_added_test(sc, other, tmp_path)
+    assert again == path and not np.allclose(load_recording(again).delta, rec.delta)

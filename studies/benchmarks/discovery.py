@@ -61,7 +61,7 @@ import numpy as np
 
 from discovery.structure import StructureDiscovery
 from discovery.structure.coordinates import SearchSpace
-from discovery.structure.search import local_sd
+from discovery.structure.search import Objective, local_sd
 from models.strict_json import write_json
 from models.structures import CHOICES, Structure, shared_choices
 
@@ -88,7 +88,7 @@ def coordinate_errors(disc, truth, structure):
         return {}
     base = fit.params
     space = SearchSpace(structure, base, {}, disc.dt)
-    objective = _objective_of(disc)
+    objective = Objective(disc.targets_)
     th_true = space.coordinates(truth.replace(x0=base.x0, y0=base.y0, yd0=base.yd0))
     th_fit = space.coordinates(fit.params)
     sd = local_sd(space, objective, th_true)
@@ -108,15 +108,10 @@ def coordinate_errors(disc, truth, structure):
     return out
 
 
-def truth_cost(disc, truth):
-    """The discovery's in-sample cost at the true parameters (each target's own initial state)."""
-    return float(_objective_of(disc).costs([truth])[0].sum())
-
-
-def _objective_of(disc):
-    from discovery.structure.search import Objective
-
-    return Objective(disc.targets_)
+def cost_at_truth(targets, truth) -> float:
+    """The discovery's in-sample cost of the true parameters on ``targets`` (the search's
+    targets: each recording's own initial state and sensor offset)."""
+    return float(Objective(targets).costs([truth])[0].sum())
 
 
 def run_draw(seed, out_dir, quick):
@@ -131,7 +126,7 @@ def run_draw(seed, out_dir, quick):
     truth_s = scenario.structure
     errors = coordinate_errors(disc, scenario.truth, truth_s)
     own = next((f for f in disc.ranking_ if f.structure == truth_s), None)
-    at_truth = truth_cost(disc, scenario.truth)
+    at_truth = cost_at_truth(disc.targets_, scenario.truth)
     verdict = set_verdict(disc.ranking_, truth_s)
     del verdict["members"]
     row = {

@@ -36,12 +36,11 @@ import numpy as np
 from models.strict_json import write_json
 
 from ..common import code_commit
-from .discovery import as_well_as_truth
+from .discovery import as_well_as_truth, cost_at_truth
 from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report
-from .next_test import _design_of
-from .scenarios import draw_scenario, write_recording, write_recordings
+from .scenarios import design_of, draw_scenario, record_added_test, write_recordings
 
 CODE_COMMIT = code_commit()
 #: Rounds of the loop at most (suggested tests added one after the other).
@@ -93,21 +92,12 @@ def unseen_settings(seed, controller_rate, n=UNSEEN_SETTINGS):
             for _ in range(n)]
 
 
-def cost_at_truth(recordings, truth) -> float:
-    """The discovery's in-sample cost of the true parameters on ``recordings`` (loaded; the
-    search's targets, each recording's own initial state and sensor offset)."""
-    from discovery.structure.search import Objective
-    from discovery.structure.targets import make_target
-
-    targets = [make_target(r, 5e-4) for r in recordings]
-    return float(Objective(targets).costs([truth])[0].sum())
-
-
 def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     """What round ``k`` of a draw leaves: the set, the truth in it, the fit ceiling, closure."""
     from discovery.prediction.draws import load_set_draws
     from discovery.structure.closure import set_closure
     from discovery.structure.discrimination import default_candidates
+    from discovery.structure.targets import make_target
     from models.recording import load_recordings
     from tvcid.pipeline import median_sensor_noise
 
@@ -118,7 +108,7 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     inside = {s["structure"]: s.get("merged_into") or s["structure"] for s in summary["structures"]
               if s["indistinguishable_from_best"]}
     own = next((s for s in summary["structures"] if s["structure"] == truth.name), None)
-    at_truth = cost_at_truth(recordings, scenario.truth)
+    at_truth = cost_at_truth([make_target(r, 5e-4) for r in recordings], scenario.truth)
     ceiling_row = {"structure": truth.name, "cost_at_truth": at_truth,
                    "truth_structure_cost": None if own is None else own["cost"],
                    "ranking": [{"structure": s["structure"], "cost": s["cost"]} for s in summary["structures"]
@@ -165,13 +155,8 @@ def run_draw(seed, out_dir, quick, config=None) -> dict:
             break
         rate = max(r.rate for r in scenario.recordings)
         menu = {c.name: c for c in default_candidates(rate)}
-        design = _design_of(menu[suggested], rate)
-        extended = dataclasses.replace(extended, recordings=extended.recordings + (design,))
-        index = len(extended.recordings) - 1
-        new = out_dir / f"draw{seed:03d}_next" / f"rec{index:02d}_{design.kind}.csv"
-        new.parent.mkdir(parents=True, exist_ok=True)
-        if not (new.exists() and new.with_suffix(".json").exists()):
-            write_recording(extended, index, new)
+        extended, new = record_added_test(extended, design_of(menu[suggested], rate),
+                                          out_dir / f"draw{seed:03d}_next")
         t0 = time.perf_counter()
         result = add_recordings([new], run_dir, quick=quick, max_steps=config.max_steps,
                                 progress=False)

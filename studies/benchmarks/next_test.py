@@ -24,7 +24,6 @@ Goals: none (a hypothesis checked by its deciding numbers); the run ends by sayi
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -34,12 +33,12 @@ import numpy as np
 
 from discovery.structure import StructureDiscovery
 from discovery.structure.discrimination import default_candidates, discriminating_tests
+from models.strict_json import write_json
 
-from .discovery import set_verdict
 from ..common import code_commit
+from .discovery import set_verdict
 from .goals import report as goal_report
-from models.strict_json import dumps, write_json
-from .scenarios import RecordingDesign, draw_scenario, write_recording, write_recordings
+from .scenarios import design_of, draw_scenario, record_added_test, write_recordings
 
 DEFAULT_SEEDS = (1004, 1009, 1016, 1010, 1020, 1025)
 
@@ -50,16 +49,6 @@ def _set_of(disc, truth):
     verdict["set"] = verdict.pop("members")
     return {k: verdict[k] for k in ("winner", "set", "set_size", "truth_in_set", "truth_member",
                                     "right_winner")}
-
-
-def _design_of(candidate, rate):
-    """The candidate as a recording of the benchmark's designs."""
-    exp = candidate.experiment
-    if candidate.kind == "closed":
-        return RecordingDesign("closed", candidate.duration, rate, exp.kp, exp.kd, exp.mu,
-                               controller_rate=exp.sample_rate)
-    return RecordingDesign("open", candidate.duration, rate, waveform=exp.waveform,
-                           amplitude=exp.amplitude, frequency=exp.frequency)
 
 
 def run_draw(seed, out):
@@ -90,19 +79,8 @@ def run_draw(seed, out):
     row["suggestion"].update(n_pairs=ranking.n_pairs, noise_sd=noise,
                              seconds=time.perf_counter() - t0)
     # the suggested test recorded from the truth, beside the draw's recordings
-    design = _design_of(menu[best["name"]], rate)
-    extended = dataclasses.replace(scenario, recordings=scenario.recordings + (design,))
-    directory = out / f"draw{seed:03d}_next"
-    (directory / "truth").mkdir(parents=True, exist_ok=True)
-    index = len(scenario.recordings)
-    new_path = directory / f"rec{index:02d}_{design.kind}.csv"
-    stored = directory / "truth" / "scenario.json"
-    provenance = dumps(extended.to_dict(), default=str)  # strict JSON: non-finite as null
-    made = (stored.exists() and stored.read_text() == provenance and new_path.exists()
-            and new_path.with_suffix(".json").exists())
-    if not made:  # the reference path costs about 10 s per simulated second
-        write_recording(extended, index, new_path)
-        stored.write_text(provenance)
+    _, new_path = record_added_test(scenario, design_of(menu[best["name"]], rate),
+                                    out / f"draw{seed:03d}_next")
     # the discovery again, on every recording with the new one
     disc2 = StructureDiscovery(seed=seed, use_sindy=False).fit(list(paths) + [new_path])
     after = _set_of(disc2, truth)

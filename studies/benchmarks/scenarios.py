@@ -34,14 +34,14 @@ from models import ClosedLoop, OpenLoop, SimulationDiverged, simulate
 from models.features import InsufficientPeriodsError
 from models.hypotheses import KICK_X0, ActuatorParams
 from models.recording import save_recording
-from models.synthetic import Acquisition
 from models.reference import simulate_reference
 from models.strict_json import dumps, write_json
 from models.structures import Structure, structure_space
+from models.synthetic import Acquisition
 
 __all__ = ["RecordingDesign", "Acquisition", "Scenario", "draw_truth", "draw_design",
            "draw_scenario", "oscillates", "write_recordings", "write_recording", "ridge_scenario",
-           "RIDGE_PARAMETERS", "provenance"]
+           "RIDGE_PARAMETERS", "provenance", "design_of", "record_added_test"]
 
 CONTROLLERS = ((5.84, 0.062, 12.3), (9.8, 0.06, 4.5))
 #: Step (s) of the kernel run that decides whether a drawn truth oscillates.
@@ -252,6 +252,37 @@ def write_recording(scenario: Scenario, index, path, dt=None):
         meta.update(kp=rd.kp, kd=rd.kd, mu=rd.mu, controller_rate=rd.controller_rate)
     save_recording(path, {"t": t, "u": tr.u[keep], "delta": delta}, meta)
     return Path(path)
+
+
+def design_of(candidate, rate) -> RecordingDesign:
+    """A test of the next-test menu (:class:`discovery.structure.discrimination.CandidateTest`) as
+    a recording of the generator's designs, acquired at ``rate`` (Hz)."""
+    exp = candidate.experiment
+    if candidate.kind == "closed":
+        return RecordingDesign("closed", candidate.duration, rate, exp.kp, exp.kd, exp.mu,
+                               controller_rate=exp.sample_rate)
+    return RecordingDesign("open", candidate.duration, rate, waveform=exp.waveform,
+                           amplitude=exp.amplitude, frequency=exp.frequency)
+
+
+def record_added_test(scenario: Scenario, design: RecordingDesign, directory):
+    """``scenario`` with ``design`` added, and the added test recorded from its truth by the
+    reference path (:func:`write_recording`) into ``directory`` as ``recNN_KIND.csv``; returns
+    ``(extended scenario, path)``. The recording is kept, not made again, when
+    ``directory/truth/recNN.json`` holds the same extended scenario (the reference path costs
+    about 10 s per simulated second)."""
+    extended = replace(scenario, recordings=scenario.recordings + (design,))
+    index = len(extended.recordings) - 1
+    directory = Path(directory)
+    (directory / "truth").mkdir(parents=True, exist_ok=True)
+    path = directory / f"rec{index:02d}_{design.kind}.csv"
+    stored = directory / "truth" / f"rec{index:02d}.json"
+    made = provenance(extended)
+    if not (stored.exists() and json.loads(stored.read_text()) == made and path.exists()
+            and path.with_suffix(".json").exists()):
+        write_recording(extended, index, path)
+        write_json(stored, made)
+    return extended, path
 
 
 def shortened(scenario: Scenario, closed=None, open_=None) -> Scenario:
