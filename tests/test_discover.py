@@ -195,6 +195,18 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
     assert only.bandpass and None not in straight["decided"].values()
     report = (straight_discover / "report.md").read_text()
     assert "## What the recordings decide" in report and "- band-pass loop: decided, on" in report
+    # where the time goes, in simulated seconds: each parameter set the search simulated runs
+    # the one recording over its settling and window (one run, a few seconds to the record's
+    # length), each point of the chain over the features' 10 s window at least
+    simulated = straight["simulated_seconds"]
+    assert set(simulated) == {"global", "nested", "ranking", "mcmc"}
+    length = straight["targets"][0]["samples"] / straight["targets"][0]["sample_rate"]
+    per_set = (simulated["global"] + simulated["nested"] + simulated["ranking"]) / straight["simulations"]
+    assert 3.0 < per_set < length + 10.0
+    chain = straight["posterior"]
+    n_walkers = max(16, 4 * len(chain["parameters"]) + 4)
+    assert simulated["mcmc"] >= chain["iterations"] * n_walkers * 10.0
+    assert "Simulated seconds (every run of every recording): global" in report
 
 
 def test_discovery_result_reads_saves_reports_and_plots(straight_discover, tmp_path):

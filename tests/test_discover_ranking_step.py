@@ -73,3 +73,18 @@ def test_the_ranking_step_does_not_favour_a_structure(squares):
     # ... at the ranking's step the two fit within 0.01 (0.02 allowed), far inside the margin's
     # floor (0.1 per recording)
     assert abs(ranked[scenario.structure.name] - ranked[OTHER]) < 0.02
+
+
+def test_the_objective_counts_the_seconds_it_simulates(squares):
+    """What ``tvcid discover`` reports per stage as simulated seconds: each valid set runs each
+    recording it is scored on over that recording's run, an invalid one nothing."""
+    scenario, recordings = squares
+    targets = [make_target(r, SEARCH_DT) for r in recordings]
+    objective = Objective(targets)
+    objective.costs([scenario.truth, scenario.truth, None])
+    runs = [t.simulator.t_end for t in targets]
+    assert runs == pytest.approx([4.0, 4.0], rel=0.01)
+    assert objective.simulated_seconds == pytest.approx(2 * sum(runs))
+    objective.costs([scenario.truth], targets[:1])
+    assert objective.simulated_seconds == pytest.approx(2 * sum(runs) + runs[0])
+    assert objective.n_evaluations == 3

@@ -380,6 +380,7 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None)
         "simulations": disc.n_simulations_,
         "searches": dict(disc.searches_),
         "timings": {**disc.timings_},
+        "simulated_seconds": {**disc.simulated_seconds_},
         "seed": seed,
         "search": search,
         "inputs": inputs,
@@ -393,7 +394,7 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None)
 def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
     """MCMC of one member of the set (:func:`discovery.structure.set_posterior.calibrate_member`)
     on all recordings with their offsets removed, checkpointed in ``out``. Returns
-    ``(posterior, priors, chain file name)``."""
+    ``(posterior, priors, simulated seconds, chain file name)``."""
     from discovery.structure.set_posterior import calibrate_member
     from models import params_from_dict
     from models.structures import Structure
@@ -403,11 +404,11 @@ def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps,
     p = p.replace(**closed[0].initial_conditions(p)) if closed else p
     tag = hashlib.sha256(json.dumps([row["params"], "set member", quick, seed],
                                     sort_keys=True, default=str).encode()).hexdigest()[:10]
-    post, priors = calibrate_member(p, Structure.parse(row["structure"]), _corrected(recs, offsets),
-                                    fixed=fixed, seed=seed,
-                                    max_steps=max_steps or (150 if quick else 2000),
-                                    backend=out / f"chain-{tag}.h5", progress=progress)
-    return post, priors, f"chain-{tag}.h5"
+    post, priors, simulated = calibrate_member(
+        p, Structure.parse(row["structure"]), _corrected(recs, offsets), fixed=fixed, seed=seed,
+        max_steps=max_steps or (150 if quick else 2000), backend=out / f"chain-{tag}.h5",
+        progress=progress)
+    return post, priors, simulated, f"chain-{tag}.h5"
 
 
 def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
@@ -426,10 +427,11 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     rows = [s for s in summary["structures"]
             if s["indistinguishable_from_best"] and s["merged_into"] is None]
     best_score = rows[0]["score"]
-    members = []
+    members, simulated = [], 0.0
     for i, row in enumerate(rows[:MAX_MEMBERS]):
-        post, priors, chain = _calibrate_member(row, recs, closed, offsets, fixed, seed, quick,
-                                                max_steps, progress, out)
+        post, priors, seconds, chain = _calibrate_member(row, recs, closed, offsets, fixed, seed,
+                                                         quick, max_steps, progress, out)
+        simulated += seconds
         s = post.summary()
         kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
                                   "acceptance", "n_over_tau", "at_prior_bound")}
@@ -449,6 +451,7 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     combined["not_calibrated"] = [r["structure"] for r in rows[MAX_MEMBERS:]]
     summary["set_posterior"] = combined
     summary["timings"]["mcmc"] = time.perf_counter() - t0
+    summary.setdefault("simulated_seconds", {})["mcmc"] = simulated
     return summary
 
 

@@ -215,5 +215,8 @@ def discovery_report(summary) -> str:
     lines += ["## Time", "", f"Search sizes: {summary.get('search', 'standard')}.", "",
               ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()
                         if isinstance(v, (int, float))), ""]
+    if summary.get("simulated_seconds"):
+        lines += ["Simulated seconds (every run of every recording): "
+                  + ", ".join(f"{k} {v:,.0f} s" for k, v in summary["simulated_seconds"].items()), ""]
     return "\n".join(lines)
 

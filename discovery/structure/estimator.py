@@ -153,6 +153,9 @@ class StructureDiscovery:
         Parameter sets simulated (searches, refinements and the ranking's refits).
     timings_ : dict
         Wall time per stage (s).
+    simulated_seconds_ : dict
+        Seconds simulated per stage (``global`` and ``nested``, or ``refit``; ``ranking``), each
+        parameter set's run over every recording it was scored on.
     searches_ : dict
         Independent searches run per stage (``open_loop``, ``global``;
         :func:`.structure_search.best_of_restarts`).
@@ -221,17 +224,21 @@ class StructureDiscovery:
 
         spaces = {s: SearchSpace(s, base, _fixed_for(s, fixed), self.dt) for s in kept}
         search = StructureSearch(objective, self.sizes_, rng, spaces, self.progress)
-        t0 = time.perf_counter()
+        simulated = {}
+        t0, s0 = time.perf_counter(), objective.simulated_seconds
         if previous:
             fits, self.repaired_ = search.refit_from(kept, previous)
             timings["refit"] = time.perf_counter() - t0
+            simulated["refit"] = objective.simulated_seconds - s0
         else:
             fits = search.search_classes(kept, sindy)
             timings["global"] = time.perf_counter() - t0
             timings["global_open_loop_stage"] = search.open_loop_seconds
-            t0 = time.perf_counter()
+            simulated["global"] = objective.simulated_seconds - s0
+            t0, s0 = time.perf_counter(), objective.simulated_seconds
             self.repaired_ = search.fit_nested(kept, fits, sindy)
             timings["nested"] = time.perf_counter() - t0
+            simulated["nested"] = objective.simulated_seconds - s0
 
         best_fit = min(fits.values(), key=lambda f: f.cost)
         if best_fit.cost >= NO_FIT_COST * len(targets):
@@ -241,8 +248,8 @@ class StructureDiscovery:
                 f"cost {best_fit.cost:.3g}); check the "
                 "fixed parameters and the sidecars' controller settings")
         t0 = time.perf_counter()
-        ranked, rank_evaluations = rank(fits, spaces, targets, self.dt, self.sizes_.rank_nfev,
-                                        self.max_ranked, self.progress)
+        ranked, rank_evaluations, simulated["ranking"] = rank(
+            fits, spaces, targets, self.dt, self.sizes_.rank_nfev, self.max_ranked, self.progress)
         timings["ranking"] = time.perf_counter() - t0
         best = ranked[0]
         for f in [g for g in ranked if g.indistinguishable_from_best]:
@@ -260,6 +267,7 @@ class StructureDiscovery:
         self.n_simulations_ = objective.n_evaluations + rank_evaluations
         timings["total"] = time.perf_counter() - t_start
         self.timings_ = timings
+        self.simulated_seconds_ = simulated
         self.searches_ = dict(search.searches)
         return self
 

@@ -146,6 +146,8 @@ def rank(fits, spaces, targets, dt, rank_nfev, max_ranked, progress=False):
         Winner first, the set marked (:func:`.indistinguishable.indistinguishable_set`).
     n_evaluations : int
         Parameter sets the refits simulated.
+    simulated_seconds : float
+        Seconds those runs simulated (:class:`.search.Objective`).
     """
     order = sorted(fits.values(), key=lambda f: f.cost)
     targets = [make_target(t.recording, dt / RANK_OPEN_LOOP_REFINEMENT)
@@ -177,7 +179,7 @@ def rank(fits, spaces, targets, dt, rank_nfev, max_ranked, progress=False):
                        "scored on the other; mean of both ways)")
     ranked = indistinguishable_set(sorted(order, key=lambda f: (f.score, f.cost)), len(targets),
                                    floors=margin_floors(targets))
-    return ranked, objective.n_evaluations
+    return ranked, objective.n_evaluations, objective.simulated_seconds
 
 
 def in_sample_screen(best_cost, n_recordings):

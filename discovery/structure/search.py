@@ -60,11 +60,20 @@ class Objective:
     ----------
     targets : list
         :class:`.targets.CycleTarget` / :class:`.targets.OutputTarget` objects.
+
+    Attributes
+    ----------
+    n_evaluations : int
+        Parameter sets evaluated so far.
+    simulated_seconds : float
+        Seconds simulated so far: each valid set runs each target asked for over that target's
+        run length (settling and window of a limit cycle, the whole record in open loop).
     """
 
     def __init__(self, targets):
         self.targets = list(targets)
         self.n_evaluations = 0
+        self.simulated_seconds = 0.0
         self._lock = threading.Lock()
 
     def _sets_for(self, target, param_sets):
@@ -76,8 +85,11 @@ class Objective:
         """Residual blocks ``[(n, m_i)]``, one per target; invalid sets get penalty rows."""
         from .targets import PENALTY
 
+        n_valid = sum(p is not None for p in param_sets)
         with self._lock:
-            self.n_evaluations += sum(p is not None for p in param_sets)
+            self.n_evaluations += n_valid
+            self.simulated_seconds += n_valid * sum(float(t.simulator.t_end)
+                                                    for t in targets or self.targets)
 
         def block(target):
             sets = self._sets_for(target, param_sets)

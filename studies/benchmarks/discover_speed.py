@@ -27,10 +27,9 @@ from pathlib import Path
 from discovery.structure.structure_search import SEARCHES
 from models import CONTROLLER_A, CONTROLLER_B, OpenLoop, hypothesis, simulate
 from models.recording import recording_from_trajectory, save_recording
-
-from ..common import code_commit
 from models.strict_json import write_json
 
+from ..common import code_commit
 from .goals import Goal, kernel_reference
 from .goals import report as goal_report
 
@@ -89,6 +88,7 @@ def main(argv=None) -> int:
         "wall_seconds": wall,
         "stages": summary["timings"],
         "simulations": summary["simulations"],
+        "simulated_seconds": summary.get("simulated_seconds"),
         "converged": summary["posterior"]["converged"],
         "mcmc_steps": summary["posterior"]["iterations"],
         "winner": summary["structures"][0]["structure"],
