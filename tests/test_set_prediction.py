@@ -52,3 +52,35 @@ def test_agreement_rule_on_known_bands():
     assert members_agree({"a": band(5, 8, osc=0.0), "b": band(50, 80, osc=0.1)})[0]
     with pytest.raises(ValueError, match="no member"):
         predict_cycle_over_set({}, SETTING_A)
+
+
+def test_bands_apart_by_less_than_a_recording_resolves_agree():
+    """Narrow bands 0.4 % apart: apart on the bands alone, agreeing once each is widened by a
+    recording's 0.3 % resolution (1.645 sd each side); 4 % apart they still part."""
+    def band(f, half=0.001):
+        return {"amplitude": {"q05": 5 - 1e-3, "q50": 5.0, "q95": 5 + 1e-3},
+                "frequency": {"q05": f * (1 - half), "q50": f, "q95": f * (1 + half)},
+                "fraction_oscillating": 1.0}
+
+    near, far = {"a": band(50.0), "b": band(50.2)}, {"a": band(50.0), "b": band(52.0)}
+    resolution = {"amplitude": 0.003, "frequency": 0.003}
+    assert not members_agree(near)[0]
+    assert members_agree(near, resolution)[0]
+    assert members_agree(far, resolution)[1] == [("a", "b", "frequency bands apart")]
+
+
+def test_a_recording_resolves_a_cycle_to_its_noise_and_wander():
+    """The bundled M000 cycles (the band-pass loop's wandering cycle, 1 kHz, sensor noise):
+    frequency and first harmonic resolved to 0.01-5 % (a relative sd; the wander dominates), the
+    first harmonic less finely than the frequency; no closed-loop recording, no resolution."""
+    from pathlib import Path
+
+    from discovery.prediction.set_prediction import measurement_resolution
+    from models.recording import load_recording
+
+    data = Path(__file__).resolve().parents[1] / "data"
+    closed = [load_recording(data / f"m000_closed_{c}.csv") for c in "AB"]
+    res = measurement_resolution(closed)
+    assert 1e-4 < res["frequency"] < 0.05 and 1e-4 < res["amplitude"] < 0.05
+    assert res["amplitude"] > res["frequency"]
+    assert measurement_resolution([load_recording(data / "m000_open_sine.csv")]) is None

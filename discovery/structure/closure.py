@@ -12,7 +12,8 @@ A set is *closed* when it holds one structure, or when its calibrated members ag
   :data:`.discrimination.DECIDES` (no recording of the test could tell them apart);
 * the limit cycle at controller settings the recordings did not use
   (:func:`discovery.prediction.set_prediction.predict_cycle_over_set`: both oscillate or both not,
-  and their 90 % bands of amplitude and frequency overlap).
+  and their 90 % bands of amplitude and frequency overlap, each widened by what a recording of
+  the cycle resolves).
 
 Then the choice between them does not matter to what a user would measure or design for; a set
 that is not closed says at which test or setting the members part.
@@ -113,7 +114,7 @@ class SetClosure:
 
 
 def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, dt=5e-4,
-                seed=0, config=None) -> SetClosure:
+                seed=0, config=None, resolution=None) -> SetClosure:
     """Whether the members of a set agree on every test of ``candidates`` and on the cycle at
     every controller setting of ``settings``.
 
@@ -130,6 +131,10 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
     n_draws : int
         Posterior draws per member (the first ``n_draws`` of each, which
         :func:`~discovery.prediction.draws.load_set_draws` already drew at random).
+    resolution : dict, optional
+        What a recording resolves of a cycle
+        (:func:`discovery.prediction.set_prediction.measurement_resolution`), by which the
+        predicted cycles' bands are widened before they are compared.
     """
     from discovery.prediction.cycles import PredictionConfig
     from discovery.prediction.set_prediction import predict_cycle_over_set
@@ -143,7 +148,7 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
     rows = []
     for s in settings:
         pred = predict_cycle_over_set(member_draws, s, config or PredictionConfig(),
-                                      describing=False).to_dict()
+                                      describing=False, resolution=resolution).to_dict()
         rows.append({"setting": f"Kp {s.kp:.3g}, Kd {s.kd:.3g}, mu {s.mu:.3g}",
                      "members_agree": pred["members_agree"], "disagreeing": pred["disagreeing"]})
     return SetClosure(names, tests, rows)

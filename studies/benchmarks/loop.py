@@ -95,6 +95,7 @@ def unseen_settings(seed, controller_rate, n=UNSEEN_SETTINGS):
 def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     """What round ``k`` of a draw leaves: the set, the truth in it, the fit ceiling, closure."""
     from discovery.prediction.draws import load_set_draws
+    from discovery.prediction.set_prediction import measurement_resolution
     from discovery.structure.closure import set_closure
     from discovery.structure.discrimination import default_candidates
     from discovery.structure.targets import make_target
@@ -120,7 +121,8 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     controller_rate = next((r.controller_rate for r in scenario.recordings if r.kind == "closed"), None)
     closure = set_closure(load_set_draws(out_dir, n_draws=config.closure_draws, seed=seed),
                           default_candidates(rate), unseen_settings(seed, controller_rate), noise,
-                          n_draws=config.closure_draws, seed=seed)
+                          n_draws=config.closure_draws, seed=seed,
+                          resolution=measurement_resolution(recordings))
     best = (summary.get("next_test") or {}).get("best")
     return {"round": k, "recordings": len(summary["recordings"]), "set": members,
             "set_size": len(members), "truth_in_set": truth.name in inside,

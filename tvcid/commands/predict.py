@@ -159,12 +159,18 @@ def _band(q, scale, unit) -> str:
 def _run_over_set(args, members, setting, grid, config) -> int:
     """Every member of a discover directory's set predicts; the mixture's band, and whether the
     members agree (:mod:`discovery.prediction.set_prediction`)."""
-    from discovery.prediction.set_prediction import cycle_map_over_set, predict_cycle_over_set
+    from discovery.prediction.set_prediction import (
+        cycle_map_over_set,
+        predict_cycle_over_set,
+        run_resolution,
+    )
     from models import strict_json
     from models.strict_json import write_json
 
+    resolution = run_resolution(args.directory)
     if not grid:
-        result = predict_cycle_over_set(members, setting, config, describing=not args.no_df).to_dict()
+        result = predict_cycle_over_set(members, setting, config, describing=not args.no_df,
+                                        resolution=resolution).to_dict()
         if args.json:
             print(strict_json.dumps(result))
             return 0
@@ -173,9 +179,13 @@ def _run_over_set(args, members, setting, grid, config) -> int:
               f"({args.directory})")
         print(f"  amplitude  {_band(result['amplitude'], 1e3, 'mrad')}")
         print(f"  frequency  {_band(result['frequency'], 1.0, 'rad/s')}")
+        within = ("" if resolution is None else
+                  f", each widened by what a recording resolves: amplitude "
+                  f"{100 * resolution['amplitude']:.2g} %, frequency "
+                  f"{100 * resolution['frequency']:.2g} % sd")
         if result["members_agree"]:
-            print("  the members agree at this controller (their bands overlap): the choice of "
-                  "structure does not change the answer here")
+            print(f"  the members agree at this controller (their bands overlap{within}): the "
+                  "choice of structure does not change the answer here")
         else:
             why = "; ".join(f"{d['members'][0]} / {d['members'][1]}: {d['why']}"
                             for d in result["disagreeing"])
@@ -187,7 +197,7 @@ def _run_over_set(args, members, setting, grid, config) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     smap = cycle_map_over_set(members, setting, grid, config, describing=not args.no_df,
-                              progress=not args.no_progress)
+                              progress=not args.no_progress, resolution=resolution)
     write_json(out / "map.json", smap.to_dict(), indent=1)
     import matplotlib
 
