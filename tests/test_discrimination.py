@@ -6,7 +6,9 @@ from discovery.prediction.design import Candidate
 from discovery.structure.discrimination import (
     DECIDES,
     default_candidates,
+    design_over_set,
     discriminating_tests,
+    set_design_order,
 )
 from models import M002, M001i
 from models.experiments import CONTROLLER_A, OpenLoop
@@ -118,3 +120,45 @@ def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     assert ("No candidate decides any pair" in text) == (best["pairs_decided"] == 0)
     assert next_test({"structures": structures[:1], "sensor_noise": {}}, recs, 0, tmp_path) is None
     assert _next_test_lines(None) == []
+
+
+def _dead_zone_draws(base, n=8, seed=0):
+    """Draws of ``base`` with its dead zone spread by 5 % (the one sampled parameter)."""
+    from discovery.calibration.priors import LogUniform
+    from discovery.prediction.draws import PosteriorDraws
+
+    z = base.dead_zone * np.exp(0.05 * np.random.default_rng(seed).standard_normal(n))
+    return PosteriorDraws(names=("dead_zone",), samples=z[:, None], internal=np.log(z)[:, None],
+                          base=base, priors={"dead_zone": LogUniform(1e-5, 0.1)}, config={})
+
+
+def test_design_over_a_set_puts_the_test_that_tells_its_members_apart_first():
+    """Two members that differ in where the delay acts (paper 002's actuator): a 20 mrad square
+    tells them apart, a 0.5 mrad sine inside the dead zone moves neither. Each member ranks both
+    tests with its own draws; the means and each member's gain are reported."""
+    a = M002()
+    b = a.replace(delay_position="before_integrator")
+    members = {"output": _dead_zone_draws(a), "before_integrator": _dead_zone_draws(b, seed=1)}
+    menu = [Candidate("sine 0.5 mrad 1 Hz", OpenLoop.sine(0.5e-3, 1.0), 4.0),
+            Candidate("square 20 mrad 2 Hz", OpenLoop.square(20e-3, 2.0), 4.0)]
+    ranking = design_over_set(members, menu, noise=2e-5, seed=1, n_truths=4)
+    assert [r["name"] for r in ranking.rows] == ["square 20 mrad 2 Hz", "sine 0.5 mrad 1 Hz"]
+    square, sine = ranking.rows
+    assert (square["pairs_decided"], sine["pairs_decided"], square["n_pairs"]) == (1, 0, 1)
+    assert set(square["members"]) == {"output", "before_integrator"}
+    gains = [m["information_gain"] for m in square["members"].values()]
+    assert square["information_gain"] == pytest.approx(np.mean(gains))
+    assert ranking.params == ("dead_zone",) and "told apart" in ranking.to_dict()["criterion"]
+    with pytest.raises(ValueError, match="at least two members"):
+        design_over_set({"output": members["output"]}, menu, noise=2e-5)
+    with pytest.raises(ValueError, match="not sampled by every member"):
+        design_over_set(members, menu, params=["delay"], noise=2e-5)
+
+
+def test_set_design_order_tells_apart_first_then_gains():
+    rows = [{"name": "teaches", "pairs_decided": 0, "information_gain": 5.0},
+            {"name": "decides", "pairs_decided": 2, "information_gain": 0.1},
+            {"name": "decides less", "pairs_decided": 1, "information_gain": 9.0},
+            {"name": "decides, teaches", "pairs_decided": 2, "information_gain": 1.0}]
+    assert [r["name"] for r in set_design_order(rows)] == [
+        "decides, teaches", "decides", "decides less", "teaches"]

@@ -169,14 +169,15 @@ class DesignRanking:
 
     rows: list
     params: tuple
+    criterion: str = ("expected information gain (nats; reweighted draws, Laplace where the test "
+                      "is sharper than the draws)")
 
     @property
     def best(self) -> dict:
         return self.rows[0]
 
     def to_dict(self) -> dict:
-        return {"params": list(self.params), "criterion": "expected information gain "
-                "(nats; reweighted draws, Laplace where the test is sharper than the draws)", "ranking": self.rows}
+        return {"params": list(self.params), "criterion": self.criterion, "ranking": self.rows}
 
     def plot(self, ax=None):
         """Expected width ratio of every chosen parameter, per candidate (best at the top)."""

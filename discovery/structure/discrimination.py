@@ -37,11 +37,13 @@ import numpy as np
 from models.experiments import CONTROLLER_A, CONTROLLER_B, OpenLoop
 from models.structures import Structure
 
-from ..prediction.design import Candidate
+from ..calibration.priors import SIGMA
+from ..prediction.design import Candidate, DesignRanking, rank_experiments
 from .indistinguishable import TOL_ABS
 from .targets import NoCycleError, make_target
 
-__all__ = ["DiscriminationRanking", "default_candidates", "discriminating_tests", "DECIDES"]
+__all__ = ["DiscriminationRanking", "default_candidates", "discriminating_tests", "design_over_set",
+           "DECIDES"]
 
 #: Predicted cost difference on the new recording at which a test decides a pair of structures.
 DECIDES = 3.0 * TOL_ABS
@@ -275,3 +277,76 @@ def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp):
                      space.coordinates(members[i]), max_nfev=REFIT_NFEV)
         sep[i, j] = max(fit.cost - old_cost[i] - own[j], 0.0)
     test.update(refitted=True, **_verdict(np.minimum(sep, sep.T), names))
+
+
+def design_over_set(member_draws: dict, candidates, params=None, noise=None, seed=0,
+                              n_truths=24, progress=False) -> DesignRanking:
+    """Rank ``candidates`` for a set of structures the recordings could not tell apart.
+
+    Each member (``member_draws``: structure name -> :class:`.draws.PosteriorDraws`, e.g.
+    :func:`discovery.prediction.draws.load_set_draws`) ranks the candidates by
+    :func:`discovery.prediction.design.rank_experiments` on the
+    parameters every member samples (or ``params``); a candidate's information gain and
+    expected width ratios are the members' means (equal weights, as in the set's posterior), and
+    each member's gain is kept. Beside it, the pairs of members the candidate would tell apart at
+    their median models (:func:`discriminating_tests`, at the noise of the new test). A candidate that tells more pairs apart ranks first, then the larger
+    gain: while the structure is open each member's intervals hold only under that member, so
+    a test that decides between them teaches more than one that narrows them all.
+
+    Returns
+    -------
+    discovery.prediction.design.DesignRanking
+        Rows with ``pairs_decided`` (of ``n_pairs``) and each member's gain and width ratios
+        (``members``) beside the means.
+
+    Raises
+    ------
+    ValueError
+        Fewer than two members, or ``params`` not sampled by every member.
+    """
+    names = list(member_draws)
+    if len(names) < 2:
+        raise ValueError(f"a set needs at least two members (got {len(names)})")
+    shared = [n for n in member_draws[names[0]].names
+              if n != SIGMA and all(n in d.names for d in member_draws.values())]
+    chosen = list(params) if params else shared
+    missing = [p for p in chosen if p not in shared]
+    if missing:
+        raise ValueError(f"--params {', '.join(missing)}: not sampled by every member of the set "
+                         f"(shared: {', '.join(shared)})")
+    sigma = noise if noise is not None else next(
+        (d.sigma() for d in member_draws.values() if d.sigma() is not None), None)
+    rankings = {n: rank_experiments(d, candidates, params=chosen, noise=sigma, seed=seed,
+                                    n_truths=n_truths, progress=progress)
+                for n, d in member_draws.items()}
+    by_name = {n: {r["name"]: r for r in rk.rows} for n, rk in rankings.items()}
+    told = discriminating_tests([member_draws[n].median_params() for n in names], candidates,
+                                noise_sd=float(sigma), seed=seed)
+    decided = {r["name"]: r for r in told.tests}
+    rows = []
+    for cand in candidates:
+        per = [by_name[n][cand.name] for n in names]
+        rows.append({
+            "name": cand.name,
+            "kind": cand.kind,
+            "duration": cand.duration,
+            "pairs_decided": int(decided[cand.name]["pairs_decided"]),
+            "n_pairs": told.n_pairs,
+            "information_gain": float(np.mean([r["information_gain"] for r in per])),
+            "shrinkage": {p: float(np.mean([r["shrinkage"][p] for r in per])) for p in chosen},
+            "members": {n: {"information_gain": r["information_gain"], "shrinkage": r["shrinkage"]}
+                        for n, r in zip(names, per)},
+        })
+    return DesignRanking(rows=set_design_order(rows), params=tuple(chosen),
+                         criterion=SET_DESIGN_CRITERION)
+
+
+#: How :func:`design_over_set` orders the candidates.
+SET_DESIGN_CRITERION = ("pairs of the set's members told apart (at their median models), then the "
+                        "members' mean expected information gain (nats)")
+
+
+def set_design_order(rows) -> list:
+    """Rows of :func:`design_over_set` in its order: more pairs told apart first, then the larger
+    mean gain."""
+    return sorted(rows, key=lambda r: (-r["pairs_decided"], -r["information_gain"]))

@@ -15,7 +15,10 @@ def register(sub):
         "\"amplitude\", \"frequency\"}, each with optional name, duration (s) and sample_rate "
         "(Hz)), simulate the posterior draws through each candidate as a fit would see it and "
         "rank the candidates by expected information gain on --params, with the expected "
-        "shrinkage of each parameter's 90 % width. Writes DIR2/design.json and DIR2/design.png.",
+        "shrinkage of each parameter's 90 % width. On a discover directory whose set holds several "
+        "structures, every member ranks the candidates with its own draws and the ranking puts "
+        "first the tests that tell the members apart, then the members' mean gain. Writes "
+        "DIR2/design.json and DIR2/design.png.",
     )
     p.add_argument("directory", metavar="DIR", help="output directory of tvcid fit or tvcid discover")
     p.add_argument("--candidates", required=True, metavar="FILE.json", help="menu of experiments")
@@ -32,8 +35,9 @@ def register(sub):
 
 
 def run(args) -> int:
-    from discovery.prediction import load_posterior_draws
+    from discovery.prediction import load_set_draws
     from discovery.prediction.design import load_candidates, rank_experiments
+    from discovery.structure.discrimination import design_over_set
     from models.strict_json import write_json
 
     candidates = load_candidates(args.candidates)
@@ -44,10 +48,11 @@ def run(args) -> int:
         raise ValueError(f"--draws must be >= 10 (got {args.draws})")
     if args.truths < 1:
         raise ValueError(f"--truths must be >= 1 (got {args.truths})")
-    draws = load_posterior_draws(args.directory, n_draws=args.draws, seed=args.seed)
-    ranking = rank_experiments(draws, candidates, params=params, noise=args.noise,
-                               seed=args.seed, n_truths=args.truths,
-                               progress=not args.no_progress)
+    members = load_set_draws(args.directory, n_draws=args.draws, seed=args.seed)
+    rank = design_over_set if len(members) > 1 else (
+        lambda m, *a, **k: rank_experiments(next(iter(m.values())), *a, **k))
+    ranking = rank(members, candidates, params=params, noise=args.noise, seed=args.seed,
+                   n_truths=args.truths, progress=not args.no_progress)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "design.json", ranking.to_dict())
@@ -60,9 +65,14 @@ def run(args) -> int:
     ax.figure.tight_layout()
     ax.figure.savefig(out / "design.png", dpi=110)
     plt.close(ax.figure)
-    print(f"{'rank':<5s}{'candidate':<34s}{'gain (nats)':>12s}  expected width ratio")
+    if len(members) > 1:
+        print(f"the set's {len(members)} structures: {', '.join(members)}")
+    decides = "pairs_decided" in ranking.rows[0]
+    print(f"{'rank':<5s}{'candidate':<34s}" + (f"{'pairs told apart':>18s}" if decides else "")
+          + f"{'gain (nats)':>12s}  expected width ratio")
     for i, row in enumerate(ranking.rows, 1):
         ratios = ", ".join(f"{k} {v:.2f}" for k, v in row["shrinkage"].items())
-        print(f"{i:<5d}{row['name'][:33]:<34s}{row['information_gain']:>12.3f}  {ratios}")
+        told = f"{row['pairs_decided']:>11d} of {row['n_pairs']:<3d}" if decides else ""
+        print(f"{i:<5d}{row['name'][:33]:<34s}{told}{row['information_gain']:>12.3f}  {ratios}")
     print(f"wrote {out / 'design.json'}, {out / 'design.png'}")
     return 0
