@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import discovery.structure.search as search
+import discovery.threads as threads
 from discovery.structure import StructureDiscovery
 from discovery.threads import one_blas_thread
 from models.structures import Structure
@@ -31,7 +32,7 @@ def test_concurrent_map_keeps_the_order_and_the_loop_runs_without_threads(monkey
         return x * x
 
     assert search.concurrent_map(square, range(20)) == [x * x for x in range(20)]
-    monkeypatch.setattr(search, "THREADED", False)
+    monkeypatch.setattr(threads, "THREADED", False)
     seen.clear()
     assert search.concurrent_map(square, range(5)) == [0, 1, 4, 9, 16]
     assert seen == [0, 1, 2, 3, 4]  # a plain loop: in order
@@ -59,11 +60,51 @@ def test_threaded_discovery_is_the_loop_discovery(tmp_path, monkeypatch):
     fixed = {"dead_zone_position": "velocity", "delay_position": "output", "bandpass_gain": 0.0}
     runs = {}
     for threaded in (True, False):
-        monkeypatch.setattr(search, "THREADED", threaded)
+        monkeypatch.setattr(threads, "THREADED", threaded)
         disc = StructureDiscovery(fixed=fixed, seed=0, use_sindy=False).fit(paths)
         runs[threaded] = (_summary(disc), disc.n_simulations_, disc.repaired_)
     assert len(runs[True][0]) == 4
     assert runs[True] == runs[False]
+
+
+def test_threaded_log_posterior_is_the_loop_log_posterior(tmp_path, monkeypatch):
+    """The calibration's likelihood terms simulated concurrently: a limit cycle (features) and an
+    open-loop square (output error) of paper 002's actuator; the log posterior of a batch, of one
+    point, and the pointwise log-likelihoods equal the plain loop's bit for bit."""
+    from discovery.calibration import Calibration
+    from models import CONTROLLER_A, M002, OpenLoop
+    from models.synthetic import synthetic_recording
+
+    recs = [synthetic_recording(M002(), CONTROLLER_A, 14.0, 1e-4, 1, tmp_path / "a.csv",
+                                keep_last=8.0),
+            synthetic_recording(M002(), OpenLoop.square(0.01, 2.0), 3.0, 1e-4, 2, tmp_path / "sq.csv")]
+    cal = Calibration("M002", params=("dead_zone", "delay"), likelihood="features", window=6.0,
+                      transient=4.0, seed=0).setup(recs)
+    lp = cal.log_posterior_
+    z0 = lp.internal(np.array([[M002().dead_zone, M002().delay]]))
+    z = z0 + [0.02, 2e-4] * np.random.default_rng(3).standard_normal((6, 2))  # log, s
+    out = {}
+    for threaded in (True, False):
+        monkeypatch.setattr(threads, "THREADED", threaded)
+        out[threaded] = (lp(z), lp(z[0]), lp.pointwise(z))
+    assert np.all(np.isfinite(out[True][0])) and out[True][2].shape[0] == 6
+    for a, b in zip(out[True], out[False]):
+        assert np.array_equal(a, b)
+
+
+
+def test_likelihood_threads_benchmark_records_equal_numbers_and_both_timings(tmp_path):
+    """``python -m studies.benchmarks.likelihood_threads --quick``: its record holds both timings
+    of one point and of a batch and the bit-for-bit comparison (its goals judge the speed-ups)."""
+    import json
+
+    from studies.benchmarks.likelihood_threads import main
+
+    main(["--quick", "--out", str(tmp_path)])
+    saved = json.loads((tmp_path / "bench.json").read_text())
+    assert saved["equal"] is True and saved["repeats"] == 2
+    assert {k: v["points"] for k, v in saved["rows"].items()} == {"point": 1, "batch": 40}
+    assert all(v["seconds_loop"] > 0 and v["seconds_threaded"] > 0 for v in saved["rows"].values())
 
 
 if __name__ == "__main__":  # pragma: no cover

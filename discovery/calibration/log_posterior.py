@@ -3,11 +3,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from discovery.threads import thread_map
 from models.hypotheses import ActuatorParams
 
 from .priors import SIGMA
 
 __all__ = ["LogPosterior", "CALIBRATABLE_EXCLUDED", "check_parameter_names"]
+
+#: Threads simulating the likelihood terms of one evaluation concurrently: the recordings of one
+#: point (the start's searches) would otherwise keep one core busy, and a batch's simulation of
+#: one recording overlaps the feature extraction of another (the speed-ups on M000's four
+#: recordings: ``python -m studies.benchmarks.likelihood_threads``).
+TERM_THREADS = 4
 
 #: Fields that are structural choices or describe the in-loop noise forcing, not calibratable.
 CALIBRATABLE_EXCLUDED = (
@@ -142,8 +149,9 @@ class LogPosterior:
             sub = [sets[i] for i in idx]
             sig = self.sigmas(x[idx])
             ll = np.zeros(idx.size)
-            for term in self.terms:
-                ll = ll + term.loglike(sub, sig)
+            parts = thread_map("terms", TERM_THREADS, lambda t: t.loglike(sub, sig), self.terms)
+            for part in parts:  # in the terms' order: the sum does not depend on the threads
+                ll = ll + part
             total[idx] = total[idx] + ll
         total = np.where(np.isnan(total), -np.inf, total)
         return float(total[0]) if single else total
@@ -153,13 +161,13 @@ class LogPosterior:
         _, x, sets = self._prepare(z)
         valid = [i for i, s in enumerate(sets) if s is not None]
         sig = self.sigmas(x[valid]) if valid else np.zeros(0)
-        blocks = []
-        for term in self.terms:
+        def block(term):
             out = np.full((len(sets), term_size(term)), -np.inf)
             if valid:
                 out[valid] = term.loglike([sets[i] for i in valid], sig, pointwise=True)
-            blocks.append(out)
-        return np.concatenate(blocks, axis=1)
+            return out
+
+        return np.concatenate(thread_map("terms", TERM_THREADS, block, self.terms), axis=1)
 
     def log_likelihood(self, z):
         z = np.atleast_2d(z)

@@ -13,19 +13,20 @@
 Threads: the batch kernel releases the GIL, so the recordings of one evaluation are simulated
 concurrently (a refinement's one-set batches otherwise keep one core busy), and so are the
 refinements of a search's distinct candidates (:func:`refine_all`) and other independent tasks
-(:func:`concurrent_map`). Every evaluation is deterministic, so the results do not depend on the
-threads' order (``tests/test_threads.py``). :func:`progress_bar` is a bar such tasks may advance.
+(:func:`concurrent_map`), all through :func:`discovery.threads.thread_map`.
+:func:`progress_bar` is a bar such tasks may advance.
 """
 from __future__ import annotations
 
 import math
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import differential_evolution, least_squares
 from scipy.stats import qmc
+
+from discovery.threads import thread_map
 
 __all__ = ["Objective", "FitResult", "global_search", "refine", "refine_all", "concurrent_map",
            "local_sd", "distinct_members", "progress_bar"]
@@ -36,21 +37,6 @@ FD_STEP = 2e-3
 #: (separate pools: a task waits on its refinements, a refinement on its recordings).
 TARGET_THREADS = 4
 REFINE_THREADS = 3
-#: ``False`` runs every map as a plain loop (the tests compare both).
-THREADED = True
-_pools = {}
-_pools_lock = threading.Lock()
-
-
-def _map(name, workers, fn, items):
-    """``[fn(x) for x in items]``, in pool ``name``'s threads when :data:`THREADED`."""
-    items = list(items)
-    if not THREADED or len(items) <= 1:
-        return [fn(x) for x in items]
-    with _pools_lock:
-        if name not in _pools:
-            _pools[name] = ThreadPoolExecutor(workers, thread_name_prefix=f"tvcid-{name}")
-    return list(_pools[name].map(fn, items))
 
 
 class Objective:
@@ -99,7 +85,7 @@ class Objective:
                 r[bad] = PENALTY / math.sqrt(r.shape[1])
             return r
 
-        return _map("targets", TARGET_THREADS, block, targets or self.targets)
+        return thread_map("targets", TARGET_THREADS, block, targets or self.targets)
 
     def costs(self, param_sets, targets=None):
         """Cost per target, ``(n, n_targets)``: sum of squared residuals (one unit ~ 1 % error)."""
@@ -234,7 +220,7 @@ def refine(space, objective, theta0, max_nfev=40, targets=None):
 
 def refine_all(space, objective, starts, max_nfev=40, targets=None):
     """:func:`refine` from each of ``starts`` (run concurrently); the fits in the same order."""
-    return _map("refine", REFINE_THREADS,
+    return thread_map("refine", REFINE_THREADS,
                 lambda s: refine(space, objective, s, max_nfev=max_nfev, targets=targets), starts)
 
 
@@ -244,7 +230,7 @@ def concurrent_map(fn, items):
     For independent, deterministic tasks (a refinement per structure): the result is the loop's.
     ``fn`` may call :func:`refine_all` and the objective (their own threads), not this function.
     """
-    return _map("tasks", REFINE_THREADS, fn, items)
+    return thread_map("tasks", REFINE_THREADS, fn, items)
 
 
 def progress_bar(work, desc, enabled):
