@@ -143,3 +143,27 @@ def test_df_family_and_robust_amplitude(fits):
     assert zm == pytest.approx([1.111e-3, 1.333e-3], rel=2e-3)
     # docs/models.md#reference-limit-cycles: M002 at controller A, (max - min)/2 = 4.991e-3 rad
     assert robust_amplitude(rec.t, rec.delta) == pytest.approx(4.99e-3, rel=0.01)
+
+
+def test_a_narrow_posterior_clear_of_a_near_bound_is_not_at_it():
+    """``at_prior_bound``: a needle pressed against a bound is stuck; the same needle a few of its
+    widths inside a wide prior (M000's delay, 1.70-1.72 ms in a prior from 1.2 to 20 ms) is not;
+    a wide posterior reaching a bound is not."""
+    from types import SimpleNamespace
+
+    from discovery.calibration.posterior import Posterior
+    from discovery.calibration.priors import Uniform
+
+    rng = np.random.default_rng(0)
+    prior = Uniform(1.2e-3, 2e-2)
+
+    def stuck(samples):
+        post = Posterior.__new__(Posterior)
+        post.names, post.internal = ("delay",), np.asarray(samples)[:, None]
+        post.calibration = SimpleNamespace(log_posterior_=SimpleNamespace(priors=[prior]))
+        return post.at_prior_bound()
+
+    assert stuck(1.7e-3 + 6e-6 * rng.standard_normal(2000)) == []
+    assert stuck(1.2e-3 + np.abs(6e-6 * rng.standard_normal(2000))) == ["delay"]
+    assert stuck(2e-2 - np.abs(6e-6 * rng.standard_normal(2000))) == ["delay"]
+    assert stuck(rng.uniform(1.2e-3, 1.2e-2, 2000)) == []

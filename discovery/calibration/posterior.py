@@ -154,8 +154,10 @@ class Posterior:
 
     def at_prior_bound(self, fraction=0.1) -> list:
         """Parameters stuck at a prior bound: the whole 90 % interval within ``fraction`` of the
-        prior's width (internal coordinates) of one bound, the data pushing them out of the
-        prior. A wide posterior that merely reaches a bound is not stuck."""
+        prior's width (internal coordinates) of one bound and pressed against it (nearer to it
+        than the interval is wide), the data pushing them out of the prior. A wide posterior that
+        merely reaches a bound is not stuck, nor a narrow one that lies near a bound of a wide
+        prior but clear of it (M000's delay, 1.70-1.72 ms in a prior from 1.2 to 20 ms)."""
         lp = getattr(self.calibration, "log_posterior_", None)
         if lp is None:
             return []
@@ -163,7 +165,10 @@ class Posterior:
         q05, q95 = np.quantile(self.internal, [0.05, 0.95], axis=0)
         for j, (n, p) in enumerate(zip(self.names, lp.priors)):
             lo, hi = p.internal_bounds
-            if q95[j] - lo < fraction * (hi - lo) or hi - q05[j] < fraction * (hi - lo):
+            width = q95[j] - q05[j]
+            low = q95[j] - lo < fraction * (hi - lo) and q05[j] - lo < width
+            high = hi - q05[j] < fraction * (hi - lo) and hi - q95[j] < width
+            if low or high:
                 out.append(n)
         return out
 
