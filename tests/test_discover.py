@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from discovery.structure import StructureDiscovery
+from discovery.structure.set_posterior import member_walkers
 from models.recording import save_recording
 from models.structures import Structure, shared_choices
 from studies.benchmarks.discovery import coordinate_errors
@@ -204,7 +205,7 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
     per_set = (simulated["global"] + simulated["nested"] + simulated["ranking"]) / straight["simulations"]
     assert 3.0 < per_set < length + 10.0
     chain = straight["posterior"]
-    n_walkers = max(16, 4 * len(chain["parameters"]) + 4)
+    n_walkers = member_walkers(len(chain["parameters"]))
     assert simulated["mcmc"] >= chain["iterations"] * n_walkers * 10.0
     assert "Simulated seconds (every run of every recording): global" in report
 

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["MemberPosterior", "SetPosterior", "calibrate_member", "combine",
-           "linear_block_dc_gain_and_bandwidth", "member_priors", "member_quantities", "not_pinned",
-           "QUANTITY_UNITS"]
+           "linear_block_dc_gain_and_bandwidth", "member_priors", "member_quantities",
+           "member_walkers", "not_pinned", "QUANTITY_UNITS"]
 
 #: Unit of each combined quantity (the dead zone's depends on its place).
 QUANTITY_UNITS = {
@@ -124,6 +124,15 @@ def member_priors(params, structure, names, delay_floor):
     return priors
 
 
+def member_walkers(n_parameters) -> int:
+    """Walkers of a member's ensemble: ``max(16, 2 n + 6)``. The chain's length to convergence
+    is set by its autocorrelation time in steps, which the Laplace independence move keeps from
+    growing as the ensemble shrinks, while every walker costs one simulation of every recording
+    per step; twice the parameters (emcee's floor) and a margin keep the differential-evolution
+    moves' pairs varied where that move does not serve."""
+    return max(16, 2 * int(n_parameters) + 6)
+
+
 def not_pinned(post, priors, fraction=0.5) -> list:
     """Sampled parameters whose 90 % interval spans more than ``fraction`` of their prior (in
     the prior's own coordinate): the recordings do not pin them."""
@@ -165,7 +174,7 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         cal = Calibration(params, params=sampled, priors=priors, start=start,
-                          likelihood="features", window=10.0, n_walkers=max(16, 4 * len(names) + 4),
+                          likelihood="features", window=10.0, n_walkers=member_walkers(len(names)),
                           max_steps=max_steps, seed=seed, backend=backend, progress=progress,
                           global_search=False).fit(recordings)
     return cal.posterior_, priors, float(cal.log_posterior_.simulated_seconds)

@@ -34,7 +34,7 @@ from .goals import Goal, report
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 RECORDINGS = ("m000_closed_A", "m000_closed_B", "m000_open_square", "m000_open_sine")
-#: Points of a batch (about the set's calibration: 4 walkers per parameter and 4 more).
+#: Points of a batch (a step of an ensemble of 40 walkers).
 BATCH = 40
 #: Goals: speed-up of one point, of a batch (threaded over the loop).
 GOALS = {"point": 1.3, "batch": 1.0}
@@ -43,7 +43,7 @@ GOALS = {"point": 1.3, "batch": 1.0}
 def log_posterior():
     """The set member calibration's log posterior of M000 on the bundled recordings."""
     from discovery.calibration import Calibration
-    from discovery.structure.set_posterior import member_priors
+    from discovery.structure.set_posterior import member_priors, member_walkers
 
     truth = M000()
     structure = Structure.of_params(truth)
@@ -52,7 +52,7 @@ def log_posterior():
     recs = [load_recording(DATA / f"{name}.csv") for name in RECORDINGS]
     priors = member_priors(truth, structure, names, 6e-4)
     cal = Calibration(truth, params=names, priors=priors, likelihood="features", window=10.0, seed=0,
-                      n_walkers=4 * len(names) + 4).setup(recs)
+                      n_walkers=member_walkers(len(names))).setup(recs)
     return cal.log_posterior_, names
 
 
