@@ -241,6 +241,9 @@ def test_discovery_result_reads_saves_reports_and_plots(straight_discover, tmp_p
         assert f"| {name} | {q['q50']:.4g} | [{q['q05']:.4g}, {q['q95']:.4g}] | {unit} |  |" in head
     assert "| backlash | 0.0001163 | [0.0001163, 0.0001163] | rad | fixed or absent |" in head
     assert "Next test: none needed (one structure left)." in head
+    # a chain stopped at its cap says so, with what continues it
+    assert (f"**Not converged**: `{result.best['structure']}` (60 steps, " in head
+            and "a larger `--max-steps` continues the chains" in head)
     ax = result.plot()
     assert len(ax.patches) == len(result.summary["structures"])
     with pytest.raises(ValueError, match="not a discovery.json"):

@@ -162,3 +162,14 @@ def test_set_design_order_tells_apart_first_then_gains():
             {"name": "decides, teaches", "pairs_decided": 2, "information_gain": 1.0}]
     assert [r["name"] for r in set_design_order(rows)] == [
         "decides, teaches", "decides", "decides less", "teaches"]
+
+
+def test_report_says_which_members_chains_did_not_converge():
+    from tvcid.report import _convergence_line
+
+    done = {"structure": "a", "converged": True, "posterior": {"iterations": 400, "n_over_tau": 55.0}}
+    late = {"structure": "b", "converged": False, "posterior": {"iterations": 2000, "n_over_tau": 9.5}}
+    assert _convergence_line([done]).startswith("Every calibrated structure's chain converged")
+    line = _convergence_line([done, late])
+    assert line.startswith("**Not converged**: `b` (2000 steps, 9.5 autocorrelation times)")
+    assert "`a`" not in line

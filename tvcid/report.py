@@ -18,6 +18,19 @@ PHYSICAL = ("dead_zone", "backlash", "delay", "friction_offset", "gain", "dampin
             "feedback_gain", "bandpass_gain")
 
 
+def _convergence_line(members) -> str:
+    """Whether every calibrated member's chain converged, and what to do where one did not."""
+    late = [m for m in members if not m["converged"]]
+    if not late:
+        return ("Every calibrated structure's chain converged (more than 50 autocorrelation "
+                "times long).")
+    which = ", ".join(f"`{m['structure']}` ({m['posterior']['iterations']} steps, "
+                      f"{m['posterior']['n_over_tau']:.3g} autocorrelation times)" for m in late)
+    return (f"**Not converged**: {which}; 50 autocorrelation times are needed. Their intervals, "
+            "and the combined ones, are not yet their posteriors': the same command with a larger "
+            "`--max-steps` continues the chains.")
+
+
 def _num(value, digits=4) -> str:
     """``value`` to ``digits`` significant digits; ``-`` for a missing or non-finite number."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
@@ -60,6 +73,7 @@ def summary_lines(summary) -> list:
         if summary["set_posterior"].get("not_calibrated"):
             lines += ["", "Not calibrated (more structures than the cap): " + ", ".join(
                 f"`{n}`" for n in summary["set_posterior"]["not_calibrated"]) + "."]
+        lines += ["", _convergence_line(summary["set_posterior"]["members"])]
     else:
         lines += ["", "| parameter | value | 90 % interval | unit | from |", "|---|---|---|---|---|"]
         post = summary.get("posterior") or {}
