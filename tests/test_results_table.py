@@ -138,3 +138,21 @@ def test_commits_are_named_once_or_counted_when_rows_come_from_several():
     assert commits_text([{"commit": "abc"}, {"commit": "abc"}]) == "`abc`"
     text = commits_text([{"commit": "abc"}, {"commit": "def"}, {"commit": "def"}, {}])
     assert text == "**rows at 3 commits**: `def` (2), no commit recorded (1), `abc` (1)"
+
+
+def test_speed_claim_judges_the_stored_run_in_reference_seconds():
+    """The speed claim: the stored run's wall time judged against 600 s in kernel-reference
+    seconds of the same run (met at half the budget, NOT met at twice it), with the search's and
+    the chains' seconds and simulated seconds."""
+    from studies.benchmarks.results_table import discover_speed
+
+    record = json.loads((RECORDS / "bench_discover_speed.json").read_text())
+    text = discover_speed({"bench_discover_speed": record})
+    stages = record["stages"]
+    search = stages["sindy"] + stages["global"] + stages["nested"] + stages["ranking"]
+    assert f"structure search and ranking {search:.0f} s" in text
+    assert f"the set's calibration {stages['mcmc']:.0f} s" in text and "million in the chains" in text
+    reference = record["kernel_seconds_per_simulated_second"]
+    for wall, verdict in ((300 * reference / 2e-4, " met"), (1200 * reference / 2e-4, "NOT met")):
+        judged = discover_speed({"bench_discover_speed": {**record, "wall_seconds": wall}})
+        assert judged.split(";")[0].endswith(verdict), judged

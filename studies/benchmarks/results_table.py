@@ -190,6 +190,27 @@ def next_test(records):
             f"in the set: {kept} of {tested}. " + "; ".join(cells))
 
 
+def discover_speed(records):
+    """The whole ``tvcid discover`` on the speed benchmark's four recordings: its goal, judged in
+    kernel-reference seconds measured in the same run, and where the time went."""
+    from .discover_speed import GOAL_SECONDS
+    from .goals import Goal
+
+    r = records["bench_discover_speed"]
+    stages, simulated = r["stages"], r.get("simulated_seconds") or {}
+    goal = Goal.speed("wall time on 2 cores", r["wall_seconds"],
+                      r["kernel_seconds_per_simulated_second"], GOAL_SECONDS)
+    search = stages["sindy"] + stages["global"] + stages["nested"] + stages["ranking"]
+    text = (_goals_text([goal]) + f"; structure search and ranking {search:.0f} s, next test "
+            f"{stages['next_test']:.0f} s, the set's calibration {stages['mcmc']:.0f} s "
+            f"({'converged' if r['converged'] else 'not converged'}, {r['mcmc_steps']} steps)")
+    if simulated:
+        searched = sum(v for k, v in simulated.items() if k != "mcmc")
+        text += (f"; simulated {searched / 1e6:.2g} million seconds in the search, "
+                 f"{simulated['mcmc'] / 1e6:.2g} million in the chains")
+    return text
+
+
 @dataclass(frozen=True)
 class Claim:
     """One row of the table.
@@ -265,6 +286,11 @@ CLAIMS = (
           next_test, lambda r: r["bench_next_test"]["rows"],
           "python -m studies.benchmarks.next_test --seeds 1004,1009,1016", "bench_next_test",
           "tests/test_discrimination.py::test_discover_names_the_test_that_would_decide_its_set"),
+    Claim("`tvcid discover` on four M000 recordings (two 40 s limit cycles, two 10 s open-loop "
+          "tests), the set's calibration included (goal 600 s on 2 cores)",
+          discover_speed, lambda r: [r["bench_discover_speed"]],
+          "python -m studies.benchmarks.discover_speed", "bench_discover_speed",
+          "tests/test_results_table.py::test_speed_claim_judges_the_stored_run_in_reference_seconds"),
 )
 
 HEADER = """# Results
