@@ -190,6 +190,8 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
     straight = json.loads((straight_discover / "discovery.json").read_text())
     assert not straight["resumed_ranking"]
     assert "sigma" not in straight["posterior"]["parameters"]
+    move = straight["posterior"]["laplace_move"]  # fitted to the chain at step 50 of 60
+    assert move["adapted_at"] == 50 and 0.0 <= move["share"] <= 1.0
     assert {"dead_zone", "delay"} <= set(straight["posterior"]["parameters"])
     only = Structure.parse(straight["structures"][0]["structure"])
     assert straight["decided"] == shared_choices([only])

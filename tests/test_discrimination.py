@@ -173,3 +173,6 @@ def test_report_says_which_members_chains_did_not_converge():
     line = _convergence_line([done, late])
     assert line.startswith("**Not converged**: `b` (2000 steps, 9.5 autocorrelation times)")
     assert "`a`" not in line
+    off = {**late, "posterior": {**late["posterior"], "laplace_move": {"share": 0.0}}}
+    assert "(2000 steps, 9.5 autocorrelation times; the differential-evolution moves alone" in (
+        _convergence_line([off]))

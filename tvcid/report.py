@@ -24,8 +24,14 @@ def _convergence_line(members) -> str:
     if not late:
         return ("Every calibrated structure's chain converged (more than 50 autocorrelation "
                 "times long).")
+    def alone(m):
+        move = m["posterior"].get("laplace_move")
+        return ("; the differential-evolution moves alone: the Laplace move's proposal would be "
+                "accepted too rarely" if move is not None and move["share"] == 0.0 else "")
+
     which = ", ".join(f"`{m['structure']}` ({m['posterior']['iterations']} steps, "
-                      f"{m['posterior']['n_over_tau']:.3g} autocorrelation times)" for m in late)
+                      f"{m['posterior']['n_over_tau']:.3g} autocorrelation times{alone(m)})"
+                      for m in late)
     return (f"**Not converged**: {which}; 50 autocorrelation times are needed. Their intervals, "
             "and the combined ones, are not yet their posteriors': the same command with a larger "
             "`--max-steps` continues the chains.")

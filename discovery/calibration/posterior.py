@@ -150,7 +150,20 @@ class Posterior:
             # per recording, in the order of the recordings (1: no model-discrepancy inflation)
             "inflation": list(getattr(self.calibration, "inflation_", None) or []),
             "at_prior_bound": self.at_prior_bound(),
+            "laplace_move": self.laplace_move(),
         }
+
+    def laplace_move(self) -> dict | None:
+        """How the Laplace independence move served the chain
+        (:class:`.moves.LaplaceAdaptation`): ``share`` of the steps it took at the end (0: switched
+        off, the differential-evolution moves alone), its ``expected_acceptance`` at its last fit
+        and the step of that fit (``adapted_at``); ``None`` where the run had no such move."""
+        info = getattr(self.calibration, "laplace_", None)
+        if not info:
+            return None
+        return {"share": float(info.get("share", 0.0)),
+                "expected_acceptance": info.get("expected_acceptance"),
+                "adapted_at": info.get("adapted_at")}
 
     def at_prior_bound(self, fraction=0.1) -> list:
         """Parameters stuck at a prior bound: the whole 90 % interval within ``fraction`` of the
