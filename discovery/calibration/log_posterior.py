@@ -161,6 +161,7 @@ class LogPosterior:
         _, x, sets = self._prepare(z)
         valid = [i for i, s in enumerate(sets) if s is not None]
         sig = self.sigmas(x[valid]) if valid else np.zeros(0)
+
         def block(term):
             out = np.full((len(sets), term_size(term)), -np.inf)
             if valid:

@@ -35,8 +35,9 @@ def measurement_resolution(recordings, window=10.0, dt=5e-4) -> dict:
 
     For each closed-loop recording, the features likelihood's covariance of its first harmonic
     and frequency over a ``window``-second window (sensor noise by Monte Carlo on the record,
-    plus the cycle's own wander between windows: :class:`discovery.calibration.likelihood.features.FeatureTerm`),
-    over the measured value; the median over the recordings. ``{"amplitude": sd, "frequency":
+    plus the cycle's own wander between windows:
+    :class:`discovery.calibration.likelihood.features.FeatureTerm`), over the measured value; the
+    median over the recordings. ``{"amplitude": sd, "frequency":
     sd}`` (fractions), or ``None`` without a closed-loop recording."""
     from discovery.calibration.likelihood.features import FeatureTerm
 

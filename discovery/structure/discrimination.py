@@ -280,18 +280,20 @@ def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp):
 
 
 def design_over_set(member_draws: dict, candidates, params=None, noise=None, seed=0,
-                              n_truths=24, progress=False) -> DesignRanking:
+                    n_truths=24, progress=False) -> DesignRanking:
     """Rank ``candidates`` for a set of structures the recordings could not tell apart.
 
-    Each member (``member_draws``: structure name -> :class:`.draws.PosteriorDraws`, e.g.
+    Each member (``member_draws``: structure name ->
+    :class:`discovery.prediction.draws.PosteriorDraws`, e.g.
     :func:`discovery.prediction.draws.load_set_draws`) ranks the candidates by
-    :func:`discovery.prediction.design.rank_experiments` on the
-    parameters every member samples (or ``params``); a candidate's information gain and
-    expected width ratios are the members' means (equal weights, as in the set's posterior), and
-    each member's gain is kept. Beside it, the pairs of members the candidate would tell apart at
-    their median models (:func:`discriminating_tests`, at the noise of the new test). A candidate that tells more pairs apart ranks first, then the larger
-    gain: while the structure is open each member's intervals hold only under that member, so
-    a test that decides between them teaches more than one that narrows them all.
+    :func:`discovery.prediction.design.rank_experiments` on the parameters every member samples
+    (or ``params``); a candidate's information gain and expected width ratios are the members'
+    means (equal weights, as in the set's posterior), and each member's gain is kept. Beside it,
+    the pairs of members the candidate would tell apart at their median models
+    (:func:`discriminating_tests`, at the noise of the new test). A candidate that tells more
+    pairs apart ranks first, then the larger gain: while the structure is open each member's
+    intervals hold only under that member, so a test that decides between them teaches more than
+    one that narrows them all.
 
     Returns
     -------

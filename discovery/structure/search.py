@@ -221,7 +221,8 @@ def refine(space, objective, theta0, max_nfev=40, targets=None):
 def refine_all(space, objective, starts, max_nfev=40, targets=None):
     """:func:`refine` from each of ``starts`` (run concurrently); the fits in the same order."""
     return thread_map("refine", REFINE_THREADS,
-                lambda s: refine(space, objective, s, max_nfev=max_nfev, targets=targets), starts)
+                      lambda s: refine(space, objective, s, max_nfev=max_nfev, targets=targets),
+                      starts)
 
 
 def concurrent_map(fn, items):
