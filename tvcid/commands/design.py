@@ -49,10 +49,12 @@ def run(args) -> int:
     if args.truths < 1:
         raise ValueError(f"--truths must be >= 1 (got {args.truths})")
     members = load_set_draws(args.directory, n_draws=args.draws, seed=args.seed)
-    rank = design_over_set if len(members) > 1 else (
-        lambda m, *a, **k: rank_experiments(next(iter(m.values())), *a, **k))
-    ranking = rank(members, candidates, params=params, noise=args.noise, seed=args.seed,
-                   n_truths=args.truths, progress=not args.no_progress)
+    options = dict(params=params, noise=args.noise, seed=args.seed, n_truths=args.truths,
+                   progress=not args.no_progress)
+    if len(members) > 1:
+        ranking = design_over_set(members, candidates, **options)
+    else:
+        ranking = rank_experiments(next(iter(members.values())), candidates, **options)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "design.json", ranking.to_dict())
