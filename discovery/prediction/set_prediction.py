@@ -41,12 +41,12 @@ def measurement_resolution(recordings, window=10.0, dt=5e-4) -> dict:
     sd}`` (fractions), or ``None`` without a closed-loop recording."""
     from discovery.calibration.likelihood.features import FeatureTerm
 
+    features = tuple(_RESOLVED.values())
     rows = []
     for i, rec in enumerate(r for r in recordings if r.kind == "closed"):
-        term = FeatureTerm(rec, window, 0.0, dt, features=("frequency", "H1"),
-                           rng=np.random.default_rng(i))
-        sd = np.sqrt(np.diag(term.cov_hat)) / np.abs(term.observed)
-        rows.append({q: float(sd[("frequency", "H1").index(f)]) for q, f in _RESOLVED.items()})
+        term = FeatureTerm(rec, window, 0.0, dt, features=features, rng=np.random.default_rng(i))
+        sd = dict(zip(features, np.sqrt(np.diag(term.cov_hat)) / np.abs(term.observed)))
+        rows.append({q: float(sd[f]) for q, f in _RESOLVED.items()})
     if not rows:
         return None
     return {q: float(np.median([r[q] for r in rows])) for q in _RESOLVED}

@@ -71,11 +71,11 @@ class Objective:
         """Residual blocks ``[(n, m_i)]``, one per target; invalid sets get penalty rows."""
         from .targets import PENALTY
 
+        targets = targets or self.targets
         n_valid = sum(p is not None for p in param_sets)
         with self._lock:
             self.n_evaluations += n_valid
-            self.simulated_seconds += n_valid * sum(float(t.simulator.t_end)
-                                                    for t in targets or self.targets)
+            self.simulated_seconds += n_valid * sum(float(t.simulator.t_end) for t in targets)
 
         def block(target):
             sets = self._sets_for(target, param_sets)
@@ -85,7 +85,7 @@ class Objective:
                 r[bad] = PENALTY / math.sqrt(r.shape[1])
             return r
 
-        return thread_map("targets", TARGET_THREADS, block, targets or self.targets)
+        return thread_map("targets", TARGET_THREADS, block, targets)
 
     def costs(self, param_sets, targets=None):
         """Cost per target, ``(n, n_targets)``: sum of squared residuals (one unit ~ 1 % error)."""

@@ -56,15 +56,12 @@ def log_posterior():
     return cal.log_posterior_, names
 
 
-def timed(lp, z, threaded, repeats):
-    """Median seconds of ``lp(z)`` with the terms threaded or not, and the values."""
+def timed(lp, z, threaded):
+    """Seconds of one ``lp(z)`` with the terms threaded or not, and its values."""
     threads.THREADED = threaded
-    seconds = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        value = lp(z)
-        seconds.append(time.perf_counter() - t0)
-    return float(np.median(seconds)), value
+    t0 = time.perf_counter()
+    value = lp(z)
+    return time.perf_counter() - t0, value
 
 
 def main(argv=None) -> int:
@@ -75,9 +72,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     repeats = 2 if args.quick else 9
     lp, names = log_posterior()
-    centre = lp.internal(np.array([[getattr(M000(), n) for n in names]]))[0]
+    truth = M000()
+    centre = lp.internal(np.array([[getattr(truth, n) for n in names]]))[0]
     # 1 % of each parameter: in the log where the prior samples the log, else of its value
-    scale = np.array([0.01 if p.log else 0.01 * abs(getattr(M000(), n))
+    scale = np.array([0.01 if p.log else 0.01 * abs(getattr(truth, n))
                       for n, p in zip(names, lp.priors)])
     rng = np.random.default_rng(args.seed)
     batch = centre + scale * rng.standard_normal((BATCH, len(names)))
@@ -89,9 +87,9 @@ def main(argv=None) -> int:
         for label, z in (("point", centre[None, :]), ("batch", batch)):
             t_loop, t_threads = [], []
             for _ in range(repeats):  # interleaved: a slower moment of the machine hits both
-                s, a = timed(lp, z, False, 1)
+                s, a = timed(lp, z, False)
                 t_loop.append(s)
-                s, b = timed(lp, z, True, 1)
+                s, b = timed(lp, z, True)
                 t_threads.append(s)
                 same = same and np.array_equal(a, b)
             rows[label] = {"points": len(z), "seconds_loop": float(np.median(t_loop)),
