@@ -1,8 +1,8 @@
 """studies.benchmarks.set_coverage: a draw's row says, per combined quantity, whether the printed
 90 % interval holds the truth; the goals read the threshold for a velocity-form truth."""
-from studies.benchmarks.set_coverage import coverage_goals, coverage_row, summarise
 from models import M000, M002
 from models.structures import Structure
+from studies.benchmarks.set_coverage import coverage_goals, coverage_row, summarise
 
 
 def _summary(intervals, members=("a",), converged=True, in_set=()):
@@ -40,3 +40,22 @@ def test_error_form_truth_and_the_goals_over_rows():
     assert table["draws"] == 1 and table["failed"] == 1 and table["converged"] == 0
     assert table["inside"] == {"dead zone": 1, "backlash": 1, "delay": 0}
     assert not any(g.met for g in coverage_goals(table))
+
+
+def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
+    """docs/results.md's row for the set coverage: the finished draws, each goal's count, the
+    failed draw and the set sizes; under 30 draws no coverage goal is met, whatever the share."""
+    from studies.benchmarks.results_table import set_coverage
+
+    truth = M002()
+    summary = _summary({"dead_zone[error]": (0.5 * truth.dead_zone, 2 * truth.dead_zone),
+                        "backlash": (0.5 * truth.backlash, 2 * truth.backlash),
+                        "delay": (0.5 * truth.delay, 0.9 * truth.delay)},
+                       members=("a", "b"), in_set=[Structure.of_params(truth).name])
+    rows = [coverage_row(s, truth, Structure.of_params(truth), summary) for s in (1000, 1001)]
+    text = set_coverage({"bench_set_coverage": {"rows": rows + [{"seed": 1002, "error": "boom"}]}})
+    assert text.startswith("2 of 30 draws finished (seeds 1000-1002, 1 failed)")
+    assert "dead zone: truth inside the combined 90 % interval: 2 of 2 = 100%" in text
+    assert "delay: truth inside the combined 90 % interval: 0 of 2 = 0%" in text
+    assert text.count("NOT met") == 3  # three coverage goals under 30 draws; the chains' goal met
+    assert "truth's structure in the set in 2 of 2" in text and "per draw 2-2" in text

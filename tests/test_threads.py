@@ -95,7 +95,8 @@ def test_threaded_log_posterior_is_the_loop_log_posterior(tmp_path, monkeypatch)
 
 def test_likelihood_threads_benchmark_records_equal_numbers_and_both_timings(tmp_path):
     """``python -m studies.benchmarks.likelihood_threads --quick``: its record holds both timings
-    of one point and of a batch and the bit-for-bit comparison (its goals judge the speed-ups)."""
+    of one point and of a batch, the bit-for-bit comparison (its goals judge the speed-ups) and
+    each recording's share of a point's cost."""
     import json
 
     from studies.benchmarks.likelihood_threads import main
@@ -105,6 +106,15 @@ def test_likelihood_threads_benchmark_records_equal_numbers_and_both_timings(tmp
     assert saved["equal"] is True and saved["repeats"] == 2
     assert {k: v["points"] for k, v in saved["rows"].items()} == {"point": 1, "batch": 40}
     assert all(v["seconds_loop"] > 0 and v["seconds_threaded"] > 0 for v in saved["rows"].values())
+    # where a point's time goes: every recording, shares summing to 1, its run and step
+    terms = saved["terms"]
+    assert sorted(terms) == ["m000_closed_A", "m000_closed_B", "m000_open_sine", "m000_open_square"]
+    assert sum(t["share"] for t in terms.values()) == pytest.approx(1.0)
+    assert all(t["simulated_seconds"] > 0 and 0 < t["step"] <= 5e-4 for t in terms.values())
+    # docs/limits.md: cycle B, still settling over its record, runs longer than cycle A; the
+    # square test's switching events need a finer step than the sine's
+    assert terms["m000_closed_B"]["simulated_seconds"] > 1.5 * terms["m000_closed_A"]["simulated_seconds"]
+    assert terms["m000_open_square"]["step"] < terms["m000_open_sine"]["step"]
 
 
 if __name__ == "__main__":  # pragma: no cover

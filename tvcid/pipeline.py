@@ -394,7 +394,7 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None)
 def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
     """MCMC of one member of the set (:func:`discovery.structure.set_posterior.calibrate_member`)
     on all recordings with their offsets removed, checkpointed in ``out``. Returns
-    ``(posterior, priors, simulated seconds, chain file name)``."""
+    ``(posterior, priors, simulated seconds of the start and of the sampling, chain file name)``."""
     from discovery.structure.set_posterior import calibrate_member
     from models import params_from_dict
     from models.structures import Structure
@@ -427,11 +427,12 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     rows = [s for s in summary["structures"]
             if s["indistinguishable_from_best"] and s["merged_into"] is None]
     best_score = rows[0]["score"]
-    members, simulated = [], 0.0
+    members, simulated, start = [], 0.0, 0.0
     for i, row in enumerate(rows[:MAX_MEMBERS]):
         post, priors, seconds, chain = _calibrate_member(row, recs, closed, offsets, fixed, seed,
                                                          quick, max_steps, progress, out)
-        simulated += seconds
+        simulated += seconds["start"] + seconds["sampling"]
+        start += seconds["start"]
         s = post.summary()
         kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
                                   "acceptance", "n_over_tau", "at_prior_bound", "laplace_move")}
@@ -452,6 +453,7 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     summary["set_posterior"] = combined
     summary["timings"]["mcmc"] = time.perf_counter() - t0
     summary.setdefault("simulated_seconds", {})["mcmc"] = simulated
+    summary["simulated_seconds"]["mcmc_start"] = start  # of which the chains' starts
     return summary
 
 

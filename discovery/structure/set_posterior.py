@@ -155,9 +155,9 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     :func:`member_priors`; starts at ``params`` (the member's fit, with the cycle's initial
     state). The sensor noise sd stays at the records' estimate: sampled, it mixes several times
     slower than the physical parameters, and a misfit beyond the noise is the discrepancy
-    factor's business. Returns ``(posterior, priors, simulated seconds)``: the last counts the
-    runs of the start's searches and of this call's steps (a resumed chain's earlier steps are
-    not counted again)."""
+    factor's business. Returns ``(posterior, priors, simulated seconds)``: the last a dict,
+    ``start`` (the set-up and the start's searches) and ``sampling`` (this call's steps; a
+    resumed chain's earlier steps are not counted again)."""
     import warnings
 
     from discovery.calibration import Calibration
@@ -177,7 +177,9 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
                           likelihood="features", window=10.0, n_walkers=member_walkers(len(names)),
                           max_steps=max_steps, seed=seed, backend=backend, progress=progress,
                           global_search=False).fit(recordings)
-    return cal.posterior_, priors, float(cal.log_posterior_.simulated_seconds)
+    total = float(cal.log_posterior_.simulated_seconds)
+    start = float(getattr(cal, "start_simulated_seconds_", total))
+    return cal.posterior_, priors, {"start": start, "sampling": total - start}
 
 
 @dataclass

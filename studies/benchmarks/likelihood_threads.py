@@ -7,7 +7,9 @@ through their features, two open-loop tests through the output error; every para
 structure sampled, as the set's calibration does) is evaluated at one point (what the start's
 searches evaluate) and at a batch of 40 (a step of the ensemble), with the terms simulated
 concurrently (:func:`discovery.threads.thread_map`) and in a plain loop, interleaved, the median
-of the repeats kept. Every figure is a ratio measured in this run on this machine.
+of the repeats kept. Every figure is a ratio measured in this run on this machine. Where a
+point's time goes is printed and kept too (:func:`term_costs`): each recording's share of the
+batch, the seconds it simulates per point and at which step.
 
 Goals: the same numbers bit for bit; one point at least 1.3x as fast threaded, a batch at least
 as fast (on 2 or more cores). Writes ``DIR/bench.json`` (default ``results/bench_likelihood_threads``)
@@ -56,6 +58,29 @@ def log_posterior():
     return cal.log_posterior_, names
 
 
+def term_costs(lp, z, repeats) -> dict:
+    """Per recording (likelihood term), for the batch ``z`` evaluated term by term: the median
+    seconds per point, the share of the sum, the seconds simulated per point (transient and window
+    in closed loop, the record in open loop) and the RK4 step: the simulated length and the step
+    set a point's cost."""
+    _, x, sets = lp._prepare(z)
+    sigma = lp.sigmas(x)
+    out = {}
+    for term in lp.terms:
+        seconds = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            term.loglike(sets, sigma)
+            seconds.append(time.perf_counter() - t0)
+        sim = term.simulator
+        out[term.name] = {"seconds_per_point": float(np.median(seconds)) / len(z),
+                          "simulated_seconds": float(sim.t_end), "step": float(sim.dt)}
+    total = sum(v["seconds_per_point"] for v in out.values())
+    for v in out.values():
+        v["share"] = v["seconds_per_point"] / total
+    return out
+
+
 def timed(lp, z, threaded):
     """Seconds of one ``lp(z)`` with the terms threaded or not, and its values."""
     threads.THREADED = threaded
@@ -100,6 +125,10 @@ def main(argv=None) -> int:
     for label, r in rows.items():
         print(f"{label:6s} {r['points']:3d} points: loop {1e3 * r['seconds_loop']:8.1f} ms, "
               f"threaded {1e3 * r['seconds_threaded']:8.1f} ms, x{r['speedup']:.2f}")
+    terms = term_costs(lp, batch, repeats)
+    for name, t in terms.items():
+        print(f"  {name:18s} {1e3 * t['seconds_per_point']:6.2f} ms per point ({t['share']:.0%}): "
+              f"{t['simulated_seconds']:.1f} s simulated at a {1e3 * t['step']:.4g} ms step")
     goals = [Goal("threaded and plain-loop log posteriors equal bit for bit", float(same), low=1.0,
                   fmt="{:.0f}", shown="equal" if same else "different", target="equal"),
              Goal(f"one point threaded, speed-up on {os.cpu_count()} cores", rows["point"]["speedup"],
@@ -110,6 +139,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "bench.json", {"commit": code_commit(), "quick": args.quick,
                                     "repeats": repeats, "cores": os.cpu_count(), "rows": rows,
+                                    "terms": terms,
                                     "equal": same, "goals_met": [g.met for g in goals],
                                     "load_average_after": os.getloadavg()})
     return report(goals)

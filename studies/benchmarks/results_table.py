@@ -190,6 +190,22 @@ def next_test(records):
             f"in the set: {kept} of {tested}. " + "; ".join(cells))
 
 
+def set_coverage(records):
+    """The discover path's coverage: per goal quantity, the truths inside the printed combined 90 %
+    interval over the finished draws (:func:`.set_coverage.summarise`), its goals, and the
+    draws' sets and chains."""
+    from .set_coverage import MIN_DRAWS, coverage_goals, summarise
+
+    rows = records["bench_set_coverage"]["rows"]
+    table = summarise(rows)
+    seeds = sorted(r["seed"] for r in rows)
+    sizes = [len(r["members"]) for r in rows if "error" not in r]
+    return (f"{table['draws']} of {MIN_DRAWS} draws finished (seeds {seeds[0]}-{seeds[-1]}, "
+            f"{table['failed']} failed); " + _goals_text(coverage_goals(table))
+            + f"; truth's structure in the set in {table['truth_in_set']} of {table['draws']}; "
+            f"members calibrated per draw {min(sizes)}-{max(sizes)}")
+
+
 def discover_speed(records):
     """The whole ``tvcid discover`` on the speed benchmark's four recordings: its goal, judged in
     kernel-reference seconds measured in the same run, and where the time went."""
@@ -205,7 +221,7 @@ def discover_speed(records):
             f"{stages['next_test']:.0f} s, the set's calibration {stages['mcmc']:.0f} s "
             f"({'converged' if r['converged'] else 'not converged'}, {r['mcmc_steps']} steps)")
     if simulated:
-        searched = sum(v for k, v in simulated.items() if k != "mcmc")
+        searched = sum(v for k, v in simulated.items() if not k.startswith("mcmc"))
         text += (f"; simulated {searched / 1e6:.2g} million seconds in the search, "
                  f"{simulated['mcmc'] / 1e6:.2g} million in the chains")
     return text
@@ -286,6 +302,13 @@ CLAIMS = (
           next_test, lambda r: r["bench_next_test"]["rows"],
           "python -m studies.benchmarks.next_test --seeds 1004,1009,1016", "bench_next_test",
           "tests/test_discrimination.py::test_discover_names_the_test_that_would_decide_its_set"),
+    Claim("coverage of `tvcid discover`'s printed (combined) 90 % intervals, structure and "
+          "linear block unknown, truths and designs drawn over the generator's ranges (goal "
+          "80-97 % for dead zone, backlash and delay over >= 30 draws, every chain converged)",
+          set_coverage, lambda r: r["bench_set_coverage"]["rows"],
+          "python -m studies.benchmarks.set_coverage --jobs 2", "bench_set_coverage",
+          "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
+          "_under_thirty"),
     Claim("`tvcid discover` on four M000 recordings (two 40 s limit cycles, two 10 s open-loop "
           "tests), the set's calibration included (goal 600 s on 2 cores)",
           discover_speed, lambda r: [r["bench_discover_speed"]],
