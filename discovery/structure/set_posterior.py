@@ -177,9 +177,9 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
                           likelihood="features", window=10.0, n_walkers=member_walkers(len(names)),
                           max_steps=max_steps, seed=seed, backend=backend, progress=progress,
                           global_search=False).fit(recordings)
-    total = float(cal.log_posterior_.simulated_seconds)
-    start = float(getattr(cal, "start_simulated_seconds_", total))
-    return cal.posterior_, priors, {"start": start, "sampling": total - start}
+    start = cal.start_simulated_seconds_
+    return cal.posterior_, priors, {"start": start,
+                                    "sampling": cal.log_posterior_.simulated_seconds - start}
 
 
 @dataclass
