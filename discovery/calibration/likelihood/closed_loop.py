@@ -27,9 +27,14 @@ MIN_AMPLITUDE_RATIO = 0.2
 
 
 def _crossings(t, x, level):
-    """Linear-interpolated upward crossings of ``level`` by a noise-free ``x``."""
-    i = np.flatnonzero((x[:-1] < level) & (x[1:] >= level))
-    return t[i] + (level - x[i]) / (x[i + 1] - x[i]) * (t[i + 1] - t[i])
+    """Upward crossings of ``level`` by a simulated cycle ``x``, by the rule the record's own
+    crossings follow (:func:`models.features.upward_mean_crossings` with
+    :func:`models.features.crossing_hysteresis`): a ripple or a small second lobe at the level
+    (the band-pass loop's, a controller held at 200 Hz) adds no crossing there, where counting
+    every crossing of the level reads the cycle at a higher frequency than the record's and its
+    harmonics at that wrong frequency (``tests/test_calibration_core.py``)."""
+    amplitude = 0.5 * float(np.max(x) - np.min(x))
+    return upward_mean_crossings(t, x, level, crossing_hysteresis(x, amplitude))
 
 
 def _data_window(recording, window):

@@ -41,7 +41,8 @@ DEFAULT_FEATURES = ("frequency", "H1", "H3", "H5", "H7")
 def cycle_features(t, x, names=DEFAULT_FEATURES):
     """Features of a noise-free cycle, by :func:`models.features.limit_cycle_features`'s rules.
 
-    Frequency from the mean period between the first and last upward mean crossing, harmonic
+    Frequency from the mean period between the first and last upward mean crossing (the
+    record's trigger rule, :func:`.closed_loop._crossings`), harmonic
     amplitudes ``Hk`` over the whole periods between them, ``amplitude = (max - min)/2``. Vectorised
     (no per-sample Python loop), for simulated cycles; returns ``None`` under two whole periods.
     """
