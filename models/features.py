@@ -17,6 +17,7 @@ __all__ = [
     "InsufficientPeriodsError",
     "LimitCycleFeatures",
     "crossing_hysteresis",
+    "cycle_crossings",
     "limit_cycle_features",
     "upward_mean_crossings",
     "white_noise_sd",
@@ -138,6 +139,15 @@ def crossing_hysteresis(x, amplitude) -> float:
     return max(CROSSING_HYSTERESIS * float(amplitude), NOISE_HYSTERESIS * white_noise_sd(x))
 
 
+def cycle_crossings(t, x, level=None):
+    """The upward crossings of ``level`` (default the mean of ``x``) by a cycle ``x``, by the
+    rule every comparison of a simulation with a record uses: :func:`upward_mean_crossings` with
+    :func:`crossing_hysteresis` for the cycle's half peak-to-peak amplitude."""
+    x = np.asarray(x, dtype=float)
+    level = float(np.mean(x)) if level is None else float(level)
+    return upward_mean_crossings(t, x, level, crossing_hysteresis(x, 0.5 * float(np.ptp(x))))
+
+
 def limit_cycle_features(t, delta, n_harmonics=11) -> LimitCycleFeatures:
     """Features of the limit cycle in ``delta(t)``.
 
@@ -166,7 +176,7 @@ def limit_cycle_features(t, delta, n_harmonics=11) -> LimitCycleFeatures:
     if amplitude <= 0:
         raise InsufficientPeriodsError("no oscillation: the signal is constant over the window")
     level = float(np.mean(x))
-    ups = upward_mean_crossings(t, x, level, crossing_hysteresis(x, amplitude))
+    ups = cycle_crossings(t, x, level)
     if ups.size < 3:
         raise InsufficientPeriodsError(
             f"the window of {span:.4g} s holds {max(ups.size - 1, 0)} whole period(s) of the "

@@ -25,7 +25,7 @@ import pysindy as ps
 from scipy.optimize import minimize
 from sklearn.base import BaseEstimator
 
-from models.features import crossing_hysteresis, upward_mean_crossings
+from models.features import cycle_crossings
 from models.recording import load_recordings
 
 from .candidates import Candidate
@@ -164,9 +164,7 @@ class WeakSINDyActuator(ThresholdScan, BaseEstimator):
                 raise ValueError(f"{rec.path or 'recording'}: column 'delta' is constant; SINDy "
                                  "needs a recording in which the actuator moves")
             if rec.kind == "closed":  # the ranking compares cycles: two periods at least
-                amp = 0.5 * float(np.ptp(rec.delta))
-                ups = upward_mean_crossings(rec.t, rec.delta, float(np.mean(rec.delta)),
-                                            crossing_hysteresis(rec.delta, amp))
+                ups = cycle_crossings(rec.t, rec.delta)
                 if ups.size < 3:
                     raise ValueError(
                         f"{rec.path or 'recording'}: the closed-loop record of "

@@ -27,8 +27,7 @@ import numpy as np
 
 from models.features import (
     InsufficientPeriodsError,
-    crossing_hysteresis,
-    upward_mean_crossings,
+    cycle_crossings,
 )
 
 from .samples import as_uniform_samples
@@ -49,7 +48,7 @@ def whole_periods(samples):
     amplitude = 0.5 * (np.max(x) - np.min(x))
     if amplitude <= 0:
         raise InsufficientPeriodsError("no oscillation: the record is constant")
-    ups = upward_mean_crossings(t, x, float(np.mean(x)), crossing_hysteresis(x, amplitude))
+    ups = cycle_crossings(t, x)
     if ups.size < 3:
         raise InsufficientPeriodsError(
             f"the record of {t[-1] - t[0]:.4g} s holds {max(ups.size - 1, 0)} whole period(s) of "

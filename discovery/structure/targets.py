@@ -35,7 +35,7 @@ import numpy as np
 from discovery.calibration.likelihood import estimate_noise
 from models.batch import BatchSimulator, output_rate_for
 from models.edge_timing import edge_timing_for
-from models.features import crossing_hysteresis, upward_mean_crossings
+from models.features import crossing_hysteresis, cycle_crossings, upward_mean_crossings
 from models.hypotheses import DeadZonePosition
 
 __all__ = [
@@ -140,8 +140,7 @@ def fundamental_crossings(ups, sizes=None, max_multiple=MAX_CROSSINGS_PER_PERIOD
 
 def crossing_multiple(t, x, ups):
     """Upward mean crossings per period of ``x`` between its fundamental crossings ``ups``."""
-    half = 0.5 * float(np.ptp(x))
-    every = upward_mean_crossings(t, x, float(np.mean(x)), crossing_hysteresis(x, half))
+    every = cycle_crossings(t, x)
     inside = np.count_nonzero((every >= ups[0] - 1e-9) & (every < ups[-1] - 1e-9))
     return max(1, int(round(inside / (ups.size - 1))))
 
@@ -228,7 +227,7 @@ def cycle_of(t, x, multiple=None):
     level = float(np.mean(x))
     # the record's crossings are counted with the same Schmitt trigger (a flat stretch of the
     # cycle near its mean must not add crossings on one side only)
-    c = upward_mean_crossings(t, x, level, crossing_hysteresis(x, 0.5 * float(np.ptp(x))))
+    c = cycle_crossings(t, x, level)
     if multiple is None:
         c = fundamental_crossings(c, _sizes(t, x, c), signal=(t, x))
     else:

@@ -16,7 +16,7 @@ from models.batch import (
     output_rate_for,
     warm_start_state,
 )
-from models.features import crossing_hysteresis, upward_mean_crossings
+from models.features import cycle_crossings
 
 from .base import LikelihoodTerm, estimate_noise
 
@@ -30,11 +30,11 @@ def _crossings(t, x, level):
     """Upward crossings of ``level`` by a simulated cycle ``x``, by the rule the record's own
     crossings follow (:func:`models.features.upward_mean_crossings` with
     :func:`models.features.crossing_hysteresis`): a ripple or a small second lobe at the level
-    (the band-pass loop's, a controller held at 200 Hz) adds no crossing there, where counting
+    (the band-pass loop's, a controller held at 200 Hz) adds no crossing there
+    (:func:`models.features.cycle_crossings`), where counting
     every crossing of the level reads the cycle at a higher frequency than the record's and its
     harmonics at that wrong frequency (``tests/test_calibration_core.py``)."""
-    amplitude = 0.5 * float(np.max(x) - np.min(x))
-    return upward_mean_crossings(t, x, level, crossing_hysteresis(x, amplitude))
+    return cycle_crossings(t, x, level)
 
 
 def _data_window(recording, window):
@@ -67,9 +67,7 @@ class _ClosedLoopTerm(LikelihoodTerm):
         self.sigma_hat = estimate_noise(self.data)
         self.level = float(np.mean(self.data))
         self.amplitude = 0.5 * float(np.max(self.data) - np.min(self.data))
-        ups = upward_mean_crossings(
-            self.tau, self.data, self.level, crossing_hysteresis(self.data, self.amplitude)
-        )
+        ups = cycle_crossings(self.tau, self.data, self.level)
         if ups.size < 3:
             raise ValueError(
                 f"{self.source}: the recording shows no limit cycle over its last {span:.3g} s "
