@@ -24,7 +24,7 @@ def test_bundled_draw_is_the_generators_own():
     """The bundled provenance is what the generator draws for seed 1000 today (else the benchmark
     would silently remake the data, or the test would run on a stale draw)."""
     stored = json.loads((BUNDLED / "truth" / "scenario.json").read_text())
-    assert stored == provenance(draw_scenario(1000))
+    assert stored == provenance(draw_scenario(1000, ranges="papers"))
     for side in BUNDLED.glob("rec*.json"):
         meta = json.loads(side.read_text())
         assert "hypothesis" not in meta and "parameters" not in meta
@@ -53,7 +53,7 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
         raise AssertionError("the bundled recordings were made again")
 
     monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", no_reference_path)
-    truth = draw_scenario(1000).structure
+    truth = draw_scenario(1000, ranges="papers").structure
     positions = {"dead_zone_position": truth.dead_zone_position.value,
                  "delay_position": truth.delay_position.value}
 
@@ -64,7 +64,7 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
     monkeypatch.setattr(bench, "StructureDiscovery", PositionsFixed)
     shutil.copytree(BUNDLED, tmp_path / "draw1000")
     before = _digests(tmp_path / "draw1000")
-    status = bench_main(["--quick", "--draws", "1", "--out", str(tmp_path)])
+    status = bench_main(["--quick", "--draws", "1", "--ranges", "papers", "--out", str(tmp_path)])
     assert _digests(tmp_path / "draw1000") == before
     bench_json = json.loads((tmp_path / "bench.json").read_text())
     (row,) = bench_json["rows"]
@@ -88,7 +88,7 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
 @pytest.mark.slow
 def test_bundled_draw_is_rebuilt_byte_for_byte(tmp_path):
     """The reference path remakes the bundled recordings exactly (about 4 minutes)."""
-    paths = write_recordings(draw_scenario(1000), tmp_path)
+    paths = write_recordings(draw_scenario(1000, ranges="papers"), tmp_path)
     for p in paths:
         for q in (p, p.with_suffix(".json")):
             assert hashlib.sha256(q.read_bytes()).hexdigest() == \

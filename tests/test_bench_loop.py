@@ -52,9 +52,9 @@ def test_quick_loop_on_one_cycle_adds_the_suggested_test_from_the_truth(tmp_path
 
     monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
         pop=3, gens=3, open_pop=3, open_gens=3, nfev=4, rank_nfev=2))
-    full = draw_scenario(1000)
+    full = draw_scenario(1000, ranges="papers")
     one = dataclasses.replace(full, recordings=full.recordings[:1])
-    monkeypatch.setattr(loop, "draw_scenario", lambda seed: one)
+    monkeypatch.setattr(loop, "draw_scenario", lambda seed, ranges: one)
     monkeypatch.setattr(loop, "QUICK", loop.LoopConfig(
         rounds=1, max_steps=40, closure_draws=6,
         fixed={"dead_zone_position": "velocity", "friction_offset": 0.0}))

@@ -62,7 +62,7 @@ def _calibrate(seed, directory, scatter, walkers, max_steps):
     from studies.benchmarks import scenarios
     from studies.benchmarks.coverage import priors_for
 
-    scenario = draw_scenario(seed, structure=PLACEMENT)
+    scenario = draw_scenario(seed, structure=PLACEMENT, ranges="papers")
     first = next(r for r in scenario.recordings if r.kind == "closed")
     scenario = replace(scenario, recordings=(first,))
     with mock.patch.object(scenarios, "simulate_reference", simulate):

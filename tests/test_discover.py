@@ -455,7 +455,7 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
     from discovery.structure.targets import make_target
     from models.hypotheses import ActuatorParams
 
-    scenario = shortened(draw_scenario(1002), closed=12.0, open_=6.0)
+    scenario = shortened(draw_scenario(1002, ranges="papers"), closed=12.0, open_=6.0)
     paths = write_recordings(scenario, tmp_path)
     disc = StructureDiscovery(seed=0, use_sindy=False)
     targets = [make_target(load, disc.dt) for load in _loaded(paths)]
@@ -600,7 +600,7 @@ def test_wandering_cycles_raise_the_margin_floor(tmp_path):
         indistinguishable_set([best, truth], n_recordings=2, floors=given)
         assert truth.indistinguishable_from_best is inside
 
-    scenario = draw_scenario(1019)
+    scenario = draw_scenario(1019, ranges="papers")
     closed = next(r for r in scenario.recordings if r.kind == "closed")
     run = simulate(scenario.truth, ClosedLoop(closed.kp, closed.kd, closed.mu), 25.0, rate=1000.0)
     path = save_recording(tmp_path / "cycle.csv", *recording_from_trajectory(run))

@@ -33,7 +33,7 @@ BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1017_squ
 
 def squares_scenario():
     """Draw 1017 with its open-loop squares only, each cut to its first 4 s."""
-    scenario = draw_scenario(1017)
+    scenario = draw_scenario(1017, ranges="papers")
     opens = tuple(dataclasses.replace(r, duration=4.0) for r in scenario.recordings if r.kind == "open")
     return dataclasses.replace(scenario, recordings=opens)
 

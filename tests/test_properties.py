@@ -102,7 +102,7 @@ from models.recording import (
     save_recording,
     sidecar_path,
 )
-from models.simulate import DEFAULT_BOUND
+from models.simulate import DEFAULT_BOUND, DEFAULT_DT
 from models.structures import Structure
 from studies.benchmarks.scenarios import draw_design, draw_truth
 from studies.h3_initial_conditions import Config as BasinConfig
@@ -267,10 +267,15 @@ def _experiments(design, data):
     return out
 
 
+def _step_for(rate):
+    """The longest step up to the default that the acquisition rate divides (2 kHz: 1/6000 s)."""
+    return 1.0 / (rate * math.ceil(1.0 / (rate * DEFAULT_DT) - 1e-9))
+
+
 def _check_run(params, experiment, t_end, rate):
     """Simulate; a returned trajectory must be finite and consistent. ``(diverged, trajectory)``."""
     try:
-        tr = simulate(params, experiment, t_end, rate=rate)
+        tr = simulate(params, experiment, t_end, dt=_step_for(rate), rate=rate)
     except SimulationDiverged as exc:
         assert "diverged" in str(exc)
         event("diverged")
@@ -295,7 +300,8 @@ def _check_run(params, experiment, t_end, rate):
 def _check_batch(params, experiments, t_end, rate, singles):
     """The batch runs diverge where the single ones do and otherwise record the same signals
     (``u`` is the command in both, never the solver's averages of a square command's edges)."""
-    batch = simulate_batch([params] * len(experiments), experiments, t_end, rate=rate)
+    batch = simulate_batch([params] * len(experiments), experiments, t_end, dt=_step_for(rate),
+                           rate=rate)
     for i, (diverged, tr) in enumerate(singles):
         assert batch.diverged[i] == diverged, (i, batch.status[i])
         if not diverged:

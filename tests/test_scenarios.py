@@ -10,10 +10,10 @@ from models.hypotheses import DeadZonePosition
 from models.recording import load_recording
 from models.structures import structure_space
 from studies.benchmarks.scenarios import (
+    RecordingDesign,
     draw_design,
     draw_scenario,
     draw_truth,
-    RecordingDesign,
     oscillates,
     record_added_test,
     shortened,
@@ -27,12 +27,16 @@ def test_same_seed_same_scenario_other_seed_other():
     assert a.to_dict() != c.to_dict()
 
 
-def test_truths_cover_every_kept_structure_within_the_stated_ranges():
+@pytest.mark.parametrize("ranges, factor, delay", [("wide", math.sqrt(10.0), (0.8e-3, 8e-3)),
+                                                   ("papers", 2.5, (1e-3, 8e-3))])
+def test_truths_cover_every_kept_structure_within_the_stated_ranges(ranges, factor, delay):
+    """Every kept structure is drawn; each parameter within its range (a decade for the thresholds
+    and the delay under ``wide``), and the draws reach both ends of each range."""
     rng = np.random.default_rng(0)
     kept, _ = structure_space()
-    seen = set()
+    seen, spread = set(), {"dead_zone": [], "backlash": [], "delay": []}
     for _ in range(600):
-        p = draw_truth(rng)
+        p = draw_truth(rng, ranges=ranges)
         seen.add(p.dead_zone_position.value + p.delay_position.value
                  + str((p.friction_offset != 0, p.backlash != 0, p.bandpass_gain != 0)))
         assert 0.7 * 305500 <= p.gain <= 1.3 * 305500
@@ -40,43 +44,70 @@ def test_truths_cover_every_kept_structure_within_the_stated_ranges():
         assert 0.7 * 14520 <= p.stiffness <= 1.3 * 14520
         assert 0.85 * 1.0697 <= p.feedback_gain <= 1.15 * 1.0697
         centre = 0.0083 if p.dead_zone_position is DeadZonePosition.VELOCITY else 1.2e-3
-        assert centre / 2.5 <= p.dead_zone <= centre * 2.5
-        assert 1e-3 <= p.delay <= 8e-3
+        assert centre / factor <= p.dead_zone <= centre * factor
+        spread["dead_zone"].append(p.dead_zone / centre)
+        assert delay[0] <= p.delay <= delay[1]
+        spread["delay"].append(p.delay)
         if p.friction_offset != 0:
             assert -0.9 * p.dead_zone <= p.friction_offset <= -0.3 * p.dead_zone
         if p.backlash != 0:
-            assert 1.1625e-4 / 2.5 <= p.backlash <= 1.1625e-4 * 2.5
+            assert 1.1625e-4 / factor <= p.backlash <= 1.1625e-4 * factor
+            spread["backlash"].append(p.backlash / 1.1625e-4)
         if p.bandpass_gain != 0:
             assert 30 <= p.bandpass_gain <= 100 and 0.008 <= p.bandpass_saturation <= 0.02
     assert len(seen) == len(kept)
+    for name, values in spread.items():
+        span = max(values) / min(values)
+        wanted = delay[1] / delay[0] if name == "delay" else factor**2
+        assert 0.8 * wanted <= span <= wanted, name
 
 
-def test_designs_within_the_stated_ranges():
+@pytest.mark.parametrize("ranges, rates, waveforms", [
+    ("wide", {200.0, 500.0, 1000.0, 2000.0}, {"square", "sine", "piecewise"}),
+    ("papers", {200.0, 1000.0}, {"square", "sine"})])
+def test_designs_within_the_stated_ranges(ranges, rates, waveforms):
     rng = np.random.default_rng(1)
-    n_open, rates = [], set()
+    n_open, seen_rates, seen_waveforms = [], set(), set()
     for _ in range(300):
-        recs, acq = draw_design(rng)
+        recs, acq = draw_design(rng, ranges)
         closed = [r for r in recs if r.kind == "closed"]
         assert 1 <= len(closed) <= 3
         n_open.append(len(recs) - len(closed))
         for r in recs:
-            rates.add(r.rate)
+            seen_rates.add(r.rate)
             if r.kind == "closed":
                 assert 20 <= r.duration <= 40 and r.controller_rate in (None, 200.0)
+                continue
+            seen_waveforms.add(r.waveform)
+            assert 5e-3 <= r.amplitude <= 30e-3 and 0.3 <= r.frequency <= 3.0
+            assert 8 <= r.duration <= 12
+            if r.waveform == "piecewise":
+                dwell = np.diff((0.0,) + r.edges)
+                assert len(r.levels) == len(r.edges) + 1 and r.edges[-1] < r.duration
+                assert np.all(np.abs(r.levels) <= r.amplitude)
+                half = 0.5 / r.frequency
+                assert np.all((dwell >= 0.5 * half - 1e-12) & (dwell <= 1.5 * half + 1e-12))
+                u = r.experiment().command(np.array([0.0, r.edges[0] + 1e-9]))
+                assert u[0] == r.levels[0] and u[1] == r.levels[1]
             else:
-                assert r.waveform in ("square", "sine")
-                assert 5e-3 <= r.amplitude <= 30e-3 and 0.3 <= r.frequency <= 3.0
-                assert 8 <= r.duration <= 12
+                assert r.edges == () and r.levels == ()
         assert 1e-5 <= acq.noise_sd <= 1e-4 and abs(acq.offset) <= 3e-4
         assert acq.quantisation == 0 or 5e-6 <= acq.quantisation <= 3e-5
-    assert set(n_open) == {0, 1, 2} and rates == {200.0, 1000.0}
+    assert set(n_open) == {0, 1, 2} and seen_rates == rates and seen_waveforms == waveforms
+
+
+def test_unknown_ranges_get_one_line():
+    with pytest.raises(ValueError, match="unknown ranges 'narrow'; choose one of wide, papers"):
+        draw_scenario(1, ranges="narrow")
 
 
 def test_drawn_truth_oscillates_at_every_setting_and_recordings_read_as_measured(tmp_path):
-    """Draw 24 (a 200 Hz cycle and square, sensor offset and quantisation), shortened: the truth
-    oscillates, and the recordings read back as measured ones (no truth in the sidecars)."""
-    sc = shortened(draw_scenario(24), closed=6.0, open_=4.0)
+    """Draw 2 (a cycle with its controller held at 200 Hz, a square and a staircase, all acquired
+    at 2 kHz, sensor offset and quantisation), shortened: the truth oscillates, and the recordings
+    read back as measured ones (no truth in the sidecars, commands only as samples)."""
+    sc = shortened(draw_scenario(2), closed=6.0, open_=4.0)
     assert sc.acquisition.quantisation > 0 and sc.acquisition.offset != 0
+    assert {r.waveform for r in sc.recordings if r.kind == "open"} == {"square", "piecewise"}
     for rd in sc.recordings:
         if rd.kind == "closed":
             assert oscillates(sc.truth, rd.experiment())
@@ -93,7 +124,9 @@ def test_drawn_truth_oscillates_at_every_setting_and_recordings_read_as_measured
             assert (rec.meta["kp"], rec.meta["kd"], rec.meta["mu"]) == (rd.kp, rd.kd, rd.mu)
         else:  # the command is in the samples only, no waveform in the sidecar
             assert "waveform" not in meta
-            assert np.ptp(rec.u) == pytest.approx(2 * rd.amplitude, rel=0.05)
+            shown = [v for e, v in zip((0.0,) + rd.edges, rd.levels) if e <= rd.duration]
+            span = np.ptp(shown) if rd.waveform == "piecewise" else 2 * rd.amplitude
+            assert np.ptp(rec.u) == pytest.approx(span, rel=0.05)
     truth = json.loads((tmp_path / "truth" / "scenario.json").read_text())
     assert truth["structure"] == sc.structure.name
     assert math.isclose(truth["truth"]["dead_zone"], sc.truth.dead_zone)

@@ -63,7 +63,7 @@ CYCLE_TOL = {"static_gain": 0.03, "amplitude": 0.045, "frequency": 0.004}
 
 @functools.lru_cache(maxsize=None)
 def _drawn(seed):
-    return draw_scenario(seed, structure=PLACEMENT)
+    return draw_scenario(seed, structure=PLACEMENT, ranges="papers")
 
 
 def _draw(seed, rate=1000.0, **truth_overrides):

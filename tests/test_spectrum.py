@@ -69,7 +69,7 @@ def _drawn(seed):
     """Draw ``seed`` of the shared generator (:func:`studies.benchmarks.scenarios.draw_scenario`: truths
     over every structure) at its first limit-cycle setting (controller, hold and acquisition
     rate): ``(scenario, experiment, rate)``."""
-    scenario = draw_scenario(seed)
+    scenario = draw_scenario(seed, ranges="papers")
     first = next(r for r in scenario.recordings if r.kind == "closed")
     return scenario, first.experiment(), first.rate
 

@@ -9,10 +9,10 @@ among the posterior samples is uniform (simulation-based calibration). Deciding 
 ``DIR/ranks.png`` (rank histograms per parameter; flat is calibrated, U-shaped is overconfident,
 a hump is underconfident) and the coverage table in ``DIR/bench.json``.
 
-Each draw comes from the generator shared with the discovery benchmark
-(:func:`studies.benchmarks.scenarios.draw_scenario`: a truth over every structure, an experiment design with
-limit cycles at 1-3 controller settings, open-loop tests or none, 200 Hz or 1 kHz acquisition,
-noise, sensor offset, quantisation); every third draw is forced onto a structure with a friction
+Each draw comes from the generator shared with the discovery benchmark, within its ``papers``
+ranges (:func:`studies.benchmarks.scenarios.draw_scenario`: a truth over every structure, an
+experiment design with limit cycles at 1-3 controller settings, open-loop tests or none, 200 Hz or
+1 kHz acquisition, noise, sensor offset, quantisation); every third draw is forced onto a structure with a friction
 offset and a dead zone on the velocity signal (the ridge the limit cycle leaves between them).
 Its recordings are made by the plain-Python reference path and read back as measured
 (sidecars without truth). The calibration gets the true structure and the true linear block, and
@@ -67,8 +67,7 @@ from .goals import report as goal_report
 from .scenarios import (
     BACKLASH_CENTRE,
     DEAD_ZONE_CENTRE,
-    DELAY_RANGE,
-    RANGE_FACTOR,
+    RANGES,
     draw_scenario,
     shortened,
     write_recordings,
@@ -76,6 +75,9 @@ from .scenarios import (
 
 #: Parameters sampled when the truth's structure has them.
 SAMPLED = ("dead_zone", "backlash", "delay", "friction_offset")
+#: The generator's ranges of this benchmark's draws (the structure is given, the priors built on
+#: the ranges: the papers' rig).
+DRAW_RANGES = "papers"
 #: How much wider than the generator's ranges the priors are.
 PRIOR_WIDENING = 1.5
 LEVEL = 0.90
@@ -116,10 +118,11 @@ def priors_for(structure):
     """The generator's ranges, widened by ``PRIOR_WIDENING``, for the sampled parameters."""
     from discovery.calibration.priors import LogUniform, Uniform
 
-    w = RANGE_FACTOR * PRIOR_WIDENING
+    ranges = RANGES[DRAW_RANGES]
+    w = ranges.threshold_factor * PRIOR_WIDENING
     z = DEAD_ZONE_CENTRE[structure.dead_zone_position.value]
     priors = {"dead_zone": LogUniform(z / w, z * w),
-              "delay": LogUniform(DELAY_RANGE[0] / PRIOR_WIDENING, DELAY_RANGE[1] * PRIOR_WIDENING)}
+              "delay": LogUniform(ranges.delay[0] / PRIOR_WIDENING, ranges.delay[1] * PRIOR_WIDENING)}
     if structure.backlash:
         priors["backlash"] = LogUniform(BACKLASH_CENTRE / w, BACKLASH_CENTRE * w)
     if structure.friction:
@@ -145,7 +148,7 @@ def coverage_scenario(index, config: Config):
         kept, _ = structure_space()
         ridge = [s for s in kept if s.friction and s.dead_zone_position.value == "velocity"]
         structure = ridge[int(np.random.default_rng(seed).integers(len(ridge)))]
-    scenario = draw_scenario(seed, structure=structure)
+    scenario = draw_scenario(seed, structure=structure, ranges=DRAW_RANGES)
     if config.closed_seconds or config.open_seconds:
         scenario = shortened(scenario, closed=config.closed_seconds, open_=config.open_seconds)
     return scenario

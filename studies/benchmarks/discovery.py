@@ -1,11 +1,12 @@
 """Discovery benchmark: random truths and designs, data from the reference path, read as measured.
 
-``python -m studies.benchmarks.discovery [--quick] [--draws N] [--seed S] [--jobs J | --dask ADDRESS]
-[--out DIR] [--rederive] [--floor-scan]``
+``python -m studies.benchmarks.discovery [--quick] [--draws N] [--seed S] [--ranges wide|papers]
+[--jobs J | --dask ADDRESS] [--out DIR] [--rederive] [--floor-scan]``
 
-Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded) is a truth over every structure of the
-grammar and an experiment design (limit cycles at 1-3 controller settings, open-loop squares and
-sines or none, 200 Hz or 1 kHz, noise, sensor offset, quantisation). Its recordings are made by
+Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded, within the generator's
+``--ranges``) is a truth over every structure of the grammar and an experiment design (limit
+cycles at 1-3 controller settings, open-loop tests or none, 200 Hz to 2 kHz, noise, sensor offset,
+quantisation). Its recordings are made by
 the plain-Python reference simulator (a second implementation), written with measured-style
 sidecars (no hypothesis, no parameters, commands only as samples) and given to
 :class:`discovery.structure.StructureDiscovery`.
@@ -66,7 +67,13 @@ from models.strict_json import write_json
 from models.structures import CHOICES, Structure, shared_choices
 
 from ..common import code_commit
-from .draws import add_executor_options, finished_rows, run_draws
+from .draws import (
+    add_executor_options,
+    add_ranges_option,
+    finished_rows,
+    row_ranges,
+    run_draws,
+)
 from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
@@ -114,8 +121,8 @@ def cost_at_truth(targets, truth) -> float:
     return float(Objective(targets).costs([truth])[0].sum())
 
 
-def run_draw(seed, out_dir, quick):
-    scenario = draw_scenario(seed)
+def run_draw(seed, out_dir, quick, ranges="wide"):
+    scenario = draw_scenario(seed, ranges=ranges)
     draw_dir = out_dir / f"draw{seed:03d}"
     t0 = time.perf_counter()
     paths = write_recordings(scenario, draw_dir, reuse=True)
@@ -239,9 +246,9 @@ def undecided_marked(row):
     return row
 
 
-def failed_draw(seed, exc):
+def failed_draw(seed, exc, ranges="wide"):
     """The row of a draw whose discovery raised: wrong on every count."""
-    scenario = draw_scenario(seed)
+    scenario = draw_scenario(seed, ranges=ranges)
     return {"seed": seed, "structure": scenario.structure.name, "design": scenario.to_dict(),
             "error": f"{type(exc).__name__}: {exc}", "winner": None, "right_winner": False,
             "truth_in_set": False, "set_size": 0, "set": [], "right_or_in_small_set": False,
@@ -249,12 +256,12 @@ def failed_draw(seed, exc):
             "seconds_discovery": math.nan, "commit": CODE_COMMIT}
 
 
-def guarded_draw(seed, out_dir, quick):
+def guarded_draw(seed, out_dir, quick, ranges="wide"):
     """:func:`run_draw`, or :func:`failed_draw`'s row if discovery raised (a failed draw is wrong)."""
     try:
-        return run_draw(seed, out_dir, quick)
+        return run_draw(seed, out_dir, quick, ranges)
     except (ValueError, RuntimeError, ArithmeticError) as exc:
-        return failed_draw(seed, exc)
+        return failed_draw(seed, exc, ranges)
 
 
 def choice_verdicts(row):
@@ -306,14 +313,16 @@ def summarise(rows, key=structure_class):
     return table
 
 
-def draw_floors(seed, out_dir):
+def draw_floors(seed, out_dir, ranges="wide"):
     """The margin floors (:func:`discovery.structure.indistinguishable.margin_floors`) of draw
-    ``seed``'s recordings, regenerated into ``out_dir/drawNNN`` unless they are there."""
+    ``seed``'s recordings (drawn within ``ranges``), regenerated into ``out_dir/drawNNN`` unless
+    they are there."""
     from discovery.structure.estimator import validate_recordings
     from discovery.structure.indistinguishable import margin_floors
     from discovery.structure.targets import make_target
 
-    paths = write_recordings(draw_scenario(seed), Path(out_dir) / f"draw{seed:03d}", reuse=True)
+    paths = write_recordings(draw_scenario(seed, ranges=ranges), Path(out_dir) / f"draw{seed:03d}",
+                             reuse=True)
     dt = StructureDiscovery().dt
     return margin_floors([make_target(r, dt) for r in validate_recordings(paths)])
 
@@ -454,6 +463,7 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="a handful of draws, no SINDy seeds")
     parser.add_argument("--draws", type=int, default=None, help="number of draws (default 30, quick 2)")
     parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
+    add_ranges_option(parser)
     add_executor_options(parser, "draws run at once, one process each (default 1)")
     parser.add_argument("--out", default="results/bench_discovery", help="output directory")
     parser.add_argument("--rederive", action="store_true",
@@ -470,7 +480,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bench.json"
     rows = [undecided_marked(r) if "error" not in r else r  # resume: finished draws are kept
-            for r in finished_rows(path, args.quick, args.seed, n)]
+            for r in finished_rows(path, args.quick, args.seed, n, args.ranges)]
 
     def save():
         write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows),
@@ -489,13 +499,14 @@ def main(argv=None) -> int:
         save()
 
     if args.rederive:
-        rows = [r if "error" in r else rederived(r, draw_floors(r["seed"], out)) for r in rows]
+        rows = [r if "error" in r else rederived(r, draw_floors(r["seed"], out, row_ranges(r)))
+                for r in rows]
         for r in rows:
             print(f"draw {r['seed']}: {r.get('set_rule_check', r.get('error'))}", flush=True)
         save()
     if args.floor_scan:
-        scan = floor_scan(rows, {r["seed"]: draw_floors(r["seed"], out) for r in rows
-                                 if "error" not in r})
+        scan = floor_scan(rows, {r["seed"]: draw_floors(r["seed"], out, row_ranges(r))
+                                 for r in rows if "error" not in r})
         write_json(out / "floor_scan.json", scan.to_dict())
         ax = scan.plot()
         ax.figure.tight_layout()
@@ -509,7 +520,8 @@ def main(argv=None) -> int:
     done = {r["seed"] for r in rows}
     seeds = ([] if args.rederive or args.floor_scan
              else [s for s in range(args.seed, args.seed + n) if s not in done])
-    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record, dask=args.dask)
+    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record, dask=args.dask,
+              ranges=args.ranges)
     table = summarise(rows)
     print(f"\n{'class':42s} draws  winner  right|set<=3  set<=3  ceiling  oracle  ident<=5%  "
           "choices right  wrong  median s")

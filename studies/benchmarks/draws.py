@@ -4,22 +4,45 @@ benchmark, or on a Dask cluster (:mod:`discovery.executors`)."""
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 from pathlib import Path
 
-__all__ = ["add_draw_options", "add_executor_options", "finished_rows", "run_benchmark", "run_draws"]
+from .scenarios import RANGES
+
+__all__ = ["add_draw_options", "add_executor_options", "add_ranges_option", "finished_rows",
+           "row_ranges", "run_benchmark", "run_draws"]
 
 
-def finished_rows(path, quick, first, n) -> list:
+def row_ranges(row) -> str:
+    """The generator's ranges a row's draw was made with (a failed row's ``ranges``, else its
+    ``design``'s; rows without either, and the coverage benchmark's, whose ``design`` is its list
+    of recordings, were drawn within the papers')."""
+    design = row.get("design")
+    return row.get("ranges") or (design.get("ranges", "papers") if isinstance(design, dict)
+                                 else "papers")
+
+
+def finished_rows(path, quick, first, n, ranges=None) -> list:
     """Rows of ``path`` (a benchmark's ``bench.json``) of the same mode (``quick``) whose seeds
-    lie in ``first .. first + n - 1``: what a rerun keeps."""
+    lie in ``first .. first + n - 1`` (and drawn within ``ranges``, when given): what a rerun
+    keeps."""
     path = Path(path)
     if not path.exists():
         return []
     old = json.loads(path.read_text())
     if old.get("quick") != quick:
         return []
-    return [r for r in old["rows"] if first <= r["seed"] < first + n]
+    return [r for r in old["rows"] if first <= r["seed"] < first + n
+            and (ranges is None or row_ranges(r) == ranges)]
+
+
+def add_ranges_option(parser):
+    """``--ranges NAME``: the generator's ranges of the draws (:data:`.scenarios.RANGES`)."""
+    parser.add_argument("--ranges", choices=tuple(RANGES), default="wide",
+                        help="the generator's ranges: wide (thresholds and delays over a decade, "
+                             "200 Hz-2 kHz, staircase commands; default) or papers (near the "
+                             "papers' rig)")
 
 
 def _dask_address(text):
@@ -43,16 +66,19 @@ def add_executor_options(parser, jobs_help):
                             "pip install tvcid[dask] (docs/cluster.md)")
 
 
-def run_draws(draw, seeds, out, quick, jobs, record, dask=None):
-    """``draw(seed, out, quick)`` for every seed, ``jobs`` at once in worker processes
-    (:func:`discovery.parallel.process_pool`: they end with this process) or on the Dask
-    cluster ``dask`` (:func:`discovery.executors.executor_from`); ``record(seed, row)`` as each
-    ends, in seed order."""
+def run_draws(draw, seeds, out, quick, jobs, record, dask=None, ranges=None):
+    """``draw(seed, out, quick)`` (with ``ranges=ranges`` when given) for every seed, ``jobs`` at
+    once in worker processes (:func:`discovery.parallel.process_pool`: they end with this process)
+    or on the Dask cluster ``dask`` (:func:`discovery.executors.executor_from`);
+    ``record(seed, row)`` as each ends, in seed order."""
     seeds = list(seeds)
     n = len(seeds)
     if not n:
         return
     from discovery.executors import executor_from
+
+    if ranges is not None:
+        draw = functools.partial(draw, ranges=ranges)
 
     # locally, one draw (or --jobs 1 or less) runs in this process: a pool would only add its
     # start-up
@@ -64,11 +90,12 @@ def run_draws(draw, seeds, out, quick, jobs, record, dask=None):
 def add_draw_options(parser, quick_help, quick_draws, out):
     """The options every draw benchmark takes: ``--quick`` (help ``quick_help``), ``--draws N``
     (default 30, ``quick_draws`` with ``--quick``), ``--seed S`` of the first draw (1000),
-    ``--jobs J`` or ``--dask ADDRESS``, and ``--out DIR`` (default ``out``)."""
+    ``--ranges NAME``, ``--jobs J`` or ``--dask ADDRESS``, and ``--out DIR`` (default ``out``)."""
     parser.add_argument("--quick", action="store_true", help=quick_help)
     parser.add_argument("--draws", type=int, default=None,
                         help=f"number of draws (default 30, quick {quick_draws})")
     parser.add_argument("--seed", type=int, default=1000, help="seed of the first draw")
+    add_ranges_option(parser)
     add_executor_options(parser, "draws run at once, one process each")
     parser.add_argument("--out", default=out, help="output directory")
     parser.set_defaults(quick_draws=quick_draws)
@@ -85,7 +112,8 @@ def run_benchmark(args, draw, describe, save) -> list:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bench.json"
-    rows = finished_rows(path, args.quick, args.seed, n)  # resume: finished draws are kept
+    # resume: finished draws of the same ranges are kept
+    rows = finished_rows(path, args.quick, args.seed, n, args.ranges)
 
     def record(seed, row):
         rows.append(row)
@@ -95,5 +123,5 @@ def run_benchmark(args, draw, describe, save) -> list:
 
     done = {r["seed"] for r in rows}
     run_draws(draw, [s for s in range(args.seed, args.seed + n) if s not in done], out, args.quick,
-              args.jobs, record, dask=args.dask)
+              args.jobs, record, dask=args.dask, ranges=args.ranges)
     return rows

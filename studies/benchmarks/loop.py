@@ -1,10 +1,10 @@
 """Does following the suggested tests close the set? The experiment-loop benchmark.
 
-``python -m studies.benchmarks.loop [--quick] [--draws N] [--seed S] [--jobs J | --dask ADDRESS]
-[--out DIR]``
+``python -m studies.benchmarks.loop [--quick] [--draws N] [--seed S] [--ranges wide|papers]
+[--jobs J | --dask ADDRESS] [--out DIR]``
 
 For each draw of the discovery benchmark (:func:`studies.benchmarks.scenarios.draw_scenario`,
-the same seeds), ``tvcid discover`` runs on the draw's recordings (:func:`tvcid.pipeline.discover`,
+the same seeds and ``--ranges``), ``tvcid discover`` runs on the draw's recordings (:func:`tvcid.pipeline.discover`,
 the set calibrated); then, up to ``--rounds`` times while the set is not closed, the suggested
 next test is recorded from the truth by the plain-Python reference path, measured by the draw's
 sensor and read back as a measured recording, and added to the run
@@ -135,13 +135,13 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
             "seconds_closure": time.perf_counter() - t0}
 
 
-def run_draw(seed, out_dir, quick, config=None) -> dict:
+def run_draw(seed, out_dir, quick, config=None, ranges="wide") -> dict:
     """The draw's discovery, then up to ``config.rounds`` suggested tests added."""
     from discovery.structure.discrimination import default_candidates
     from tvcid.pipeline import add_recordings, discover
 
     config = config or (QUICK if quick else FULL)
-    scenario = draw_scenario(seed)
+    scenario = draw_scenario(seed, ranges=ranges)
     out_dir = Path(out_dir)
     paths = write_recordings(scenario, out_dir / f"draw{seed:03d}", reuse=True)
     run_dir = out_dir / f"draw{seed:03d}_loop"
@@ -168,12 +168,13 @@ def run_draw(seed, out_dir, quick, config=None) -> dict:
             "rounds": rounds, "commit": CODE_COMMIT}
 
 
-def guarded_draw(seed, out_dir, quick) -> dict:
+def guarded_draw(seed, out_dir, quick, ranges="wide") -> dict:
     """:func:`run_draw`, a failure recorded as a row (counted against every goal)."""
     try:
-        return run_draw(seed, out_dir, quick)
+        return run_draw(seed, out_dir, quick, ranges=ranges)
     except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
-        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "commit": CODE_COMMIT}
+        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "ranges": ranges,
+                "commit": CODE_COMMIT}
 
 
 def summarise(rows, rounds=ROUNDS) -> dict:

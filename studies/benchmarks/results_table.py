@@ -73,6 +73,18 @@ def commits_text(rows) -> str:
     return f"**rows at {len(counts)} commits**: {parts}"
 
 
+def ranges_text(rows) -> str:
+    """The generator's ranges of the rows' draws (:func:`.draws.row_ranges`), for rows that are
+    draws; empty otherwise."""
+    from .draws import row_ranges
+
+    counts = Counter(row_ranges(r) for r in rows if "design" in r or "ranges" in r)
+    if not counts:
+        return ""
+    return "; draws within the generator's " + ", ".join(
+        f"`{name}` ranges" + (f" ({n})" if len(counts) > 1 else "") for name, n in sorted(counts.items()))
+
+
 def _goals_text(goals) -> str:
     return "; ".join(f"goal {g.text()}" for g in goals)
 
@@ -283,17 +295,20 @@ CLAIMS = (
           "test_widening_compares_interval_widths_with_and_without_the_discrepancy_term"),
     Claim("discovery on random truths and designs (quick searches, seeds 1000-1029)",
           discovery_quick, lambda r: r["bench_discovery_quick"]["rows"],
-          "python -m studies.benchmarks.discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
+          "python -m studies.benchmarks.discovery --quick --draws 30 --ranges papers --jobs 2",
+          "bench_discovery_quick",
           "tests/test_bench_discovery.py::"
           "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
     Claim("discovery's fit ceiling: draws where at most 3 minimal structures fit the recordings "
           "as well as the truth itself (what a fit-based set rule can reach)",
           discovery_ceiling, lambda r: r["bench_discovery_quick"]["rows"],
-          "python -m studies.benchmarks.discovery --quick --draws 30 --jobs 2", "bench_discovery_quick",
+          "python -m studies.benchmarks.discovery --quick --draws 30 --ranges papers --jobs 2",
+          "bench_discovery_quick",
           "tests/test_bench_discovery.py::test_structures_fitting_as_well_as_the_truth_bound_the_set"),
     Claim("discovery on fresh draws the set rule is not weighed on",
           discovery_fresh, lambda r: r["bench_discovery_fresh"]["rows"],
-          "python -m studies.benchmarks.discovery --quick --seed 1030 --draws 10 --jobs 2",
+          "python -m studies.benchmarks.discovery --quick --seed 1030 --draws 10 --ranges papers "
+          "--jobs 2",
           "bench_discovery_fresh",
           "tests/test_bench_discovery.py::"
           "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
@@ -306,7 +321,7 @@ CLAIMS = (
           "linear block unknown, truths and designs drawn over the generator's ranges (goal "
           "80-97 % for dead zone, backlash and delay over >= 30 draws, every chain converged)",
           set_coverage, lambda r: r["bench_set_coverage"]["rows"],
-          "python -m studies.benchmarks.set_coverage --jobs 2", "bench_set_coverage",
+          "python -m studies.benchmarks.set_coverage --ranges papers --jobs 2", "bench_set_coverage",
           "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
           "_under_thirty"),
     Claim("`tvcid discover` on four M000 recordings (two 40 s limit cycles, two 10 s open-loop "
@@ -322,10 +337,11 @@ HEADER = """# Results
 
 Each value is computed from a benchmark's stored rows (`studies/benchmarks/records/`, described in its
 `README.md`) by the benchmark's own functions, with the benchmark's goal met or NOT met where it
-has one; the rows' commits are in the last column. `python -m studies.benchmarks.results_table --check`
+has one; the rows' commits, and the generator's ranges of the draws
+(`studies/benchmarks/scenarios.py`), are in the last column. `python -m studies.benchmarks.results_table --check`
 exits 1 when this file differs from that rendering (`tests/test_results_table.py`).
 
-| claim | current value | the command that produces it | the test that checks it | record commit(s) |
+| claim | current value | the command that produces it | the test that checks it | record commit(s), ranges |
 |---|---|---|---|---|
 """
 
@@ -346,7 +362,8 @@ def render(records=None, claims=CLAIMS, root=ROOT) -> str:
         command = f"`{c.command}` (`studies/benchmarks/records/{c.record}.json`)"
         test = f"`{c.test}`" + (" (slow: `pytest -m slow`)" if is_slow(definition) else "")
         lines.append("| " + " | ".join(_cell(x) for x in (
-            c.claim, c.value(records), command, test, commits_text(c.rows(records)))) + " |")
+            c.claim, c.value(records), command, test,
+            commits_text(c.rows(records)) + ranges_text(c.rows(records)))) + " |")
     return HEADER + "\n".join(lines) + "\n"
 
 

@@ -1,20 +1,24 @@
 """One seeded generator of random truths and experiment designs, shared by benchmarks and tests.
 
-Used by :mod:`studies.benchmarks.discovery`, :mod:`studies.benchmarks.coverage` and the tests.
-Ranges (parameters within a factor 2-3 of the papers' values, the linear block within +-30 % of
-paper 001's):
+Used by :mod:`studies.benchmarks.discovery`, :mod:`studies.benchmarks.coverage` and the tests. Two
+sets of ranges (:data:`RANGES`); ``wide``, the default, is what a user's actuator and rig may be,
+``papers`` stays near the papers' rig:
 
 * structure: uniform over :func:`models.structures.structure_space` (36 kept structures);
 * linear block: paper 001's ``K1 = 305500``, ``K2 = 202.1``, ``K3 = 14520`` each times U(0.7, 1.3);
-  ``K = 1.0697`` times U(0.85, 1.15);
-* dead zone: on the error log-uniform within a factor 2.5 of paper 002's 1.2e-3 rad; on the
-  velocity signal within a factor 2.5 of paper 001's 0.0083 rad/s; backlash within a factor 2.5 of
-  1.1625e-4 rad; delay log-uniform in [1, 8] ms; friction offset ``-U(0.3, 0.9) z``; band-pass loop
-  gain log-uniform in [30, 100], saturation log-uniform in [0.008, 0.02];
+  ``K = 1.0697`` times U(0.85, 1.15) (paper 000's block, ``A B``, ``B``, ``C A B``, lies within
+  0.1 % of paper 001's, so this spans both papers' blocks and the ones between);
+* dead zone: on the error log-uniform around paper 002's 1.2e-3 rad, on the velocity signal around
+  paper 001's 0.0083 rad/s; backlash around 1.1625e-4 rad; each over a decade (``wide``: a factor
+  sqrt(10) either side) or a factor 2.5 either side (``papers``); delay log-uniform in [0.8, 8] ms
+  (``wide``) or [1, 8] ms; friction offset ``-U(0.3, 0.9) z``; band-pass loop gain log-uniform in
+  [30, 100], saturation log-uniform in [0.008, 0.02];
 * design: limit cycles at 1-3 controller settings (A, B, or Kp U(4, 12), Kd U(0.04, 0.08),
-  mu U(4, 14)), 20-40 s each; 0-2 open-loop squares or sines of 5-30 mrad at 0.3-3 Hz, 8-12 s;
-  200 Hz or 1 kHz acquisition; controller held at 200 Hz or continuous; sensor noise 1e-5 to
-  1e-4 rad; offset 0 or U(-3e-4, 3e-4) rad; quantisation 0 or 5e-6 to 3e-5 rad.
+  mu U(4, 14)), 20-40 s each; 0-2 open-loop tests of 5-30 mrad at 0.3-3 Hz, 8-12 s: squares or
+  sines, and (``wide``) staircases of random levels held for U(0.5, 1.5) half-periods;
+  acquisition at 200, 500, 1000 or 2000 Hz (``wide``) or 200 or 1000 Hz; controller held at
+  200 Hz or continuous; sensor noise 1e-5 to 1e-4 rad; offset 0 or U(-3e-4, 3e-4) rad;
+  quantisation 0 or 5e-6 to 3e-5 rad.
 
 Truths are redrawn until they oscillate at every closed-loop setting of the design. The recordings
 are made by the plain-Python reference path (:func:`models.reference.simulate_reference`, a second
@@ -39,7 +43,7 @@ from models.strict_json import dumps, write_json
 from models.structures import Structure, structure_space
 from models.synthetic import Acquisition
 
-__all__ = ["RecordingDesign", "Acquisition", "Scenario", "draw_truth", "draw_design",
+__all__ = ["RecordingDesign", "Acquisition", "Scenario", "Ranges", "RANGES", "draw_truth", "draw_design",
            "draw_scenario", "oscillates", "write_recordings", "write_recording", "ridge_scenario",
            "RIDGE_PARAMETERS", "provenance", "design_of", "record_added_test"]
 
@@ -72,10 +76,15 @@ class RecordingDesign:
     waveform: str = ""
     amplitude: float = 0.0
     frequency: float = 0.0
+    #: a ``piecewise`` command's edge times (s) and its levels (rad) before, between and after them
+    edges: tuple = ()
+    levels: tuple = ()
 
     def experiment(self):
         if self.kind == "closed":
             return ClosedLoop(self.kp, self.kd, self.mu, sample_rate=self.controller_rate)
+        if self.waveform == "piecewise":
+            return OpenLoop.piecewise(np.asarray(self.edges), np.asarray(self.levels))
         return getattr(OpenLoop, self.waveform)(self.amplitude, self.frequency)
 
 
@@ -86,36 +95,79 @@ class Scenario:
     recordings: tuple
     acquisition: Acquisition
     seed: int
+    ranges: str = "wide"
 
     def to_dict(self) -> dict:
+        recordings = [{k: v for k, v in r.__dict__.items() if k not in ("edges", "levels") or v}
+                      for r in self.recordings]
         return {"truth": self.truth.to_dict(), "structure": self.structure.name,
-                "recordings": [r.__dict__ for r in self.recordings],
-                "acquisition": self.acquisition.__dict__, "seed": self.seed}
+                "recordings": recordings, "acquisition": self.acquisition.__dict__,
+                "seed": self.seed, "ranges": self.ranges}
 
 
-#: Centres of the thresholds' ranges (rad; rad/s for a dead zone on the velocity signal), their
-#: log-uniform factor, and the delay's range (s); the coverage benchmark builds its priors on them.
+#: Centres of the thresholds' ranges (rad; rad/s for a dead zone on the velocity signal).
 DEAD_ZONE_CENTRE = {"error": 1.2e-3, "velocity": 0.0083}
 BACKLASH_CENTRE = 1.1625e-4
-RANGE_FACTOR = 2.5
-DELAY_RANGE = (1e-3, 8e-3)
+
+
+@dataclass(frozen=True)
+class Ranges:
+    """What the generator draws from (the coverage benchmark builds its priors on it).
+
+    Parameters
+    ----------
+    name : str
+    threshold_factor : float
+        Dead zone and backlash log-uniform within this factor either side of their centres.
+    delay : tuple of float
+        Log-uniform range of the delay (s).
+    rates : tuple of float
+        Acquisition rates (Hz), one drawn per design.
+    waveforms : tuple of str
+        Open-loop commands: ``square``, ``sine``, ``piecewise`` (a staircase of random levels).
+    """
+
+    name: str
+    threshold_factor: float
+    delay: tuple
+    rates: tuple
+    waveforms: tuple
+
+
+#: ``wide``: thresholds and delays over a decade, 200 Hz to 2 kHz, staircases among the commands
+#: (a user's actuator and rig); ``papers``: within a factor 2.5 of the papers' thresholds.
+RANGES = {
+    "wide": Ranges("wide", math.sqrt(10.0), (0.8e-3, 8e-3), (200.0, 500.0, 1000.0, 2000.0),
+                   ("square", "sine", "piecewise")),
+    "papers": Ranges("papers", 2.5, (1e-3, 8e-3), (200.0, 1000.0), ("square", "sine")),
+}
+
+
+def ranges_named(name) -> Ranges:
+    """:data:`RANGES`' entry ``name``, or a one-line error naming the choices."""
+    try:
+        return RANGES[name]
+    except KeyError:
+        raise ValueError(f"unknown ranges {name!r}; choose one of {', '.join(RANGES)}") from None
 
 
 def _log_uniform(rng, centre, factor):
     return float(centre * math.exp(rng.uniform(-math.log(factor), math.log(factor))))
 
 
-def draw_truth(rng, structure=None) -> ActuatorParams:
-    """A random truth of ``structure`` (drawn uniformly over the kept space when ``None``)."""
+def draw_truth(rng, structure=None, ranges="wide") -> ActuatorParams:
+    """A random truth of ``structure`` (drawn uniformly over the kept space when ``None``) within
+    :data:`RANGES` ``[ranges]``."""
+    r = ranges_named(ranges)
     if structure is None:
         kept, _ = structure_space()
         structure = kept[int(rng.integers(len(kept)))]
-    z = _log_uniform(rng, DEAD_ZONE_CENTRE[structure.dead_zone_position.value], RANGE_FACTOR)
+    z = _log_uniform(rng, DEAD_ZONE_CENTRE[structure.dead_zone_position.value], r.threshold_factor)
     values = dict(
         gain=305500.0 * rng.uniform(0.7, 1.3), damping=202.1 * rng.uniform(0.7, 1.3),
         stiffness=14520.0 * rng.uniform(0.7, 1.3), feedback_gain=1.0697 * rng.uniform(0.85, 1.15),
-        dead_zone=z, backlash=_log_uniform(rng, BACKLASH_CENTRE, RANGE_FACTOR),
-        delay=float(math.exp(rng.uniform(*np.log(DELAY_RANGE)))),
+        dead_zone=z, backlash=_log_uniform(rng, BACKLASH_CENTRE, r.threshold_factor),
+        delay=float(math.exp(rng.uniform(*np.log(r.delay)))),
         friction_offset=-rng.uniform(0.3, 0.9) * z,
         bandpass_gain=float(math.exp(rng.uniform(math.log(30.0), math.log(100.0)))),
         bandpass_saturation=float(math.exp(rng.uniform(math.log(0.008), math.log(0.02)))),
@@ -148,9 +200,23 @@ def oscillates(params, experiment) -> bool:
             and abs(f.amplitude_drift) < 0.05 and tail_t[-1] - tail_t[0] >= MIN_SETTLED)
 
 
-def draw_design(rng):
-    """``(recordings, acquisition)`` of a random experiment design."""
-    rate = float(rng.choice([200.0, 1000.0]))
+def _staircase(rng, duration, amplitude, frequency):
+    """Edge times and levels of a staircase: levels U(-amplitude, amplitude), each held for
+    U(0.5, 1.5) half-periods of ``frequency``, over ``duration`` s."""
+    edges, t = [], 0.0
+    while True:
+        t += float(rng.uniform(0.5, 1.5)) / (2.0 * frequency)
+        if t >= duration:
+            break
+        edges.append(t)
+    return tuple(edges), tuple(float(rng.uniform(-amplitude, amplitude)) for _ in range(len(edges) + 1))
+
+
+def draw_design(rng, ranges="wide"):
+    """``(recordings, acquisition)`` of a random experiment design within :data:`RANGES`
+    ``[ranges]``."""
+    r = ranges_named(ranges)
+    rate = float(rng.choice(list(r.rates)))
     ctrl_rate = 200.0 if rng.uniform() < 0.5 else None
     pool = list(CONTROLLERS) + [(rng.uniform(4, 12), rng.uniform(0.04, 0.08), rng.uniform(4, 14))]
     n_closed = int(rng.integers(1, 4))
@@ -158,10 +224,13 @@ def draw_design(rng):
     recs = [RecordingDesign("closed", float(rng.uniform(20, 40)), rate, *map(float, pool[i]),
                             controller_rate=ctrl_rate) for i in picks]
     for _ in range(int(rng.integers(0, 3))):
-        recs.append(RecordingDesign(
-            "open", float(rng.uniform(8, 12)), rate, waveform=str(rng.choice(["square", "sine"])),
-            amplitude=float(rng.uniform(5e-3, 30e-3)),
-            frequency=float(math.exp(rng.uniform(math.log(0.3), math.log(3.0))))))
+        duration, waveform = float(rng.uniform(8, 12)), str(rng.choice(list(r.waveforms)))
+        amplitude = float(rng.uniform(5e-3, 30e-3))
+        frequency = float(math.exp(rng.uniform(math.log(0.3), math.log(3.0))))
+        edges, levels = (_staircase(rng, duration, amplitude, frequency)
+                         if waveform == "piecewise" else ((), ()))
+        recs.append(RecordingDesign("open", duration, rate, waveform=waveform, amplitude=amplitude,
+                                    frequency=frequency, edges=edges, levels=levels))
     acq = Acquisition(
         noise_sd=float(math.exp(rng.uniform(math.log(1e-5), math.log(1e-4)))),
         offset=0.0 if rng.uniform() < 0.3 else float(rng.uniform(-3e-4, 3e-4)),
@@ -170,15 +239,16 @@ def draw_design(rng):
     return tuple(recs), acq
 
 
-def draw_scenario(seed, structure=None, max_tries=200) -> Scenario:
-    """Design, then a truth redrawn until it oscillates at every closed-loop setting."""
+def draw_scenario(seed, structure=None, max_tries=200, ranges="wide") -> Scenario:
+    """Design, then a truth redrawn until it oscillates at every closed-loop setting, within
+    :data:`RANGES` ``[ranges]``."""
     rng = np.random.default_rng(seed)
-    recs, acq = draw_design(rng)
+    recs, acq = draw_design(rng, ranges)
     closed = [r.experiment() for r in recs if r.kind == "closed"]
     for _ in range(max_tries):
-        truth = draw_truth(rng, structure)
+        truth = draw_truth(rng, structure, ranges)
         if all(oscillates(truth, e) for e in closed):
-            return Scenario(truth, Structure.of_params(truth), recs, acq, int(seed))
+            return Scenario(truth, Structure.of_params(truth), recs, acq, int(seed), ranges)
     raise RuntimeError(f"scenario {seed}: no truth of {structure or 'any structure'} oscillated "
                        f"at every controller setting in {max_tries} draws")
 
@@ -187,20 +257,22 @@ def draw_scenario(seed, structure=None, max_tries=200) -> Scenario:
 RIDGE_PARAMETERS = ("dead_zone", "backlash", "delay", "friction_offset")
 
 
-def ridge_scenario(seed, duration=40.0, noise_sd=1e-4) -> Scenario:
+def ridge_scenario(seed, duration=40.0, noise_sd=1e-4, ranges="wide") -> Scenario:
     """The calibration benchmark's ridge case with a drawn truth: paper 001's placement without the
     band-pass loop (dead zone on the velocity signal, friction offset, backlash, delay before the
     integrator), the thresholds, delay, friction offset and linear block drawn as :func:`draw_truth`
-    does; limit cycles at controllers A and B, ``duration`` s each at 1 kHz, white sensor noise."""
+    does within ``ranges``; limit cycles at controllers A and B, ``duration`` s each at 1 kHz,
+    white sensor noise."""
     from models import M001f
 
     structure = Structure.of_params(M001f().replace(bandpass_gain=0.0))
     rng = np.random.default_rng(seed)
     recs = tuple(RecordingDesign("closed", float(duration), 1000.0, *c) for c in CONTROLLERS)
     for _ in range(200):
-        truth = draw_truth(rng, structure)
+        truth = draw_truth(rng, structure, ranges)
         if all(oscillates(truth, r.experiment()) for r in recs):
-            return Scenario(truth, structure, recs, Acquisition(float(noise_sd), 0.0, 0.0), int(seed))
+            return Scenario(truth, structure, recs, Acquisition(float(noise_sd), 0.0, 0.0), int(seed),
+                            ranges)
     raise RuntimeError(f"ridge scenario {seed}: no truth oscillated at A and B in 200 draws")
 
 

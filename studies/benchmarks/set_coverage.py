@@ -1,13 +1,13 @@
 """Coverage of ``tvcid discover``'s printed intervals: structure and linear block unknown.
 
-``python -m studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--jobs J | --dask ADDRESS]
-[--out DIR]``
+``python -m studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--ranges wide|papers]
+[--jobs J | --dask ADDRESS] [--out DIR]``
 
 Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded; the discovery benchmark's
 seeds by default) is a truth over every structure of the grammar and a test design over the
-generator's ranges (limit cycles at 1-3 controller settings, continuous or held at 200 Hz,
-open-loop squares and sines or none, acquisition at 200 Hz or 1 kHz, noise, sensor offset,
-quantisation). Its recordings are made by the plain-Python reference simulator and written with
+generator's ranges (``wide`` by default: thresholds and delays over a decade; limit cycles at
+1-3 controller settings, continuous or held at 200 Hz, open-loop squares, sines and staircases or
+none, acquisition at 200 Hz to 2 kHz, noise, sensor offset, quantisation). Its recordings are made by the plain-Python reference simulator and written with
 measured-style sidecars (commands only as samples); the whole ``tvcid discover`` runs on them
 (:func:`tvcid.pipeline.discover`): the structure search, the set, the calibration of every member
 and their combination. The row records, for each quantity of the combined posterior
@@ -82,11 +82,11 @@ def coverage_row(seed, truth, structure, summary) -> dict:
     }
 
 
-def run_draw(seed, out_dir, quick) -> dict:
+def run_draw(seed, out_dir, quick, ranges="wide") -> dict:
     """Make one draw's recordings, run ``tvcid discover`` on them, and score its intervals."""
     from tvcid.pipeline import discover
 
-    scenario = draw_scenario(seed)
+    scenario = draw_scenario(seed, ranges=ranges)
     draw_dir = Path(out_dir) / f"draw{seed:03d}"
     t0 = time.perf_counter()
     paths = write_recordings(scenario, draw_dir / "recordings", reuse=True)
@@ -101,12 +101,13 @@ def run_draw(seed, out_dir, quick) -> dict:
     return row
 
 
-def guarded_draw(seed, out_dir, quick) -> dict:
+def guarded_draw(seed, out_dir, quick, ranges="wide") -> dict:
     """:func:`run_draw`, a failure recorded as a row (the benchmark goes on)."""
     try:
-        return run_draw(seed, out_dir, quick)
+        return run_draw(seed, out_dir, quick, ranges=ranges)
     except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
-        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "commit": CODE_COMMIT}
+        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "ranges": ranges,
+                "commit": CODE_COMMIT}
 
 
 def summarise(rows) -> dict:
