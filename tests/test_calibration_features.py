@@ -1,5 +1,6 @@
 """A cycle that is not periodic (M000's band-pass loop): the features likelihood's covariance counts
 its wander (and not a periodic M002's), and the waveform likelihood warns."""
+import dataclasses
 import warnings
 from pathlib import Path
 
@@ -250,6 +251,10 @@ def test_a_record_still_settling_is_simulated_from_where_it_starts(tmp_path, mon
     off_matched = abs(np.std(matched[0, first]) / rms - 1)
     assert ok[0] and off_shared > 0.01 and off_matched < min(0.005, off_shared / 3), (off_shared,
                                                                                    off_matched)
+    # sized on its first piece alone, the run is the one sized on a whole run's first piece
+    ws = term.simulator.warm_start
+    resized = dataclasses.replace(ws, rms_target=ws.rms_target * rms / np.std(shared[0, first]))
+    np.testing.assert_array_equal(matched, term.simulator.run([other], starts=[resized])[0])
 
     monkeypatch.setattr(FeatureTerm, "_record_start", lambda self, n_segments: None)
     window_sized = FeatureTerm(rec, 10.0, 20.0, 5e-4).setup(truth)
