@@ -198,7 +198,11 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
 
     # Delay line on the step grid: for the stage times t_k + c*dt (c = 0, 1/2, 1) the delayed
     # time is t_{k+shift} + frac*dt with a constant shift and fraction.
-    hist_len = int(math.ceil(delay_steps)) + 3
+    # a power of two, so that the ring's index is a mask, not a division
+    hist_len = 1
+    while hist_len < int(math.ceil(delay_steps)) + 3:
+        hist_len *= 2
+    mask = hist_len - 1
     hist = np.zeros(hist_len)
     # a held command jumps at nodes; before the first integrator the line keeps each node's value
     # just before the jump too, jumps at the node's delayed time and averages the jump over the
@@ -281,30 +285,30 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
             if where != DELAY_NONE:
                 if stage == 0:
                     if where == DELAY_OUTPUT:
-                        hist[k % hist_len] = xs
+                        hist[k & mask] = xs
                     elif where == DELAY_BEFORE_INTEGRATOR:
-                        hist[k % hist_len] = v
+                        hist[k & mask] = v
                     else:
-                        hist[k % hist_len] = ydd
+                        hist[k & mask] = ydd
                         if jumps:
-                            hist_left[k % hist_len] = (
+                            hist_left[k & mask] = (
                                 _acceleration(u_before, b, kfb, dz_vel, z, k1g, k2, k3, ss[2], ss[3])
                                 if edge else ydd)
                 j = k + shift[ci]
                 fr = frac[ci]
                 delayed = 0.0
                 if j >= 0:
-                    delayed = (1.0 - fr) * hist[j % hist_len]
+                    delayed = (1.0 - fr) * hist[j & mask]
                     if fr > 0.0:
-                        delayed += fr * (hist_left[(j + 1) % hist_len] if jumps
-                                         else hist[(j + 1) % hist_len])
+                        delayed += fr * (hist_left[(j + 1) & mask] if jumps
+                                         else hist[(j + 1) & mask])
                     if jumps:
                         wsh = share[ci]
                         if fr < wsh:
-                            jj = j % hist_len
+                            jj = j & mask
                             delayed -= (hist[jj] - hist_left[jj]) * (wsh - fr) / (2.0 * wsh)
                         if fr > 0.0 and fr + wsh > 1.0:
-                            jj = (j + 1) % hist_len
+                            jj = (j + 1) & mask
                             delayed += (hist[jj] - hist_left[jj]) * (fr + wsh - 1.0) / (2.0 * wsh)
                 elif j == -1 and not hist_on:
                     # from the line's 0 before t = 0 to the first sample: continuous in Td
@@ -315,7 +319,7 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
                         if j + 1 < 0:
                             delayed += fr * (hist_value + hist_slope * (j + 1) * dt)
                         else:
-                            delayed += fr * hist[(j + 1) % hist_len]
+                            delayed += fr * hist[(j + 1) & mask]
                 if where == DELAY_OUTPUT:
                     xd = delayed
                 elif where == DELAY_BEFORE_INTEGRATOR:
