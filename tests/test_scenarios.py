@@ -195,3 +195,23 @@ def test_an_added_test_is_recorded_once_and_again_when_its_scenario_changes(tmp_
     other = RecordingDesign("open", 1.0, 1000.0, waveform="square", amplitude=0.02, frequency=2.0)
     _, again = record_added_test(sc, other, tmp_path)
     assert again == path and not np.allclose(load_recording(again).delta, rec.delta)
+
+
+def test_an_unfinished_draw_keeps_the_recordings_it_finished(tmp_path):
+    """A benchmark stopped while it made a draw's recordings: on the rerun each recording whose
+    ``truth/recNN.json`` holds the scenario is kept, the others are made; another scenario's
+    recordings are all made again."""
+    sc = shortened(draw_scenario(2), closed=2.0, open_=1.0)
+    paths = write_recordings(sc, tmp_path, dt=5e-4)
+    assert len(paths) >= 2
+    (tmp_path / "truth" / "scenario.json").unlink()
+    (tmp_path / "truth" / "rec01.json").unlink()  # stopped while it made recording 1
+    stamps = [p.stat().st_mtime_ns for p in paths]
+    again = write_recordings(sc, tmp_path, dt=5e-4, reuse=True)
+    assert again == paths and (tmp_path / "truth" / "scenario.json").exists()
+    after = [p.stat().st_mtime_ns for p in paths]
+    assert after[0] == stamps[0] and after[1] != stamps[1]
+    assert all(a == s for a, s in zip(after[2:], stamps[2:]))
+    other = shortened(draw_scenario(3), closed=2.0, open_=1.0)
+    write_recordings(other, tmp_path, dt=5e-4, reuse=True)
+    assert tmp_path.joinpath(paths[0].name).stat().st_mtime_ns != stamps[0]

@@ -282,8 +282,9 @@ def write_recordings(scenario: Scenario, directory, dt=None, reuse=False) -> lis
 
     ``reuse``: keep the recordings already in ``directory`` when its ``truth/scenario.json`` holds
     the same scenario made at the same step (benchmarks rerun on the same draws; the reference
-    path at 5e-5 s costs about 1-3 s per simulated second). Delete the directory after changing
-    the reference path itself.
+    path at 5e-5 s costs about 1-3 s per simulated second), and, of a directory left unfinished,
+    each recording whose ``truth/recNN.json`` (written once the recording is) holds it. Delete the
+    directory after changing the reference path itself.
     """
     directory = Path(directory)
     (directory / "truth").mkdir(parents=True, exist_ok=True)
@@ -291,12 +292,20 @@ def write_recordings(scenario: Scenario, directory, dt=None, reuse=False) -> lis
     stored_provenance = provenance(scenario, dt)
     names = [directory / f"rec{i:02d}_{rd.kind}.csv" for i, rd in enumerate(scenario.recordings)]
     stored = directory / "truth" / "scenario.json"
-    if reuse and stored.exists() and all(p.exists() and p.with_suffix(".json").exists() for p in names):
-        if json.loads(stored.read_text()) == stored_provenance:
-            return names
-    paths = [write_recording(scenario, i, names[i], dt) for i in range(len(scenario.recordings))]
+
+    def made(path, record):
+        return (reuse and record.exists() and path.exists() and path.with_suffix(".json").exists()
+                and json.loads(record.read_text()) == stored_provenance)
+
+    if made(names[0], stored) and all(p.exists() and p.with_suffix(".json").exists() for p in names):
+        return names
+    for i, path in enumerate(names):
+        record = directory / "truth" / f"rec{i:02d}.json"
+        if not made(path, record):
+            write_recording(scenario, i, path, dt)
+            write_json(record, stored_provenance)
     write_json(stored, stored_provenance)
-    return paths
+    return names
 
 
 def provenance(scenario: Scenario, dt=None) -> dict:
