@@ -106,3 +106,23 @@ def test_members_agree_on_a_test_when_their_difference_is_inside_their_own_sprea
     apart = menu_agreement({"a": member(1.0, 0), "c": member(2.0, 2)}, square, noise_sd=2e-5)
     (pair,) = apart["pairs"]
     assert not apart["agree"] and pair["cross"] > 10 * pair["within"], pair
+
+
+def test_round_zero_is_taken_from_a_set_coverage_run_once(tmp_path):
+    """``--reuse DIR``: a draw's recordings and discovery in the set-coverage benchmark's layout
+    are copied to the loop's, once; a draw the loop has started, or one the other run has not
+    discovered, is left alone."""
+    from studies.benchmarks.loop import reuse_round_zero
+
+    source = tmp_path / "setcov" / "draw1000"
+    (source / "recordings" / "truth").mkdir(parents=True)
+    (source / "recordings" / "rec00_closed.csv").write_text("t,u,delta\n")
+    (source / "discover").mkdir()
+    (source / "discover" / "discovery.json").write_text("{}")
+    draw, run = tmp_path / "loop" / "draw1000", tmp_path / "loop" / "draw1000_loop"
+    assert not reuse_round_zero(tmp_path / "setcov", 1001, draw, run)  # not discovered there
+    assert reuse_round_zero(tmp_path / "setcov", 1000, draw, run)
+    assert (draw / "rec00_closed.csv").exists() and (run / "discovery.json").read_text() == "{}"
+    (run / "discovery.json").write_text('{"rounds": 1}')
+    assert not reuse_round_zero(tmp_path / "setcov", 1000, draw, run)
+    assert (run / "discovery.json").read_text() == '{"rounds": 1}'

@@ -283,6 +283,32 @@ def test_killed_discover_resumes_ranking_and_chain(tmp_path, straight_discover, 
     assert np.array_equal(a.get_chain(), b.get_chain())
 
 
+def test_a_copied_run_resumes_under_its_new_names(tmp_path, straight_discover):
+    """A finished run and its recordings copied elsewhere (the loop benchmark's round 0 taken
+    from the set-coverage benchmark): ``discover`` on the copies reuses the ranking and the
+    finished chain, adds no step, and names the recordings it was given."""
+    import shutil
+    from pathlib import Path
+
+    import emcee
+
+    moved = tmp_path / "recordings"
+    moved.mkdir()
+    for f in (Path(DATA), Path(DATA).with_suffix(".json")):
+        shutil.copy(f, moved / f.name)
+    copied = tmp_path / "copied"
+    shutil.copytree(straight_discover, copied)
+    given = str(moved / Path(DATA).name)
+    assert main(["discover", given, *ONE_STRUCTURE_RUN[1:], "--out", str(copied)]) == 0
+    resumed = json.loads((copied / "discovery.json").read_text())
+    assert resumed["resumed_ranking"]
+    assert resumed["recordings"] == [given]
+    (chain,) = copied.glob("chain-*.h5")
+    a = emcee.backends.HDFBackend(str(chain), read_only=True)
+    b = emcee.backends.HDFBackend(str(straight_discover / chain.name), read_only=True)
+    assert a.iteration == b.iteration == 60 and np.array_equal(a.get_chain(), b.get_chain())
+
+
 def test_period_two_cycle_is_measured_at_its_fundamental():
     """A cycle with two upward mean crossings per period (alternating lobes, as a controller held
     at 200 Hz can give) is measured at its true period; a cycle that only wanders is not mistaken

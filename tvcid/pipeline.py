@@ -186,6 +186,8 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     if previous is not None:
         summary = previous
         summary["resumed_ranking"] = True
+        # the same data under the names given now (a run copied from elsewhere)
+        summary["recordings"] = [str(r.path) for r in recs]
         closed = [make_target(r, 5e-4) for r in recs if r.kind == "closed"][:1]
         offsets = summary["sensor_offset"]
         t_disc = summary["timings"].get("discovery", 0.0)

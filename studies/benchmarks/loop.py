@@ -1,7 +1,7 @@
 """Does following the suggested tests close the set? The experiment-loop benchmark.
 
 ``python -m studies.benchmarks.loop [--quick] [--draws N] [--seed S] [--ranges wide|papers]
-[--jobs J | --dask ADDRESS] [--out DIR]``
+[--jobs J | --dask ADDRESS] [--out DIR] [--reuse SET_COVERAGE_DIR]``
 
 For each draw of the discovery benchmark (:func:`studies.benchmarks.scenarios.draw_scenario`,
 the same seeds and ``--ranges``), ``tvcid discover`` runs on the draw's recordings (:func:`tvcid.pipeline.discover`,
@@ -21,13 +21,17 @@ sensor and read back as a measured recording, and added to the run
 Goals, over at least 30 draws: the truth in the set in at least 29 of 30 draws at every round;
 the set closed in at least 90 % of the draws after at most two rounds; the set no larger than the
 fit ceiling's + 1 in at least 90 % of the draws (round 0). Rows are written to ``DIR/bench.json``
-as each draw ends (a rerun resumes), each naming the commit of the code that ran it.
+as each draw ends (a rerun resumes), each naming the commit of the code that ran it. Round 0 is
+the set-coverage benchmark's discovery of the same draw: ``--reuse DIR`` takes it from that
+benchmark's output rather than running it again.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
+import shutil
 import time
 from pathlib import Path
 
@@ -135,16 +139,37 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
             "seconds_closure": time.perf_counter() - t0}
 
 
-def run_draw(seed, out_dir, quick, config=None, ranges="wide") -> dict:
-    """The draw's discovery, then up to ``config.rounds`` suggested tests added."""
+def reuse_round_zero(reuse, seed, draw_dir, run_dir) -> bool:
+    """Copy draw ``seed``'s recordings and its ``tvcid discover`` run from ``reuse`` (a
+    set-coverage benchmark's output: ``drawNNN/recordings``, ``drawNNN/discover``) to
+    ``draw_dir`` and ``run_dir``, where the loop has not started that draw; True if copied.
+
+    The discovery then resumes the copied run (the same recordings by content, the same seed
+    and options: its ranking, and chains from their checkpoints), so round 0 costs nothing twice.
+    """
+    source = Path(reuse) / f"draw{seed:03d}"
+    run_dir, draw_dir = Path(run_dir), Path(draw_dir)
+    if run_dir.exists() or not (source / "discover" / "discovery.json").is_file():
+        return False
+    if not draw_dir.exists():
+        shutil.copytree(source / "recordings", draw_dir)
+    shutil.copytree(source / "discover", run_dir)
+    return True
+
+
+def run_draw(seed, out_dir, quick, config=None, ranges="wide", reuse=None) -> dict:
+    """The draw's discovery, then up to ``config.rounds`` suggested tests added; round 0 copied
+    from ``reuse`` where that holds the draw's discovery (:func:`reuse_round_zero`)."""
     from discovery.structure.discrimination import default_candidates
     from tvcid.pipeline import add_recordings, discover
 
     config = config or (QUICK if quick else FULL)
     scenario = draw_scenario(seed, ranges=ranges)
     out_dir = Path(out_dir)
-    paths = write_recordings(scenario, out_dir / f"draw{seed:03d}", reuse=True)
     run_dir = out_dir / f"draw{seed:03d}_loop"
+    if reuse is not None:
+        reuse_round_zero(reuse, seed, out_dir / f"draw{seed:03d}", run_dir)
+    paths = write_recordings(scenario, out_dir / f"draw{seed:03d}", reuse=True)
     t0 = time.perf_counter()
     result = discover(paths, run_dir, fixed=config.fixed, seed=seed, quick=quick,
                       max_steps=config.max_steps, progress=False)
@@ -168,10 +193,10 @@ def run_draw(seed, out_dir, quick, config=None, ranges="wide") -> dict:
             "rounds": rounds, "commit": CODE_COMMIT}
 
 
-def guarded_draw(seed, out_dir, quick, ranges="wide") -> dict:
+def guarded_draw(seed, out_dir, quick, ranges="wide", reuse=None) -> dict:
     """:func:`run_draw`, a failure recorded as a row (counted against every goal)."""
     try:
-        return run_draw(seed, out_dir, quick, ranges=ranges)
+        return run_draw(seed, out_dir, quick, ranges=ranges, reuse=reuse)
     except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
         return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "ranges": ranges,
                 "commit": CODE_COMMIT}
@@ -220,6 +245,10 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_draw_options(parser, "one round, 150-step chains, 8 draws per member in the closure, 1 draw",
                      1, "results/bench_loop")
+    parser.add_argument("--reuse", metavar="DIR", default=None,
+                        help="take each draw's round 0 from the set-coverage benchmark's output "
+                             "DIR (python -m studies.benchmarks.set_coverage --out DIR, the same "
+                             "seeds and --ranges), where it holds the draw's discovery")
     args = parser.parse_args(argv)
     rounds = (QUICK if args.quick else FULL).rounds
 
@@ -232,7 +261,8 @@ def main(argv=None) -> int:
     def save(path, rows):
         write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows, rounds)})
 
-    rows = run_benchmark(args, guarded_draw, describe, save)
+    draw = guarded_draw if args.reuse is None else functools.partial(guarded_draw, reuse=args.reuse)
+    rows = run_benchmark(args, draw, describe, save)
     table = summarise(rows, rounds)
     print(f"\n{table['draws']} draws ({table['failed']} failed)")
     for r in table["rounds"]:
