@@ -345,3 +345,18 @@ def test_compiled_edge_read_and_normal_equations_equal_numpy(rate):
         np.testing.assert_allclose(hess, jac_ref.T @ (jac_ref * w[:, None]), rtol=1e-9)
         np.testing.assert_allclose(grad, jac_ref.T @ (w * r_ref), rtol=1e-7,
                                    atol=1e-9 * np.abs(jac_ref.T @ np.abs(w * r_ref)).max())
+
+
+def test_the_step_is_divided_as_far_as_the_record_needs_and_no_further(monkeypatch):
+    """The bundled M000 square (1 kHz, noise 2.1e-5 rad): its solver load falls as the step
+    squared (184 at 5e-4 s), so the term runs at a fifth of the step (1e-4 s, load 6.7), the
+    coarsest whose load is under the limit: at a quarter (1.25e-4 s) it is 10.4, over 10."""
+    from discovery.calibration.likelihood import solver as likelihood
+    from models import M000
+
+    rec = load_recording(Path(__file__).resolve().parents[1] / "data" / "m000_open_square.csv")
+    term = make_term(rec, "waveform", None, 0.0, 5e-4).setup(M000())
+    assert term.sim_dt == pytest.approx(1e-4) and term.solver_load <= likelihood.SOLVER_LOAD_LIMIT
+    monkeypatch.setattr(likelihood, "MAX_STEP_REFINEMENT", 1)
+    quarter = make_term(rec, "waveform", None, 0.0, 1.25e-4).setup(M000())
+    assert quarter.sim_dt == 1.25e-4 and quarter.solver_load > likelihood.SOLVER_LOAD_LIMIT
