@@ -10,7 +10,8 @@ Each recording then counts alike, however many samples it holds.
   (unit: 0.3 % of the fundamental's amplitude), i.e. the cycle's waveform without its arbitrary phase;
   each unit widened by the record's own wander between pieces of ``PERIODS`` periods (a cycle that
   is not periodic, as the band-pass loop's, differs from piece to piece); the simulated cycle's
-  features are taken over ``WINDOW_PERIODS`` periods, so that they too average its wander.
+  features are taken over as many periods as the record's tail holds (``WINDOW_PERIODS`` to
+  ``MAX_WINDOW_PERIODS``), so that they too average its wander.
   The frequency comes from mean crossings as docs/models.md#conventions measures it; the harmonics are Fourier
   coefficients over whole periods. They need no phase alignment of the simulated cycle with the
   record, and they stay defined for a cycle that is not periodic (the band-pass loop's), where a
@@ -67,14 +68,18 @@ SECOND_START_COST = 10.0
 #: per piece of its wander (:meth:`CycleTarget._wander`).
 TRANSIENT = 4.0
 PERIODS = 6
-#: Periods of the record's cycle the simulated window holds (30 % more time is simulated). The
-#: record's features average over its whole tail (20-60 periods); a cycle that wanders (a
-#: band-pass loop not locked to it, a controller held at 200 Hz) gives a short window's features
-#: far from that mean: on M000 held at 200 Hz and recorded at 200 Hz
-#: (:mod:`studies.benchmarks.heldout_cases`) the truth costs 0.28-0.65 on the first cycle from
-#: windows of 6 periods, 0.04-0.10 from 12 and 0.04-0.05 from 24, while periodic wrong structures
-#: fit at 0.04-0.1.
+#: Periods of the record's cycle the simulated window holds at least and at most: as many as the
+#: record's tail (30 % more time is simulated). The record's features average over its whole tail
+#: (20-60 periods); a cycle that wanders (a band-pass loop not locked to it, a controller held at
+#: 200 Hz) gives a short window's features far from that mean, by where the window falls: on M000
+#: held at 200 Hz and recorded at 200 Hz (:mod:`studies.benchmarks.heldout_cases`) the truth costs
+#: 0.28-0.65 on the first cycle from windows of 6 periods, 0.04-0.10 from 12 and 0.04-0.05 from
+#: 24, while periodic wrong structures fit at 0.04-0.1; a drawn truth with two band-pass cycles at
+#: 200 Hz (set-coverage draw 1000 of the wide ranges) costs 0.84 from windows of 12 periods
+#: (0.04-0.77 on its second cycle as the window moves), 0.23 from 24 and 0.14 from 36, where a
+#: wrong delay position fits at 0.23 and took its place in the set.
 WINDOW_PERIODS = 12
+MAX_WINDOW_PERIODS = 24
 #: Output rate (Hz) of the closed-loop simulations: 35x the 7th harmonic of a 2 Hz cycle.
 SIMULATED_RATE = 500.0
 #: Most upward mean crossings per period a cycle may have, and the tests that find them
@@ -289,7 +294,10 @@ class CycleTarget(_Target):
         exp = recording.experiment()
         self.experiment = dataclasses.replace(exp, theta0=self.initial["theta0"],
                                               thetad0=self.initial["thetad0"])
-        self.t_end = TRANSIENT + WINDOW_PERIODS * self.period * 1.3 + 0.2
+        #: periods of the simulated window: as many as the record's tail holds, within
+        #: WINDOW_PERIODS .. MAX_WINDOW_PERIODS
+        self.window_periods = int(min(MAX_WINDOW_PERIODS, max(WINDOW_PERIODS, len(ups) - 1)))
+        self.t_end = TRANSIENT + self.window_periods * self.period * 1.3 + 0.2
         self.simulator = BatchSimulator(self.experiment, self.t_end, self.dt,
                                         rate=output_rate_for(self.dt, SIMULATED_RATE))
         self.n_residuals = 1 + 2 * N_HARMONICS
@@ -299,9 +307,10 @@ class CycleTarget(_Target):
         #: one unit of each residual: the floor, widened by the cycle's own wander
         self.unit = np.sqrt(floor**2 + self.wander**2)
         #: cost the generating model pays for the simulated window's own wander alone (a window
-        #: of WINDOW_PERIODS wanders as PERIODS / WINDOW_PERIODS times the pieces' variance); a
-        #: cost difference of that size is no evidence (:func:`.indistinguishable.margin_floors`)
-        self.window_cost = float(np.mean(self.wander**2 * (PERIODS / WINDOW_PERIODS) / self.unit**2))
+        #: of ``window_periods`` wanders as PERIODS / window_periods times the pieces' variance);
+        #: a cost difference of that size is no evidence (:func:`.indistinguishable.margin_floors`)
+        self.window_cost = float(np.mean(self.wander**2 * (PERIODS / self.window_periods)
+                                         / self.unit**2))
         self._observed = self._features(self.omega, self.harmonics)
         self._tail = (t, d, np.asarray(ups))
         #: runs simulated again from the second start (:meth:`residuals`)
