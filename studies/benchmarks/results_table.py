@@ -321,7 +321,7 @@ CLAIMS = (
           "linear block unknown, truths and designs drawn over the generator's ranges (goal "
           "80-97 % for dead zone, backlash and delay over >= 30 draws, every chain converged)",
           set_coverage, lambda r: r["bench_set_coverage"]["rows"],
-          "python -m studies.benchmarks.set_coverage --ranges papers --jobs 2", "bench_set_coverage",
+          "python -m studies.benchmarks.set_coverage --jobs 2", "bench_set_coverage",
           "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
           "_under_thirty"),
     Claim("`tvcid discover` on four M000 recordings (two 40 s limit cycles, two 10 s open-loop "
