@@ -67,8 +67,8 @@ from .goals import report as goal_report
 from .scenarios import (
     BACKLASH_CENTRE,
     DEAD_ZONE_CENTRE,
-    RANGES,
     draw_scenario,
+    ranges_named,
     shortened,
     write_recordings,
 )
@@ -118,7 +118,7 @@ def priors_for(structure):
     """The generator's ranges, widened by ``PRIOR_WIDENING``, for the sampled parameters."""
     from discovery.calibration.priors import LogUniform, Uniform
 
-    ranges = RANGES[DRAW_RANGES]
+    ranges = ranges_named(DRAW_RANGES)
     w = ranges.threshold_factor * PRIOR_WIDENING
     z = DEAD_ZONE_CENTRE[structure.dead_zone_position.value]
     priors = {"dead_zone": LogUniform(z / w, z * w),

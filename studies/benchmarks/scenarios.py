@@ -116,7 +116,6 @@ class Ranges:
 
     Parameters
     ----------
-    name : str
     threshold_factor : float
         Dead zone and backlash log-uniform within this factor either side of their centres.
     delay : tuple of float
@@ -127,7 +126,6 @@ class Ranges:
         Open-loop commands: ``square``, ``sine``, ``piecewise`` (a staircase of random levels).
     """
 
-    name: str
     threshold_factor: float
     delay: tuple
     rates: tuple
@@ -137,9 +135,9 @@ class Ranges:
 #: ``wide``: thresholds and delays over a decade, 200 Hz to 2 kHz, staircases among the commands
 #: (a user's actuator and rig); ``papers``: within a factor 2.5 of the papers' thresholds.
 RANGES = {
-    "wide": Ranges("wide", math.sqrt(10.0), (0.8e-3, 8e-3), (200.0, 500.0, 1000.0, 2000.0),
+    "wide": Ranges(math.sqrt(10.0), (0.8e-3, 8e-3), (200.0, 500.0, 1000.0, 2000.0),
                    ("square", "sine", "piecewise")),
-    "papers": Ranges("papers", 2.5, (1e-3, 8e-3), (200.0, 1000.0), ("square", "sine")),
+    "papers": Ranges(2.5, (1e-3, 8e-3), (200.0, 1000.0), ("square", "sine")),
 }
 
 

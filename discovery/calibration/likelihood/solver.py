@@ -105,7 +105,7 @@ class _WaveformSolverError:
         nats off (``tests/test_command_replay.py``).
         The load falls as the step squared (M000's bundled square: 184, 46, 10.4 and 2.5 at 1/1,
         1/2, 1/4 and 1/8 of 5e-4 s), so the next divisor is the one that squared law puts under
-        the limit (M000's square: 1/5, load 7.4, rather than halving on to 1/8: 5 steps for 8).
+        the limit (M000's square: 1/5, load 6.7, rather than halving on to 1/8: 5 steps for 8).
         A divided step that does not fit the output grid reports no change and is kept.
         The load is measured at ``params``, from step ``dt`` (default the term's ``dt``) down;
         :meth:`refine_at` repeats it at the maximum a posteriori.
