@@ -28,7 +28,7 @@ import numpy as np
 
 from .backend import H5_GROUP, CheckpointBackend
 
-__all__ = ["LaplaceIndependenceMove", "LaplaceAdaptation"]
+__all__ = ["LaplaceIndependenceMove", "PriorChordMove", "LaplaceAdaptation"]
 
 
 class LaplaceIndependenceMove(emcee.moves.MHMove):
@@ -93,6 +93,79 @@ class LaplaceIndependenceMove(emcee.moves.MHMove):
         return new, self.log_density(coords) - self.log_density(new)
 
 
+class PriorChordMove(emcee.moves.RedBlueMove):
+    """Hit-and-run across the prior: a walker moves to a uniform point of the chord the prior's
+    box cuts along a direction drawn independently of it.
+
+    The direction is a coordinate axis or a principal axis of the complementary half of the
+    ensemble (the red-blue split keeps the proposal independent of the walker moved, so the
+    uniform chord is a symmetric proposal: Smith 1984; Belisle, Romeijn & Smith 1993). Along a
+    direction the recordings do not pin (a band-pass gain deep in saturation, a hydraulic
+    resonance far above the cycle, a backlash below what the cycle resolves) the chord's points are
+    accepted about as often as the prior allows, and a walker crosses the whole prior in one step,
+    where the differential-evolution moves diffuse across it at the ensemble's own spread (draw
+    1000 of the wide set-coverage benchmark: band-pass gain held near its start for 800 steps,
+    then tau 235). Along a pinned direction the move is accepted rarely and costs one simulation.
+
+    Parameters
+    ----------
+    low, high : array (ndim,)
+        The prior's box in sampling coordinates.
+    extra : sequence of arrays (ndim,)
+        Directions known to be flat where the recordings do not reach, besides the axes (the
+        linear block's resonance at fixed damping ratio and static gain:
+        :func:`resonance_direction`).
+    """
+
+    def __init__(self, low, high, extra=()):
+        super().__init__(nsplits=2, randomize_split=True, live_dangerously=True)
+        self.low = np.asarray(low, dtype=float)
+        self.high = np.asarray(high, dtype=float)
+        self.extra = [np.asarray(d, dtype=float) / np.linalg.norm(d) for d in extra]
+
+    def directions(self, complement):
+        """Unit directions: the coordinate axes, ``extra`` and the principal axes of
+        ``complement``."""
+        ndim = self.low.size
+        axes = [np.eye(ndim)] + [d[None, :] for d in self.extra]
+        c = np.concatenate(complement, axis=0)
+        if len(c) > ndim:
+            # in units of the box, so a principal axis is not one coordinate's unit
+            scaled = (c - self.low) / (self.high - self.low)
+            _, vecs = np.linalg.eigh(np.cov(scaled, rowvar=False))
+            vecs = vecs * (self.high - self.low)[:, None]
+            axes.append((vecs / np.linalg.norm(vecs, axis=0)).T)
+        return np.concatenate(axes, axis=0)
+
+    def get_proposal(self, s, c, random):
+        dirs = self.directions(c)
+        d = dirs[random.randint(len(dirs), size=len(s))]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = (self.low - s) / d
+            b = (self.high - s) / d
+        lo = np.where(d != 0, np.minimum(a, b), -np.inf).max(axis=1)
+        hi = np.where(d != 0, np.maximum(a, b), np.inf).min(axis=1)
+        t = lo + (hi - lo) * random.rand(len(s))
+        return s + t[:, None] * d, np.zeros(len(s))
+
+
+def resonance_direction(names, priors):
+    """The direction, in sampling coordinates, that moves the linear block's resonance
+    ``wn = sqrt(K3)`` at a fixed damping ratio ``K2 / (2 wn)`` and static gain ``K1 / K3``:
+    ``d ln K1 = d ln K3 = 2 d ln wn``, ``d ln K2 = d ln wn`` (docs/models.md#the-linear-block-and-the-papers-a-b-c).
+    A cycle far below the resonance does not see it move. ``None`` unless the three are sampled
+    in their logarithms."""
+    steps = {"gain": 2.0, "damping": 1.0, "stiffness": 2.0}
+    if not all(n in names and getattr(priors[n], "log", False) for n in steps):
+        return None
+    d = np.zeros(len(names))
+    for n, v in steps.items():
+        d[list(names).index(n)] = v
+    return d
+
+
+#: Share of the steps taken by :class:`PriorChordMove`, of those the Laplace move leaves.
+CHORD_SHARE = 0.25
 #: Steps between checks of the move's realised acceptance ...
 LAPLACE_CHECK_STEPS = 50
 #: ... and under which (the fraction of walker-steps that moved) it is switched off.
@@ -114,9 +187,12 @@ LAPLACE_GOOD_ACCEPTANCE = 0.6
 
 
 def _move_weights(share):
-    """Weights of (DEMove, DESnookerMove, Laplace move) when the last takes ``share`` of the
-    steps: the DE moves split the rest 80/20 as in :func:`.runner.default_moves`."""
-    return np.array([0.8 * (1.0 - share), 0.2 * (1.0 - share), share])
+    """Weights of (DEMove, DESnookerMove, Laplace move, chord move) when the Laplace move takes
+    ``share`` of the steps: the chord move takes ``CHORD_SHARE`` of the rest, the DE moves split
+    what is left 80/20 as in :func:`.runner.default_moves`."""
+    rest = 1.0 - share
+    return np.array([0.8 * rest * (1.0 - CHORD_SHARE), 0.2 * rest * (1.0 - CHORD_SHARE), share,
+                     rest * CHORD_SHARE])
 
 
 class LaplaceAdaptation:
@@ -131,14 +207,23 @@ class LaplaceAdaptation:
     """
 
     def _moves(self):
-        """The user's moves; else DE moves, nine in ten of them replaced by independence proposals
-        from the Laplace approximation when it is usable (``laplace_``)."""
+        """The user's moves; else DE moves and chord moves across the prior
+        (:class:`PriorChordMove`), nine in ten of them replaced by independence proposals from the
+        Laplace approximation when it is usable (``laplace_``)."""
         self._laplace_move = None
-        if self.moves is not None or self.laplace_ is None:
+        if self.moves is not None:
             return self.moves
+        bounds = np.array([self.priors_[n].internal_bounds for n in self.names_], dtype=float)
+        resonance = resonance_direction(self.names_, self.priors_)
+        chord = PriorChordMove(bounds[:, 0], bounds[:, 1],
+                               extra=() if resonance is None else (resonance,))
+        if self.laplace_ is None:
+            w = _move_weights(0.0)
+            return list(zip((emcee.moves.DEMove(), emcee.moves.DESnookerMove(), chord),
+                            w[[0, 1, 3]] / w[[0, 1, 3]].sum()))
         self._laplace_move = LaplaceIndependenceMove(self.laplace_["mean"], self.laplace_["cov"])
         share = float(self.laplace_.get("share", 1.0 - LAPLACE_SHARE_OTHER))
-        moves = (emcee.moves.DEMove(), emcee.moves.DESnookerMove(), self._laplace_move)
+        moves = (emcee.moves.DEMove(), emcee.moves.DESnookerMove(), self._laplace_move, chord)
         return list(zip(moves, _move_weights(share)))
 
     def _adapt_laplace(self, sampler):
