@@ -103,3 +103,27 @@ def test_members_differing_in_the_delays_position_are_combined_to_cover_each_and
     summary = (tmp_path / "report.md").read_text().split("## Recordings")[0]
     assert any(line.startswith("| delay |") and "depends on the structure" in line
                for line in summary.splitlines())
+
+
+def test_the_summary_tells_a_quantity_the_recordings_leave_open_from_a_decided_one():
+    """A backlash whose member interval spans most of its prior is printed as not pinned, not as
+    decided because the members happen to agree; a dead zone the members agree on is decided
+    regardless of the structure; a delay they disagree on depends on it."""
+    from tvcid.report import summary_lines
+
+    rng = np.random.default_rng(2)
+    a, b = _member("a", 2e-3, 1e-5, rng), _member("b", 3e-3, 1e-5, rng)
+    for m, centre in ((a, 0.02), (b, 0.0201)):
+        m.quantities["dead_zone[velocity]"] = centre + 1e-3 * rng.standard_normal(4000)
+        m.quantities["backlash"] = np.exp(rng.uniform(np.log(1e-6), np.log(1e-4), 4000))
+    combined = combine([a, b], seed=1).to_dict()
+    combined["members"][0]["posterior"] = {"not_pinned": ["backlash"]}
+    combined["members"][1]["posterior"] = {"not_pinned": []}
+    rows = [{"structure": s, "indistinguishable_from_best": True, "merged_into": None}
+            for s in ("a", "b")]
+    lines = summary_lines({"structures": rows, "decided": {}, "set_posterior": combined})
+    verdict = {line.split("|")[1].strip(): line.split("|")[5].strip()
+               for line in lines if line.startswith("| ") and "quantity" not in line}
+    assert verdict == {"delay": "depends on the structure",
+                       "backlash": "not pinned by the recordings",
+                       "dead_zone[velocity]": "decided regardless of the structure"}, verdict

@@ -44,6 +44,12 @@ def _num(value, digits=4) -> str:
     return f"{value:.{digits}g}"
 
 
+def _quantity_parameter(name) -> str:
+    """The sampled parameter a combined quantity is (``dead_zone[velocity]`` -> ``dead_zone``);
+    the threshold ``z - off`` and the linear block's figures are combinations of several."""
+    return name.split("[")[0]
+
+
 def summary_lines(summary) -> list:
     """The report's first screen: verdict, open structures, parameters with units, next test."""
     best = summary["structures"][0]
@@ -65,14 +71,15 @@ def summary_lines(summary) -> list:
         lines += ["", (f"Over the set's {n} calibrated structures, {summary['set_posterior']['criterion']}:"
                        if n > 1 else "The calibrated structure's posterior:"), "",
                   "| quantity | median | 90 % interval | unit | |", "|---|---|---|---|---|"]
+        open_params = sorted({n for m in summary["set_posterior"]["members"]
+                              for n in m["posterior"].get("not_pinned", [])})
         for name, q in combined.items():
             verdict = ("fixed or absent" if q["q05"] == q["q95"] else
                        "depends on the structure" if q["depends_on_structure"] else
-                       "decided regardless of the structure" if q["members"] > 1 else "")
+                       "not pinned by the recordings" if _quantity_parameter(name) in open_params
+                       else "decided regardless of the structure" if q["members"] > 1 else "")
             lines.append(f"| {name} | {_num(q['q50'])} | [{_num(q['q05'])}, {_num(q['q95'])}] | "
                          f"{q['unit']} | {verdict} |")
-        open_params = sorted({n for m in summary["set_posterior"]["members"]
-                              for n in m["posterior"].get("not_pinned", [])})
         if open_params:
             lines += ["", "Not pinned by the recordings (their intervals span most of the prior): "
                       + ", ".join(f"`{n}`" for n in open_params) + "."]
