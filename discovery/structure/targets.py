@@ -36,7 +36,12 @@ import numpy as np
 from discovery.calibration.likelihood import estimate_noise
 from models.batch import BatchSimulator, output_rate_for
 from models.edge_timing import edge_timing_for
-from models.features import crossing_hysteresis, cycle_crossings, upward_mean_crossings
+from models.features import (
+    crossing_hysteresis,
+    cycle_crossings,
+    fourier_harmonics,
+    upward_mean_crossings,
+)
 from models.hypotheses import DeadZonePosition
 
 __all__ = [
@@ -106,13 +111,7 @@ def phase_free_harmonics(t, x, omega, n_harmonics=N_HARMONICS):
 
     ``c_k exp(-i k arg c_1)``: invariant to a time shift of the cycle.
     """
-    z = np.exp(-1j * omega * (t - t[0]))
-    xc = x - np.mean(x)
-    c = np.empty(n_harmonics, dtype=complex)
-    zk = z.copy()
-    for j in range(n_harmonics):  # powers of z: one complex exponential per sample, not n
-        c[j] = 2.0 / t.size * np.dot(zk, xc)
-        zk *= z
+    c = fourier_harmonics(t, x, omega, n_harmonics)
     k = np.arange(1, n_harmonics + 1)
     rot = np.exp(-1j * np.angle(c[0]))
     return c * rot**k

@@ -17,7 +17,11 @@ import math
 import numpy as np
 
 from models.batch import CONTINUATION_RADIUS, BatchSimulator
-from models.features import InsufficientPeriodsError, limit_cycle_features
+from models.features import (
+    InsufficientPeriodsError,
+    fourier_harmonics,
+    limit_cycle_features,
+)
 
 from .base import _LOG_2PI, features_inflation, tempered
 from .closed_loop import MIN_AMPLITUDE_RATIO, _ClosedLoopTerm, _crossings
@@ -57,15 +61,11 @@ def cycle_features(t, x, names=DEFAULT_FEATURES):
     period = (c[-1] - c[0]) / (c.size - 1)
     w0 = 2 * math.pi / period
     sel = (t >= c[0]) & (t < c[-1])
-    ts, xs = t[sel], x[sel]
-    dt = float(np.mean(np.diff(t)))
     ks = [int(n[1:]) for n in names if n.startswith("H")]
     harm = {}
     if ks:
-        k = np.asarray(ks)
-        basis = np.exp(-1j * np.outer(k, w0 * (ts - ts[0])))
-        coeffs = 2.0 / (ts.size * dt) * np.sum(basis * (xs - xs.mean())[None, :], axis=1) * dt
-        harm = {f"H{kk}": float(a) for kk, a in zip(ks, np.abs(coeffs))}
+        coeffs = np.abs(fourier_harmonics(t[sel], x[sel], w0, max(ks)))
+        harm = {f"H{k}": float(coeffs[k - 1]) for k in ks}
     out = []
     for n in names:
         if n == "frequency":
