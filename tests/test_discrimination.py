@@ -174,5 +174,5 @@ def test_report_says_which_members_chains_did_not_converge():
     assert line.startswith("**Not converged**: `b` (2000 steps, 9.5 autocorrelation times)")
     assert "`a`" not in line
     off = {**late, "posterior": {**late["posterior"], "laplace_move": {"share": 0.0}}}
-    assert "(2000 steps, 9.5 autocorrelation times; the differential-evolution moves alone" in (
+    assert "(2000 steps, 9.5 autocorrelation times; without the Laplace move" in (
         _convergence_line([off]))

@@ -26,7 +26,7 @@ def _convergence_line(members) -> str:
                 "times long).")
     def alone(m):
         move = m["posterior"].get("laplace_move")
-        return ("; the differential-evolution moves alone: the Laplace move's proposal would be "
+        return ("; without the Laplace move, whose proposal would be "
                 "accepted too rarely" if move is not None and move["share"] == 0.0 else "")
 
     which = ", ".join(f"`{m['structure']}` ({m['posterior']['iterations']} steps, "

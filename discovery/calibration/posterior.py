@@ -155,9 +155,10 @@ class Posterior:
 
     def laplace_move(self) -> dict | None:
         """How the Laplace independence move served the chain
-        (:class:`.moves.LaplaceAdaptation`): ``share`` of the steps it took at the end (0: switched
-        off, the differential-evolution moves alone), its ``expected_acceptance`` at its last fit
-        and the step of that fit (``adapted_at``); ``None`` where the run had no such move."""
+        (:class:`.moves.LaplaceAdaptation`): ``share`` of the steps it took at the end (0:
+        switched off, the differential-evolution and chord moves alone), its
+        ``expected_acceptance`` at its last fit and the step of that fit (``adapted_at``);
+        ``None`` where the run had no such move."""
         info = getattr(self.calibration, "laplace_", None)
         if not info:
             return None
