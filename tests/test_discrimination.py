@@ -176,3 +176,7 @@ def test_report_says_which_members_chains_did_not_converge():
     off = {**late, "posterior": {**late["posterior"], "laplace_move": {"share": 0.0}}}
     assert "(2000 steps, 9.5 autocorrelation times; without the Laplace move" in (
         _convergence_line([off]))
+    drifting = {**late, "posterior": {**late["posterior"],
+                                      "interval_drift": {"largest": 0.42, "parameter": "delay"}}}
+    assert ("9.5 autocorrelation times; its 90 % intervals differ between the chain's two halves "
+            "by up to 42 % of their width (`delay`))") in _convergence_line([drifting])

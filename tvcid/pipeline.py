@@ -437,7 +437,8 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
         start += seconds["start"]
         s = post.summary()
         kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
-                                  "acceptance", "n_over_tau", "at_prior_bound", "laplace_move")}
+                                  "acceptance", "n_over_tau", "at_prior_bound", "laplace_move",
+                                  "interval_drift")}
         kept["not_pinned"] = not_pinned(post, priors)
         kept["structure"], kept["chain"] = row["structure"], chain
         if i == 0:

@@ -29,9 +29,14 @@ def _convergence_line(members) -> str:
         return ("; without the Laplace move, whose proposal would be "
                 "accepted too rarely" if move is not None and move["share"] == 0.0 else "")
 
+    def drift(m):
+        d = m["posterior"].get("interval_drift")
+        return (f"; its 90 % intervals differ between the chain's two halves by up to "
+                f"{100 * d['largest']:.0f} % of their width (`{d['parameter']}`)" if d else "")
+
     which = ", ".join(f"`{m['structure']}` ({m['posterior']['iterations']} steps, "
-                      f"{m['posterior']['n_over_tau']:.3g} autocorrelation times{alone(m)})"
-                      for m in late)
+                      f"{m['posterior']['n_over_tau']:.3g} autocorrelation times{alone(m)}"
+                      f"{drift(m)})" for m in late)
     return (f"**Not converged**: {which}; 50 autocorrelation times are needed. Their intervals, "
             "and the combined ones, are not yet their posteriors': the same command with a larger "
             "`--max-steps` continues the chains.")

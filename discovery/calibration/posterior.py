@@ -151,7 +151,29 @@ class Posterior:
             "inflation": list(getattr(self.calibration, "inflation_", None) or []),
             "at_prior_bound": self.at_prior_bound(),
             "laplace_move": self.laplace_move(),
+            "interval_drift": self.interval_drift(),
         }
+
+    def interval_drift(self) -> dict | None:
+        """How far the 90 % intervals still move: the two halves of the kept chain (after the
+        burn-in) each give an interval per parameter, and ``largest`` is the largest
+        ``(|q05_a - q05_b| + |q95_a - q95_b|) / (q95 - q05)`` over the parameters (``parameter``
+        names it), the whole kept chain's width in the denominator. A converged chain's halves
+        agree to a few per cent of the width; a chain still wandering differs by a large part of
+        it. ``None`` for a chain under 20 kept steps."""
+        kept = self.chain[self.burn:]
+        if kept.shape[0] < 20:
+            return None
+        half = kept.shape[0] // 2
+        a = kept[:half].reshape(-1, kept.shape[2])
+        b = kept[half:].reshape(-1, kept.shape[2])
+        qa, qb = np.quantile(a, (0.05, 0.95), axis=0), np.quantile(b, (0.05, 0.95), axis=0)
+        q = np.quantile(kept.reshape(-1, kept.shape[2]), (0.05, 0.95), axis=0)
+        width = q[1] - q[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            drift = np.where(width > 0, np.abs(qa - qb).sum(axis=0) / width, 0.0)
+        j = int(np.argmax(drift))
+        return {"largest": float(drift[j]), "parameter": self.names[j]}
 
     def laplace_move(self) -> dict | None:
         """How the Laplace independence move served the chain
