@@ -31,8 +31,8 @@ def test_ridge_case_with_a_drawn_truth_converges_and_covers_it(tmp_path):
     limit cycles at A and B, 40 s at 1 kHz), a truth drawn by the shared generator, calibrated as
     ``tvcid fit`` does by default: converged within the step cap and every truth inside its 90 %
     interval (seed 0 measured by ``python -m studies.benchmarks.calibration --case ridge`` at the
-    5e-4 s default step: 260 steps, 27 s; widths 0.9 % dead zone, 2.8 % backlash, 14 % delay,
-    1.5 % friction offset; the truth's HPD rank 0.30; discrepancy factors 1.0). The friction
+    5e-4 s default step: 210 steps, 20 s; widths 0.6 % dead zone, 2.1 % backlash, 12 % delay,
+    1.5 % friction offset; the truth's HPD rank 0.23; discrepancy factors 1.0). The friction
     offset's jump is located inside the step; at a step boundary it would lock the period to the
     5e-4 s grid and every posterior sample would beat the truth. About 3 minutes on 2 cores,
     mostly the data."""
