@@ -178,8 +178,11 @@ LAPLACE_SHARE_OTHER = 0.1
 LAPLACE_ADAPT_STEPS = 50
 #: Expected acceptance of the refitted proposal under which it is switched off.
 LAPLACE_MIN_ACCEPTANCE = 0.25
-#: Times a switched-off proposal is refitted again (each when the chain has doubled).
-LAPLACE_MAX_RETRIES = 3
+#: Times a switched-off proposal is refitted again, each when the chain has doubled: from step 50,
+#: up to 12,800 steps. The chord moves spread the walkers early, so an early refit can fail where
+#: a later one serves (wide set-coverage draw 1001's first member: expected acceptance 0.08-0.13
+#: refitted at step 400, 0.47-0.64 at 800; with three retries it stopped at 2000 steps, tau 30).
+LAPLACE_MAX_RETRIES = 8
 #: Acceptance (expected, or realised over the last check) under which a proposal in use is
 #: refitted when the chain has doubled since its fit (its first fit rests on 25 steps: on M002's
 #: noise seed 5 a proposal expected at 0.52 and kept takes 470 steps, tau 10).
