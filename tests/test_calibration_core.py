@@ -522,7 +522,9 @@ def test_switched_off_laplace_move_is_tried_again_once_the_chain_has_doubled():
     """A proposal switched off early (refitted while the walkers still spread: the ridge case's
     expected acceptance 0.15 at step 200) is refitted again to the chain when it has doubled; on
     the known Gaussian, sampled meanwhile by the DE moves, the refit matches it and the move comes
-    back on, and a retry is spent only once per doubling."""
+    back on, and a retry is spent only once per doubling. A retry that fails leaves the burn-in
+    where it was: draw 1000 of the wide set-coverage benchmark, its last retry failing at step
+    1600, kept only the last 400 of its 2000 steps otherwise."""
     import emcee
 
     from discovery.calibration import Calibration
@@ -550,6 +552,20 @@ def test_switched_off_laplace_move_is_tried_again_once_the_chain_has_doubled():
     assert cal.laplace_["retries"] == 1 <= LAPLACE_MAX_RETRIES
     assert cal.laplace_["adapted_at"] == 400 and cal.laplace_["expected_acceptance"] > 0.5
     np.testing.assert_allclose(sampler._weights, _move_weights(0.9))
+    # a retry that fails leaves the moves, so the burn-in (adapted_at) stays where it was; the
+    # next retry waits for the chain to double from the failed one
+    from unittest import mock
+
+    from discovery.calibration import moves as moves_module
+
+    cal.laplace_ = {"adapted_at": 200, "checked_at": 200, "share": 0.0}
+    with mock.patch.object(moves_module, "LAPLACE_MIN_ACCEPTANCE", 1.01):
+        cal._adapt_laplace(sampler)
+    assert cal.laplace_["share"] == 0.0 and cal.laplace_["retries"] == 1
+    assert cal.laplace_["adapted_at"] == 200 and cal.laplace_["retried_at"] == 400
+    sampler._weights = _move_weights(0.0)
+    cal._adapt_laplace(sampler)  # 400 < 2 x 400: not yet
+    assert cal.laplace_["retries"] == 1
 
 
 class _BoxedGaussian:

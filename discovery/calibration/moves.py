@@ -253,9 +253,16 @@ class LaplaceAdaptation:
             # switched off while the walkers were still spreading along a ridge: tried again once
             # the chain has doubled (the ridge case: 0.15 expected at step 200)
             retries = int(info.get("retries", 0))
-            if retries < LAPLACE_MAX_RETRIES and it >= 2 * int(info["adapted_at"]):
+            tried = int(info.get("retried_at", info["adapted_at"]))
+            if retries < LAPLACE_MAX_RETRIES and it >= 2 * tried:
                 info["retries"] = retries + 1
+                adapted = info["adapted_at"]
                 self._refit_laplace(sampler, it)
+                if info.get("share", 0.0) <= 0.0:
+                    # still off: the chain's moves did not change, so neither does the burn-in
+                    # (``adapted_at``, which the posterior's samples start after)
+                    info.update(adapted_at=adapted, retried_at=it)
+                    self._save_laplace()
             return
         if it < last + LAPLACE_CHECK_STEPS:
             return
