@@ -185,22 +185,26 @@ def test_interval_drift_tells_a_settled_chain_from_a_wandering_one():
     """The 90 % intervals of a kept chain's two halves: a stationary AR(1) chain (tau ~9, 1000
     steps, 16 walkers) gives them within 15 % of the width (measured 0.05); the same chain whose
     walkers drift by three sd over the run (a chain still spreading into a direction the data
-    leave free) gives them apart by half the width (measured 0.60)."""
+    leave free) gives them apart by half the width (measured 0.60). A parameter sampled in log
+    is judged in log: the settled chain as ``exp`` of itself drifts as much as in its own
+    coordinate (0.05; read in natural units, 0.02)."""
     from discovery.calibration.posterior import Posterior
 
     rng = np.random.default_rng(4)
     settled = _ar1_chain(rng, 1000, rho=0.8)
     wandering = settled + np.linspace(0, 3, 1000)[:, None, None]
 
-    def drift(chain):
+    def drift(chain, log=False):
         post = Posterior(names=("x",), samples=chain.reshape(-1, 1), internal=chain.reshape(-1, 1),
-                         log_prob=np.zeros(chain.size), chain=chain, log_scale=(False,), truths={},
+                         log_prob=np.zeros(chain.size), chain=chain, log_scale=(log,), truths={},
                          report=None, burn=100, thin=1)
         return post.interval_drift()
 
     assert drift(settled)["largest"] < 0.15 and drift(settled)["parameter"] == "x"
     assert drift(wandering)["largest"] > 0.4
     assert drift(settled[:110]) is None  # 10 kept steps
+    assert drift(np.exp(settled), log=True)["largest"] == pytest.approx(
+        drift(settled)["largest"], rel=1e-9)
 
 
 def test_gaussian_resume_through_hdf_equals_straight_run(tmp_path):

@@ -256,13 +256,7 @@ class LaplaceAdaptation:
             tried = int(info.get("retried_at", info["adapted_at"]))
             if retries < LAPLACE_MAX_RETRIES and it >= 2 * tried:
                 info["retries"] = retries + 1
-                adapted = info["adapted_at"]
-                self._refit_laplace(sampler, it)
-                if info.get("share", 0.0) <= 0.0:
-                    # still off: the chain's moves did not change, so neither does the burn-in
-                    # (``adapted_at``, which the posterior's samples start after)
-                    info.update(adapted_at=adapted, retried_at=it)
-                    self._save_laplace()
+                self._refit_laplace(sampler, it, retry=True)
             return
         if it < last + LAPLACE_CHECK_STEPS:
             return
@@ -282,14 +276,20 @@ class LaplaceAdaptation:
             sampler._weights = _move_weights(0.0)
             self._save_laplace()
 
-    def _refit_laplace(self, sampler, it):
+    def _refit_laplace(self, sampler, it, retry=False):
         """The independence proposal recentred on the chain's second half (its mean and
         covariance), which the curvature at the optimum only approximates (M002 on one record:
         tau 5.4 without the refit, 2.3 with it), then tried: ``2 n_walkers`` proposals (a seeded
         draw, one batch of simulations) give its expected acceptance at equilibrium; under
         ``LAPLACE_MIN_ACCEPTANCE`` the move is switched off and the DE moves take every step
         (drawn truths whose posterior is far from Gaussian: acceptance 0.05-0.08, tau 80-95 with
-        the move kept)."""
+        the move kept).
+
+        ``retry``: the move is off and tried again. If it stays off, the chain's moves did not
+        change, so neither does the burn-in (``adapted_at``, which the posterior's samples start
+        after); the step is kept as ``retried_at``, from which the next retry waits for the chain
+        to double. The record is written once, so that a run killed here resumes as it would
+        have gone on."""
         move, info = self._laplace_move, self.laplace_
         z = sampler.get_chain(discard=it // 2, flat=True)
         cov = np.cov(z, rowvar=False)
@@ -297,6 +297,8 @@ class LaplaceAdaptation:
             move.set_proposal(z.mean(axis=0), cov)
         except np.linalg.LinAlgError:
             info["share"] = 0.0
+            if retry:
+                info["retried_at"] = it
             sampler._weights = _move_weights(0.0)
             self._save_laplace()
             return
@@ -304,8 +306,12 @@ class LaplaceAdaptation:
         acceptance = move.expected_acceptance(trial, self.log_posterior_(trial))
         share = (1.0 - LAPLACE_SHARE_OTHER) if acceptance >= LAPLACE_MIN_ACCEPTANCE else 0.0
         sampler._weights = _move_weights(share)  # emcee's move weights, in _moves' order
-        info.update(mean=z.mean(axis=0).tolist(), cov=np.atleast_2d(cov).tolist(), adapted_at=it,
+        info.update(mean=z.mean(axis=0).tolist(), cov=np.atleast_2d(cov).tolist(),
                     checked_at=it, expected_acceptance=acceptance, share=share)
+        if retry and share <= 0.0:
+            info["retried_at"] = it
+        else:
+            info["adapted_at"] = it
         self._save_laplace()
 
     def _save_laplace(self):
