@@ -42,6 +42,31 @@ def test_error_form_truth_and_the_goals_over_rows():
     assert not any(g.met for g in coverage_goals(table))
 
 
+def test_the_table_splits_coverage_by_the_chains_convergence_and_counts_cycles_only_draws():
+    """A draw whose chains stopped at their cap and one whose chains converged are counted apart,
+    each with its goals' truths inside; a draw without open-loop tests counts as limit cycles
+    alone, one with a test does not."""
+    truth = M002()
+    good = {"dead_zone[error]": (0.5 * truth.dead_zone, 2 * truth.dead_zone),
+            "backlash": (0.5 * truth.backlash, 2 * truth.backlash),
+            "delay": (0.5 * truth.delay, 2 * truth.delay)}
+    bad = {**good, "backlash": (0.1 * truth.backlash, 0.5 * truth.backlash)}
+    rows = []
+    for seed, intervals, converged, kinds in ((1, good, True, ("closed", "open")),
+                                              (2, bad, False, ("closed", "closed")),
+                                              (3, good, False, ("closed",))):
+        row = coverage_row(seed, truth, Structure.of_params(truth),
+                           _summary(intervals, converged=converged))
+        row["design"] = {"recordings": [{"kind": k} for k in kinds]}
+        rows.append(row)
+    table = summarise(rows)
+    assert table["by_chains"]["converged"] == {
+        "draws": 1, "inside": {"dead zone": 1, "backlash": 1, "delay": 1}}
+    assert table["by_chains"]["stopped at the cap"] == {
+        "draws": 2, "inside": {"dead zone": 2, "backlash": 1, "delay": 2}}
+    assert table["cycles_only"] == {"draws": 2, "converged": 0}
+
+
 def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     """docs/results.md's row for the set coverage: the finished draws, each goal's count, the
     failed draw and the set sizes; under 30 draws no coverage goal is met, whatever the share."""
@@ -59,3 +84,5 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     assert "delay: truth inside the combined 90 % interval: 0 of 2 = 0%" in text
     assert text.count("NOT met") == 3  # three coverage goals under 30 draws; the chains' goal met
     assert "truth's structure in the set in 2 of 2" in text and "per draw 2-2" in text
+    assert "draws whose every chain converged: 2 (dead zone 2 inside, backlash 2 inside, delay 0 " \
+        "inside); draws with a chain stopped at its cap: 0;" in text

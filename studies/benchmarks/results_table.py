@@ -212,10 +212,19 @@ def set_coverage(records):
     table = summarise(rows)
     seeds = sorted(r["seed"] for r in rows)
     sizes = [len(r["members"]) for r in rows if "error" not in r]
+    wording = {"converged": "draws whose every chain converged",
+               "stopped at the cap": "draws with a chain stopped at its cap"}
+    split = "; ".join(
+        f"{wording[label]}: {part['draws']}"
+        + ("" if not part["draws"] else " (" + ", ".join(
+            f"{g} {k} inside" for g, k in part["inside"].items()) + ")")
+        for label, part in table["by_chains"].items())
+    only = table["cycles_only"]
     return (f"{table['draws']} of {MIN_DRAWS} draws finished (seeds {seeds[0]}-{seeds[-1]}, "
             f"{table['failed']} failed); " + _goals_text(coverage_goals(table))
-            + f"; truth's structure in the set in {table['truth_in_set']} of {table['draws']}; "
-            f"members calibrated per draw {min(sizes)}-{max(sizes)}")
+            + f"; {split}; limit cycles alone in {only['draws']} draws, their chains converged "
+            f"in {only['converged']}; truth's structure in the set in {table['truth_in_set']} of "
+            f"{table['draws']}; members calibrated per draw {min(sizes)}-{max(sizes)}")
 
 
 def discover_speed(records):

@@ -110,18 +110,33 @@ def guarded_draw(seed, out_dir, quick, ranges="wide") -> dict:
                 "commit": CODE_COMMIT}
 
 
+def cycles_only(row) -> bool:
+    """Whether the draw's recordings are limit cycles alone (no open-loop test)."""
+    kinds = [r["kind"] for r in (row.get("design") or {}).get("recordings", [])]
+    return bool(kinds) and "open" not in kinds
+
+
 def summarise(rows) -> dict:
     """Share of finished draws with the truth inside, per goal quantity and per combined
-    quantity; draws converged; truth in the set."""
+    quantity; draws converged; truth in the set. ``by_chains`` splits the goals' counts between
+    draws whose every chain converged and the others (does a chain stopped at its cap still
+    cover?); ``cycles_only`` counts the draws of limit cycles alone and their converged ones."""
     done = [r for r in rows if "error" not in r]
     n = len(done)
     per_goal = {g: sum(r["goals"][g] for r in done) for g in GOAL_QUANTITIES}
     names = sorted({q for r in done for q in r["quantities"]})
     per_quantity = {q: {"inside": sum(r["quantities"][q]["inside"] for r in done if q in r["quantities"]),
                         "draws": sum(q in r["quantities"] for r in done)} for q in names}
+    by_chains = {}
+    for label, converged in (("converged", True), ("stopped at the cap", False)):
+        part = [r for r in done if bool(r["converged"]) is converged]
+        by_chains[label] = {"draws": len(part),
+                            "inside": {g: sum(r["goals"][g] for r in part) for g in GOAL_QUANTITIES}}
+    only = [r for r in done if cycles_only(r)]
     return {"draws": n, "failed": len(rows) - n, "inside": per_goal, "quantities": per_quantity,
             "converged": sum(r["converged"] for r in done),
-            "truth_in_set": sum(r["truth_in_set"] for r in done)}
+            "truth_in_set": sum(r["truth_in_set"] for r in done), "by_chains": by_chains,
+            "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)}}
 
 
 def coverage_goals(table) -> list:
