@@ -5,9 +5,11 @@ from models.structures import Structure
 from studies.benchmarks.set_coverage import coverage_goals, coverage_row, summarise
 
 
-def _summary(intervals, members=("a",), converged=True, in_set=()):
+def _summary(intervals, members=("a",), converged=True, in_set=(), allowed=None):
+    allowed = allowed or {}
     return {"indistinguishable": list(in_set),
-            "set_posterior": {"quantities": {k: {"q05": lo, "q95": hi} for k, (lo, hi) in intervals.items()},
+            "set_posterior": {"quantities": {k: {"q05": lo, "q95": hi, "allowed": allowed.get(k)}
+                                             for k, (lo, hi) in intervals.items()},
                               "members": [{"structure": m, "converged": converged,
                                            "posterior": {"not_pinned": []}} for m in members]}}
 
@@ -86,3 +88,31 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     assert "truth's structure in the set in 2 of 2" in text and "per draw 2-2" in text
     assert "draws whose every chain converged: 2 (dead zone 2 inside, backlash 2 inside, delay 0 " \
         "inside); draws with a chain stopped at its cap: 0;" in text
+
+
+def test_the_row_and_the_table_count_truths_inside_the_range_the_recordings_allow():
+    """A backlash interval under the truth (the prior's mass) with an allowed range that holds it:
+    outside the interval, inside the range; a delay without a range counts in neither the
+    range's hits nor its draws; a quantity the set lacks is outside both. The claim's text
+    prints the counts."""
+    from studies.benchmarks.results_table import set_coverage
+
+    truth = M002()
+    intervals = {"dead_zone[error]": (0.5 * truth.dead_zone, 2 * truth.dead_zone),
+                 "backlash": (0.01 * truth.backlash, 0.8 * truth.backlash),
+                 "delay": (0.5 * truth.delay, 2 * truth.delay)}
+    allowed = {"dead_zone[error]": [0.4 * truth.dead_zone, 3 * truth.dead_zone],
+               "backlash": [1e-6, 1.2 * truth.backlash]}
+    row = coverage_row(1, truth, Structure.of_params(truth),
+                       _summary(intervals, allowed=allowed, in_set=[Structure.of_params(truth).name]))
+    assert row["goals"] == {"dead zone": True, "backlash": False, "delay": True}
+    assert row["goals_allowed"] == {"dead zone": True, "backlash": True, "delay": None}
+    table = summarise([row])
+    assert table["allowed"] == {"dead zone": {"inside": 1, "draws": 1},
+                                "backlash": {"inside": 1, "draws": 1},
+                                "delay": {"inside": 0, "draws": 0}}
+    text = set_coverage({"bench_set_coverage": {"rows": [row]}})
+    assert "truth inside the range the recordings allow: dead zone 1 of 1, backlash 1 of 1, " \
+        "delay 0 of 0" in text
+    lacking = coverage_row(2, M000(), Structure.of_params(M000()), _summary(intervals, allowed=allowed))
+    assert lacking["goals_allowed"]["dead zone"] is False

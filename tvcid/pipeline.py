@@ -450,7 +450,7 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
         margin = row.get("margin")
         ratio = (row["score"] - best_score) / margin if margin else 0.0
         members.append(MemberPosterior(row["structure"], member_quantities(row["params"], draws),
-                                       kept, float(ratio)))
+                                       kept, float(ratio), log_prob=post.log_prob))
     combined = combine(members, seed=seed).to_dict()
     combined["not_calibrated"] = [r["structure"] for r in rows[MAX_MEMBERS:]]
     summary["set_posterior"] = combined

@@ -83,10 +83,15 @@ def summary_lines(summary) -> list:
                        "depends on the structure" if q["depends_on_structure"] else
                        "not pinned by the recordings" if _quantity_parameter(name) in open_params
                        else "decided regardless of the structure" if q["members"] > 1 else "")
+            if verdict.startswith("not pinned") and q.get("allowed"):
+                lo, hi = q["allowed"]
+                verdict += f"; they allow {_num(lo)} to {_num(hi)}"
             lines.append(f"| {name} | {_num(q['q50'])} | [{_num(q['q05'])}, {_num(q['q95'])}] | "
                          f"{q['unit']} | {verdict} |")
         if open_params:
-            lines += ["", "Not pinned by the recordings (their intervals span most of the prior): "
+            lines += ["", "Not pinned by the recordings (their intervals span most of the prior and "
+                      "follow where it puts its mass; the range the recordings allow is where the "
+                      "profile log posterior stays within 1.92 nats of the best): "
                       + ", ".join(f"`{n}`" for n in open_params) + "."]
         if summary["set_posterior"].get("not_calibrated"):
             lines += ["", "Not calibrated (more structures than the cap): " + ", ".join(

@@ -23,6 +23,12 @@ at most 1 by the set's construction.
 A quantity *depends on the structure* when the spread of the members' medians exceeds half the
 median width of their own 90 % intervals: then the combined interval is wide because the members
 disagree, not because each is uncertain.
+
+Beside its interval, each quantity has the range the recordings *allow* (:func:`allowed_range`):
+where its profile log posterior stays within 1.92 nats of the best, the members' ranges joined.
+The priors are flat in the sampling coordinates, so this is a profile-likelihood range, which
+does not depend on how a prior spreads its mass: on a quantity the recordings do not pin, the 90 %
+interval is mostly the prior's, the allowed range says where the recordings bound it.
 """
 from __future__ import annotations
 
@@ -31,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["MemberPosterior", "SetPosterior", "calibrate_member", "combine",
+__all__ = ["MemberPosterior", "SetPosterior", "allowed_range", "calibrate_member", "combine",
            "linear_block_dc_gain_and_bandwidth", "member_priors", "member_quantities",
            "member_walkers", "not_pinned", "QUANTITY_UNITS"]
 
@@ -44,6 +50,11 @@ QUANTITY_UNITS = {
 #: A quantity depends on the structure when the members' medians spread by more than this
 #: fraction of the median width of their 90 % intervals.
 STRUCTURE_DEPENDENCE = 0.5
+#: Drop of the log posterior (nats) that bounds the values the recordings allow
+#: (:func:`allowed_range`): a profile likelihood's 95 % point for one quantity (3.84 / 2).
+ALLOWED_DROP = 1.92
+#: Bins of a quantity's range over which its profile is read.
+ALLOWED_BINS = 40
 #: Frequencies (rad/s) on which the linear block's -3 dB point is found.
 _OMEGA = np.logspace(-1, 4.5, 1200)
 
@@ -70,6 +81,38 @@ def linear_block_dc_gain_and_bandwidth(gain, damping, stiffness, feedback_gain):
         f = (r0 - 1 / np.sqrt(2)) / (r0 - r1)
         bandwidth[i] = float(np.exp(np.log(_OMEGA[j - 1]) + f * np.log(_OMEGA[j] / _OMEGA[j - 1])))
     return 1.0 / k, bandwidth
+
+
+def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS):
+    """The values of one quantity the recordings allow, read off a member's draws.
+
+    The draws' range is cut into ``bins`` bins (in log where the values are positive and span
+    over a decade); a bin's profile is the largest log posterior of its draws, and the range
+    runs from the first to the last bin whose profile is within ``drop`` nats of the largest of
+    all, its ends read at the outermost draws of those two bins that are within ``drop`` too. With priors flat in the sampling coordinates (log-uniform and uniform), the log posterior
+    is the log likelihood plus a constant, so this is a profile-likelihood range: unlike the 90 %
+    interval, it does not follow where the prior puts its mass. Sparse draws at an edge read the
+    profile low there, so the range errs narrow. Returns ``(low, high)``, or ``None`` under
+    ``2 bins`` finite draws."""
+    v = np.asarray(values, dtype=float)
+    lp = np.broadcast_to(np.asarray(log_prob, dtype=float), v.shape)
+    ok = np.isfinite(v) & np.isfinite(lp)
+    v, lp = v[ok], lp[ok]
+    if v.size < 2 * bins:
+        return None
+    lo, hi = float(v.min()), float(v.max())
+    if hi <= lo:
+        return lo, hi
+    log = lo > 0 and hi > 10 * lo
+    x = np.log(v) if log else v
+    edges = np.linspace(x.min(), x.max(), bins + 1)
+    index = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)
+    profile = np.full(bins, -np.inf)
+    np.maximum.at(profile, index, lp)
+    within = lp >= lp.max() - drop
+    kept = np.flatnonzero(profile >= lp.max() - drop)
+    return (float(v[within & (index == kept[0])].min()),
+            float(v[within & (index == kept[-1])].max()))
 
 
 def member_quantities(params: dict, draws: dict) -> dict:
@@ -197,12 +240,15 @@ class MemberPosterior:
         sampled parameter's quantiles, convergence, ``at_prior_bound``.
     score_over_margin : float
         ``(score - best score) / margin``: at most 1 for a member of the set.
+    log_prob : ndarray, optional
+        The log posterior of each draw (for :func:`allowed_range`).
     """
 
     structure: str
     quantities: dict
     summary: dict = field(default_factory=dict)
     score_over_margin: float = 0.0
+    log_prob: np.ndarray | None = None
 
     @property
     def converged(self) -> bool:
@@ -276,7 +322,8 @@ def combine(members, n_draws=4000, seed=0) -> SetPosterior:
     SetPosterior
         ``quantities``: name -> ``q05``, ``q50``, ``q95``, ``unit``, ``members`` (how many have
         it), ``depends_on_structure`` and ``spread_over_width`` (the rule of the module's
-        docstring).
+        docstring), and ``allowed``: ``[low, high]``, the members' :func:`allowed_range` joined
+        (``None`` where no member has its draws' log posterior).
     """
     if not members:
         raise ValueError("combine: no member to combine")
@@ -296,9 +343,14 @@ def combine(members, n_draws=4000, seed=0) -> SetPosterior:
         spread = (max(medians) - min(medians)) if medians else 0.0
         width = float(np.median(widths)) if widths else 0.0
         ratio = spread / width if width > 0 else (0.0 if spread == 0 else float("inf"))
+        ranges = [allowed_range(m.quantities[name], m.log_prob) for m in having
+                  if m.log_prob is not None]
+        ranges = [r for r in ranges if r is not None]
+        allowed = [min(r[0] for r in ranges), max(r[1] for r in ranges)] if ranges else None
         quantities[name] = {**q, "unit": QUANTITY_UNITS.get(name, ""), "members": len(having),
                             "spread_over_width": ratio,
-                            "depends_on_structure": bool(len(having) > 1 and ratio > STRUCTURE_DEPENDENCE)}
+                            "depends_on_structure": bool(len(having) > 1 and ratio > STRUCTURE_DEPENDENCE),
+                            "allowed": allowed}
     criterion = ("equal weights: the members' held-out scores differ from the best by less than "
                  "the margin the folds' disagreement allows (largest difference "
                  f"{max(m.score_over_margin for m in members):.2f} margins)")

@@ -220,6 +220,10 @@ def set_coverage(records):
             f"{g} {k} inside" for g, k in part["inside"].items()) + ")")
         for label, part in table["by_chains"].items())
     only = table["cycles_only"]
+    allowed = table["allowed"]
+    if any(a["draws"] for a in allowed.values()):
+        split += "; truth inside the range the recordings allow: " + ", ".join(
+            f"{g} {a['inside']} of {a['draws']}" for g, a in allowed.items())
     return (f"{table['draws']} of {MIN_DRAWS} draws finished (seeds {seeds[0]}-{seeds[-1]}, "
             f"{table['failed']} failed); " + _goals_text(coverage_goals(table))
             + f"; {split}; limit cycles alone in {only['draws']} draws, their chains converged "

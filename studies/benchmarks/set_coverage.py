@@ -59,15 +59,20 @@ def goal_quantity(name, truth_values) -> str:
 def coverage_row(seed, truth, structure, summary) -> dict:
     """The row of one draw: per quantity the truth, the combined interval and whether it holds
     the truth (a quantity the set lacks, such as the dead zone at the truth's place, counts as
-    outside)."""
+    outside); and the range the recordings allow (:func:`discovery.structure.set_posterior.allowed_range`)
+    and whether it holds the truth (``None`` where the run has none)."""
     values = truth_quantities(truth)
     combined = summary["set_posterior"]["quantities"]
     inside = {}
     for name, value in values.items():
         q = combined.get(name)
         held = q is not None and q["q05"] is not None and q["q05"] <= value <= q["q95"]
+        allowed = None if q is None else q.get("allowed")
         inside[name] = {"truth": value, "q05": None if q is None else q["q05"],
-                        "q95": None if q is None else q["q95"], "inside": bool(held)}
+                        "q95": None if q is None else q["q95"], "inside": bool(held),
+                        "allowed": allowed,
+                        "inside_allowed": (bool(allowed[0] <= value <= allowed[1]) if allowed
+                                           else False if q is None else None)}
     members = summary["set_posterior"]["members"]
     return {
         "seed": seed,
@@ -78,6 +83,8 @@ def coverage_row(seed, truth, structure, summary) -> dict:
         "not_pinned": sorted({n for m in members for n in m["posterior"].get("not_pinned", [])}),
         "quantities": inside,
         "goals": {g: inside[goal_quantity(g, values)]["inside"] for g in GOAL_QUANTITIES},
+        "goals_allowed": {g: inside[goal_quantity(g, values)]["inside_allowed"]
+                          for g in GOAL_QUANTITIES},
         "commit": CODE_COMMIT,
     }
 
@@ -120,7 +127,9 @@ def summarise(rows) -> dict:
     """Share of finished draws with the truth inside, per goal quantity and per combined
     quantity; draws converged; truth in the set. ``by_chains`` splits the goals' counts between
     draws whose every chain converged and the others (does a chain stopped at its cap still
-    cover?); ``cycles_only`` counts the draws of limit cycles alone and their converged ones."""
+    cover?); ``cycles_only`` counts the draws of limit cycles alone and their converged ones;
+    ``allowed`` counts, per goal, the truths inside the range the recordings allow, over the
+    draws that have one."""
     done = [r for r in rows if "error" not in r]
     n = len(done)
     per_goal = {g: sum(r["goals"][g] for r in done) for g in GOAL_QUANTITIES}
@@ -133,7 +142,10 @@ def summarise(rows) -> dict:
         by_chains[label] = {"draws": len(part),
                             "inside": {g: sum(r["goals"][g] for r in part) for g in GOAL_QUANTITIES}}
     only = [r for r in done if cycles_only(r)]
-    return {"draws": n, "failed": len(rows) - n, "inside": per_goal, "quantities": per_quantity,
+    allowed = {g: {"inside": sum(bool(r.get("goals_allowed", {}).get(g)) for r in done),
+                   "draws": sum(r.get("goals_allowed", {}).get(g) is not None for r in done)}
+               for g in GOAL_QUANTITIES}
+    return {"allowed": allowed, "draws": n, "failed": len(rows) - n, "inside": per_goal, "quantities": per_quantity,
             "converged": sum(r["converged"] for r in done),
             "truth_in_set": sum(r["truth_in_set"] for r in done), "by_chains": by_chains,
             "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)}}
