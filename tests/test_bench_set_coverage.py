@@ -103,8 +103,9 @@ def test_the_row_and_the_table_count_truths_inside_the_range_the_recordings_allo
                  "delay": (0.5 * truth.delay, 2 * truth.delay)}
     allowed = {"dead_zone[error]": [0.4 * truth.dead_zone, 3 * truth.dead_zone],
                "backlash": [1e-6, 1.2 * truth.backlash]}
+    in_set = [Structure.of_params(truth).name]
     row = coverage_row(1, truth, Structure.of_params(truth),
-                       _summary(intervals, allowed=allowed, in_set=[Structure.of_params(truth).name]))
+                       _summary(intervals, allowed=allowed, in_set=in_set))
     assert row["goals"] == {"dead zone": True, "backlash": False, "delay": True}
     assert row["goals_allowed"] == {"dead zone": True, "backlash": True, "delay": None}
     table = summarise([row])

@@ -157,7 +157,8 @@ def test_allowed_range_finds_the_bound_the_data_set_where_the_interval_follows_t
     assert low < 1.5e-6 and high == pytest.approx(2.39e-4, rel=0.05) and low < 1.8e-4 < high
     g = 3e-3 + 1e-4 * rng.standard_normal(20000)
     low, high = allowed_range(g, -0.5 * ((g - 3e-3) / 1e-4) ** 2)
-    assert low == pytest.approx(3e-3 - 1.96e-4, rel=0.01) and high == pytest.approx(3e-3 + 1.96e-4, rel=0.01)
+    assert low == pytest.approx(3e-3 - 1.96e-4, rel=0.01)
+    assert high == pytest.approx(3e-3 + 1.96e-4, rel=0.01)
     assert allowed_range(g[:50], np.zeros(50)) is None  # too few draws to read a profile
 
 

@@ -89,8 +89,9 @@ def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS):
     The draws' range is cut into ``bins`` bins (in log where the values are positive and span
     over a decade); a bin's profile is the largest log posterior of its draws, and the range
     runs from the first to the last bin whose profile is within ``drop`` nats of the largest of
-    all, its ends read at the outermost draws of those two bins that are within ``drop`` too. With priors flat in the sampling coordinates (log-uniform and uniform), the log posterior
-    is the log likelihood plus a constant, so this is a profile-likelihood range: unlike the 90 %
+    all, its ends read at the outermost draws of those two bins that are within ``drop`` too.
+    With priors flat in the sampling coordinates (log-uniform and uniform), the log posterior is
+    the log likelihood plus a constant, so this is a profile-likelihood range: unlike the 90 %
     interval, it does not follow where the prior puts its mass. Sparse draws at an edge read the
     profile low there, so the range errs narrow. Returns ``(low, high)``, or ``None`` under
     ``2 bins`` finite draws."""
