@@ -189,3 +189,26 @@ def test_combined_quantity_joins_the_members_allowed_ranges_and_the_summary_prin
     lines = summary_lines({"structures": rows, "decided": {}, "set_posterior": out})
     line = next(li for li in lines if li.startswith("| backlash |"))
     assert f"not pinned by the recordings; they allow {low:.4g} to {high:.4g} |" in line, line
+
+
+def test_the_threshold_is_the_dead_zone_where_no_member_samples_a_friction_offset():
+    """Without a friction offset in any member, the velocity form's threshold ``z - off`` is the
+    dead zone itself and is printed as not pinned with it; where a member samples the offset,
+    the threshold is their combination, which motion can pin while neither part is."""
+    from tvcid.report import summary_lines
+
+    rng = np.random.default_rng(7)
+    z = np.exp(rng.uniform(np.log(1e-4), np.log(3e-2), 4000))
+    member = MemberPosterior("a", {"dead_zone[velocity]": z, "threshold": z}, {"converged": True}, 0.0)
+    out = combine([member], seed=1).to_dict()
+    rows = [{"structure": "a", "indistinguishable_from_best": True, "merged_into": None}]
+
+    def verdicts(parameters):
+        out["members"][0]["posterior"] = {"not_pinned": ["dead_zone"], "parameters": parameters}
+        lines = summary_lines({"structures": rows, "decided": {}, "set_posterior": out})
+        return {li.split("|")[1].strip(): li.split("|")[5].strip() for li in lines
+                if li.startswith("| ") and "quantity" not in li}
+
+    alone = verdicts({"dead_zone": {}, "delay": {}})
+    assert alone["threshold"] == alone["dead_zone[velocity]"] == "not pinned by the recordings"
+    assert verdicts({"dead_zone": {}, "friction_offset": {}})["threshold"] == ""

@@ -49,9 +49,13 @@ def _num(value, digits=4) -> str:
     return f"{value:.{digits}g}"
 
 
-def _quantity_parameter(name) -> str:
+def _quantity_parameter(name, members=()) -> str:
     """The sampled parameter a combined quantity is (``dead_zone[velocity]`` -> ``dead_zone``);
-    the threshold ``z - off`` and the linear block's figures are combinations of several."""
+    the threshold ``z - off`` is the dead zone where no member samples a friction offset, else,
+    like the linear block's figures, a combination of several."""
+    if name == "threshold" and not any("friction_offset" in m["posterior"].get("parameters", {})
+                                       for m in members):
+        return "dead_zone"
     return name.split("[")[0]
 
 
@@ -81,7 +85,8 @@ def summary_lines(summary) -> list:
         for name, q in combined.items():
             verdict = ("fixed or absent" if q["q05"] == q["q95"] else
                        "depends on the structure" if q["depends_on_structure"] else
-                       "not pinned by the recordings" if _quantity_parameter(name) in open_params
+                       "not pinned by the recordings"
+                       if _quantity_parameter(name, summary["set_posterior"]["members"]) in open_params
                        else "decided regardless of the structure" if q["members"] > 1 else "")
             if verdict.startswith("not pinned") and q.get("allowed"):
                 lo, hi = q["allowed"]
