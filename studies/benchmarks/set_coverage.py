@@ -132,23 +132,27 @@ def summarise(rows) -> dict:
     draws that have one."""
     done = [r for r in rows if "error" not in r]
     n = len(done)
-    per_goal = {g: sum(r["goals"][g] for r in done) for g in GOAL_QUANTITIES}
+
+    def inside(part):
+        return {g: sum(r["goals"][g] for r in part) for g in GOAL_QUANTITIES}
+
+    per_goal = inside(done)
     names = sorted({q for r in done for q in r["quantities"]})
     per_quantity = {q: {"inside": sum(r["quantities"][q]["inside"] for r in done if q in r["quantities"]),
                         "draws": sum(q in r["quantities"] for r in done)} for q in names}
     by_chains = {}
     for label, converged in (("converged", True), ("stopped at the cap", False)):
         part = [r for r in done if bool(r["converged"]) is converged]
-        by_chains[label] = {"draws": len(part),
-                            "inside": {g: sum(r["goals"][g] for r in part) for g in GOAL_QUANTITIES}}
+        by_chains[label] = {"draws": len(part), "inside": inside(part)}
     only = [r for r in done if cycles_only(r)]
     allowed = {g: {"inside": sum(bool(r.get("goals_allowed", {}).get(g)) for r in done),
                    "draws": sum(r.get("goals_allowed", {}).get(g) is not None for r in done)}
                for g in GOAL_QUANTITIES}
-    return {"allowed": allowed, "draws": n, "failed": len(rows) - n, "inside": per_goal, "quantities": per_quantity,
+    return {"draws": n, "failed": len(rows) - n, "inside": per_goal, "quantities": per_quantity,
             "converged": sum(r["converged"] for r in done),
             "truth_in_set": sum(r["truth_in_set"] for r in done), "by_chains": by_chains,
-            "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)}}
+            "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)},
+            "allowed": allowed}
 
 
 def coverage_goals(table) -> list:
