@@ -185,9 +185,11 @@ class Calibration(StartSearch, LaplaceAdaptation):
         enough. Learned attribute ``laplace_`` (mean, covariance in sampling coordinates and the
         move's share), kept in the checkpoint for a resumed chain.
     global_search : bool
-        Where the local optimum leaves a discrepancy, look for a better one over the whole prior
-        box (differential evolution) and with a short ensemble run
-        (:meth:`.start.StartSearch._scout`) before the inflation is set. ``False`` when the start
+        Where the local optimum misfits a recording by over ``SUSPECT_INFLATION`` times its noise
+        or leaves it without a cycle, look for a better one over the whole prior box (differential
+        evolution), with or without the discrepancy term; with the term, also where the factors
+        stay over 1, and with a short ensemble run (:meth:`.start.StartSearch._scout`) before the
+        inflation is set. ``False`` when the start
         already is a global search's optimum on the same recordings (``tvcid discover``'s winner):
         a misfit left there is the model's, and both searches only repeat that search (M000's four
         records: 37 s and 20 s of the stage's 123 s, the same optimum).

@@ -117,8 +117,9 @@ class StartSearch:
                                 "initial_simplex": _simplex(z0, lp)})
         if np.isfinite(lp(res.x)):
             z0 = _profile_sigma(lp, res.x, self.names_)
-        searched = (self.discrepancy and self.global_search
-                    and self._suspect_optimum(lp, z0))
+        # owed with or without the discrepancy term: the search finds the mode, the term only
+        # tempers the likelihood there
+        searched = self.global_search and self._suspect_optimum(lp, z0)
         if searched:
             z0 = _global_start(lp, z0, int(rng.integers(2**31)), self.names_)
         if self.discrepancy:
@@ -132,10 +133,12 @@ class StartSearch:
 
     def _suspect_optimum(self, lp, z0) -> bool:
         """The local search's optimum misfits some recording by over ``SUSPECT_INFLATION`` times
-        its noise: a local optimum (drawn truths: the start 30 % off, Nelder-Mead stops at lp
-        -1456 where the truth has +114) or a wrong model; either way a global search is owed
-        before the discrepancy inflation is measured there."""
-        return max(self._inflations_at(lp, z0)) > SUSPECT_INFLATION
+        its noise, or has no finite posterior (a start without a cycle, where Nelder-Mead cannot
+        move): a local optimum (drawn truths: the start 30 % off, Nelder-Mead stops at lp -1456
+        where the truth has +114) or a wrong model; either way a global search is owed before the
+        discrepancy inflation is measured there."""
+        return (not np.isfinite(lp(z0))
+                or max(self._inflations_at(lp, z0)) > SUSPECT_INFLATION)
 
     def _polish(self, lp, z0):
         """Nelder-Mead restarted along the principal axes at its optimum while that optimum
