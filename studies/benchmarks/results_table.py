@@ -302,7 +302,7 @@ CLAIMS = (
     Claim("the discrepancy term widens right models' 90 % intervals by at most 20 % (rows with "
           "the term from `bench_coverage.json`)",
           coverage_widening, lambda r: _widening(r)[1],
-          "python -m studies.benchmarks.coverage --widening --indices 13,15,18,25 --jobs 2",
+          "python -m studies.benchmarks.coverage --widening --jobs 2",
           "bench_coverage_widening",
           "tests/test_bench_coverage.py::"
           "test_widening_compares_interval_widths_with_and_without_the_discrepancy_term"),
