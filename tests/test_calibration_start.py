@@ -19,7 +19,7 @@ def test_a_start_without_a_cycle_reaches_the_cycle_without_the_discrepancy_term(
     the truth by log-normal scatter: there the model's cycle dies out, so the features likelihood
     is -inf and Nelder-Mead cannot move. Without the discrepancy term the calibration must still
     search globally, reach a finite maximum, and put the dead zone the cycle pins within 2 % of
-    the truth (here 0.2 %); before, it stopped with "could not place the walkers"."""
+    the truth (here 0.2 %); a search gated on the term stops with "could not place the walkers"."""
     config = Config()
     scenario = coverage_scenario(26, config)
     truth = scenario.truth
