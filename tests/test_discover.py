@@ -566,6 +566,32 @@ def test_a_superset_of_a_member_joins_the_set_merged_whatever_its_own_fit_scored
         "backlash"] is None
 
 
+def test_every_structure_within_the_screen_is_ranked_however_many_fit():
+    """One cycle that every structure of the grammar fits about equally (costs of a few
+    thousandths): all of them get the out-of-sample ranking, so none leaves the set by the
+    order of its in-sample cost; a fit far outside the screen is still left unranked."""
+    from discovery.structure.ranking import (
+        StructureFit,
+        in_sample_screen,
+        ranked_candidates,
+    )
+    from models.structures import all_structures
+
+    rng = np.random.default_rng(1009)
+    names = [str(s) for s in all_structures()]
+    costs = np.sort(rng.uniform(0.0005, 0.004, len(names) - 1))
+    order = [StructureFit(structure=Structure.parse(n), params=None, theta=np.zeros(1), cost=c,
+                          cost_by_recording={}, origin="test")
+             for n, c in zip(names, costs)]
+    far = in_sample_screen(costs[0], n_recordings=1) + 0.1
+    order.append(StructureFit(structure=Structure.parse(names[-1]), params=None,
+                              theta=np.zeros(1), cost=far, cost_by_recording={}, origin="test"))
+    ranked = ranked_candidates(order, max_ranked=8, n_recordings=1)
+    assert len(names) > 24 and ranked == order[:-1]
+    assert ranked_candidates(order[:3] + order[-1:], max_ranked=8, n_recordings=1) == \
+        order[:3] + order[-1:]
+
+
 def test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature():
     """The margin's floors add like independent errors (:func:`.indistinguishable.indistinguishable_margin`):
     a structure worse by 0.07 on every one of five recordings, the two folds agreeing (benchmark

@@ -123,8 +123,7 @@ class StructureDiscovery:
     max_ranked : int
         Structures (best in-sample first) that always get the out-of-sample ranking; any further
         structure whose in-sample cost is within :func:`.ranking.in_sample_screen` of the best's
-        is ranked too (up to :data:`.ranking.MAX_RANKED`), so that the reported set is not cut at
-        a fixed size.
+        is ranked too, so that the reported set is not cut at a fixed size.
 
     Attributes
     ----------
