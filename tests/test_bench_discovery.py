@@ -4,7 +4,9 @@ The benchmark's first draw (seed 1000, :func:`studies.benchmarks.scenarios.draw_
 ``data/bench/draw1000`` as the benchmark writes it (reference path, measured-style sidecars, the
 truth in ``truth/scenario.json``), so that no test spends four minutes of the plain-Python
 reference path making it; a slow test rebuilds it byte for byte. The default suite runs one draw
-with its search cut short; the benchmark's own quick draw is a slow test.
+with its search cut short; the benchmark's own quick draw is a slow test. The rules that read
+finished rows (re-derivation, floor scan, fit ceiling) are checked on six rows the benchmark wrote,
+kept in ``tests/data/discovery_rows.json`` so that a rerun of the record does not move them.
 """
 import hashlib
 import json
@@ -18,6 +20,12 @@ from studies.benchmarks.discovery import main as bench_main
 from studies.benchmarks.scenarios import draw_scenario, provenance, write_recordings
 
 BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
+ROWS = Path(__file__).resolve().parent / "data" / "discovery_rows.json"
+
+
+def stored_rows() -> dict:
+    """The benchmark's rows of draws 1003, 1010, 1013, 1017, 1020 and 1025, by seed."""
+    return {r["seed"]: r for r in json.loads(ROWS.read_text())["rows"]}
 
 
 def test_bundled_draw_is_the_generators_own():
@@ -101,13 +109,9 @@ def test_a_finished_row_is_rederived_from_its_stored_ranking():
     recording (0.35 in all), leaves the set, which keeps the three delay positions of the truth's
     dead-zone position; the old verdict stays under ``previous``. A row re-derived twice is the
     same."""
-    import json
-    from pathlib import Path
-
     from studies.benchmarks.discovery import rederived
 
-    record = Path(__file__).resolve().parents[1] / "studies" / "benchmarks" / "records" / "bench_discovery_quick.json"
-    row = next(r for r in json.loads(record.read_text())["rows"] if r["seed"] == 1017)
+    row = stored_rows()[1017]
     row = {**row, **row.get("previous", {}), "set_size": 5, "right_or_in_small_set": False,
            "winner": "dz_velocity+delay_before_integrator"}
     new = rederived(row, [0.1] * 5, commit="test")
@@ -129,9 +133,8 @@ def test_floor_scan_weighs_the_set_rule_on_finished_rows():
     every scale. The truth is never lost by widening the margin."""
     from studies.benchmarks.discovery import FLOOR_SCALES, floor_scan
 
-    record = Path(__file__).resolve().parents[1] / "studies" / "benchmarks" / "records" / "bench_discovery_quick.json"
     seeds = (1003, 1010, 1017, 1020, 1025)
-    rows = [r for r in json.loads(record.read_text())["rows"] if r["seed"] in seeds]
+    rows = [r for seed, r in stored_rows().items() if seed in seeds]
     floors = {r["seed"]: [0.1] * len(r["design"]["recordings"]) for r in rows}
     scan = floor_scan(rows, floors)
     assert scan.scales == FLOOR_SCALES and scan.scales.index(1.0) == 4
@@ -155,8 +158,7 @@ def test_structures_fitting_as_well_as_the_truth_bound_the_set():
     from models.structures import Structure
     from studies.benchmarks.discovery import as_well_as_truth, summarise
 
-    record = Path(__file__).resolve().parents[1] / "studies" / "benchmarks" / "records" / "bench_discovery_quick.json"
-    rows = {r["seed"]: r for r in json.loads(record.read_text())["rows"]}
+    rows = stored_rows()
     assert as_well_as_truth(rows[1013]) == [rows[1013]["structure"]]
     row = rows[1010]
     fitting = as_well_as_truth(row)
