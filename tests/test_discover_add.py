@@ -5,10 +5,8 @@ import hashlib
 import json
 import shutil
 
-import numpy as np
 import pytest
 
-from discovery.structure.indistinguishable import indistinguishable_margin
 from tvcid.cli import main
 
 A, B = "data/m000_closed_A.csv", "data/m000_closed_B.csv"
@@ -44,9 +42,9 @@ def runs(tmp_path_factory):
 
 def test_added_recording_gives_the_fresh_runs_ranking_and_parameters(runs):
     """After ``--add``: both recordings, the earlier run's set kept for reference, the same
-    winner and set as the fresh run on both, with a held-out score and an in-sample cost within the
-    set's margin of the fresh search's; the search refitted from the earlier optimum instead of
-    searching globally."""
+    winner and set as the fresh run on both, with a held-out score within the set's margin floor
+    of the fresh run's (the two cycles leave a gain-delay ridge open, along which the two runs'
+    parameters may differ); no global stage over every structure."""
     _, earlier, loop, fresh = runs
     assert loop["recordings"] == fresh["recordings"] == [A, B]
     assert loop["added"] == [B] and loop["earlier_set"] == earlier["indistinguishable"]
@@ -55,12 +53,28 @@ def test_added_recording_gives_the_fresh_runs_ranking_and_parameters(runs):
     assert loop["indistinguishable"] == fresh["indistinguishable"]
     assert abs(best_loop["score"] - best_fresh["score"]) <= 0.2  # the margin's floor, two recordings
     assert "refit" in loop["timings"] and "global" not in loop["timings"]
-    assert best_loop["origin"].startswith("least squares from the earlier run")
-    # the refit from the earlier optimum fits as well as the fresh search, within the set's margin
-    # for two recordings (the refit may stop in a neighbouring basin: in-sample costs measured
-    # 0.233 against the fresh search's 0.106)
-    margin = indistinguishable_margin(np.zeros((2, 2)), np.zeros((2, 2)), 2)
-    assert abs(best_loop["cost"] - best_fresh["cost"]) <= margin, (best_loop["cost"], best_fresh["cost"])
+    # least squares from cycle A's optimum, or, where cycle B pulls the refit out of A's basin
+    # (A fits worse than at A's optimum), a global search seeded with the refit
+    assert best_loop["origin"].startswith(("least squares from the earlier run's optimum",
+                                           "global search (the added recordings fit worse"))
+
+
+def test_an_earlier_optimum_that_fits_the_added_recording_is_refined_not_searched(runs):
+    """``previous`` at the fresh run's optimum of cycles A and B: the refit fits no recording
+    worse than its start, so no global search runs and the optimum's cost is kept within a few
+    hundredths."""
+    from discovery.structure import StructureDiscovery
+    from models.hypotheses import params_from_dict
+    from models.recording import load_recordings
+
+    _, _, _, fresh = runs
+    best = fresh["structures"][0]
+    previous = {best["structure"]: params_from_dict("custom", best["params"])}
+    disc = StructureDiscovery(fixed=fresh["fixed"], seed=fresh["seed"], search=fresh["search"],
+                              use_sindy=False).fit(load_recordings([A, B]), previous=previous)
+    assert disc.searches_["global"] == 0, disc.searches_
+    assert disc.best_.origin == "least squares from the earlier run's optimum"
+    assert disc.best_.cost <= best["cost"] + 0.05, (disc.best_.cost, best["cost"])
 
 
 @pytest.mark.parametrize("case, expected", [
