@@ -216,7 +216,7 @@ class StructureSearch:
         objective's recordings, the new ones included; a structure without one is searched
         globally, and so is one whose refit fits any recording worse than the earlier optimum
         did by more than ``TOL_ABS`` (the added recordings pull it out of the earlier basin:
-        M000's cycle A alone is fitted on a gain-delay ridge at twice the gain and half the
+        M000's cycle A alone can be fitted on a gain-delay ridge at twice the gain and half the
         delay of the optimum of cycles A and B, and the refit from there stops at a cost of 1.03
         against a fresh search's 0.035). Then the cross-seeding, the superset repair and the
         refits from the best optimum, as after a fresh search. Returns ``(fits, repaired)``."""
