@@ -166,7 +166,6 @@ def test_structures_fitting_as_well_as_the_truth_bound_the_set():
     sine) leaves the six positions of the dead zone and the delay, each minimal and each fitted at
     most at the truth's cost; a set of at most 3 cannot hold 1010's truth without excluding a
     structure the data favour as much. The summary counts the ceiling per class."""
-    from models.structures import Structure
     from studies.benchmarks.discovery import as_well_as_truth, summarise
 
     rows = stored_rows()

@@ -115,6 +115,8 @@ class FitResult:
     restarts : int
         Independent searches this fit is the best of
         (:func:`.structure_search.best_of_restarts`).
+    start_cost_by_target : ndarray or None
+        A refinement's cost per target at its start (:func:`refine`).
     """
 
     theta: np.ndarray
@@ -122,6 +124,7 @@ class FitResult:
     cost_by_target: np.ndarray
     evaluations: int
     restarts: int = 1
+    start_cost_by_target: np.ndarray | None = None
 
 
 def _batch_cost(space, objective, thetas, targets=None):
@@ -215,7 +218,7 @@ def refine(space, objective, theta0, max_nfev=40, targets=None):
     start = _batch_cost(space, objective, [theta0], targets)[0]
     if start.sum() < cbt.sum():  # least_squares never worsens, but the penalty plateaus can
         theta, cbt = theta0, start
-    return FitResult(theta, float(cbt.sum()), cbt, count[0])
+    return FitResult(theta, float(cbt.sum()), cbt, count[0], start_cost_by_target=start)
 
 
 def refine_all(space, objective, starts, max_nfev=40, targets=None):

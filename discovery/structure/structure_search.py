@@ -225,10 +225,9 @@ class StructureSearch:
 
         def from_previous(s):
             start = self.spaces[s].coordinates(s.to_params(previous[s.name]))
-            before = self.objective.costs([self.spaces[s].params(start)])[0]
             fr = refine(self.spaces[s], self.objective, start, max_nfev=self.sizes.nfev)
             bar.update()
-            return fr, bool(np.any(fr.cost_by_target - before > TOL_ABS))
+            return fr, bool(np.any(fr.cost_by_target - fr.start_cost_by_target > TOL_ABS))
 
         fits, moved = {}, {}
         for s, (fr, worse) in zip(warm, concurrent_map(from_previous, warm)):
