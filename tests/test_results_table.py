@@ -156,3 +156,11 @@ def test_speed_claim_judges_the_stored_run_in_reference_seconds():
     for wall, verdict in ((300 * reference / 2e-4, " met"), (1200 * reference / 2e-4, "NOT met")):
         judged = discover_speed({"bench_discover_speed": {**record, "wall_seconds": wall}})
         assert judged.split(";")[0].endswith(verdict), judged
+
+
+def test_the_next_tests_default_seeds_are_the_discovery_records_misses_that_hold_the_truth():
+    from studies.benchmarks.next_test import DEFAULT_SEEDS
+
+    rows = load_records()["bench_discovery_quick"]["rows"]
+    misses = {r["seed"] for r in rows if r["truth_in_set"] and not r["right_or_in_small_set"]}
+    assert set(DEFAULT_SEEDS) == misses
