@@ -180,3 +180,14 @@ def test_report_says_which_members_chains_did_not_converge():
                                       "interval_drift": {"largest": 0.42, "parameter": "delay"}}}
     assert ("9.5 autocorrelation times; its 90 % intervals differ between the chain's two halves "
             "by up to 42 % of their width (`delay`))") in _convergence_line([drifting])
+
+
+def test_a_pair_is_decided_in_fact_by_the_members_the_second_set_keeps_merged_ones_included():
+    """The next-test benchmark's count: a richer structure the first set merged into a member
+    keeps that member when the second set needs it; a structure outside the first set keeps none."""
+    from studies.benchmarks.next_test import pairs_decided_in_fact
+
+    first = {"a": "a", "b": "b", "c": "c", "a+bandpass": "a"}
+    assert pairs_decided_in_fact(first, ["a+bandpass"]) == [("a", "b"), ("a", "c")]
+    assert pairs_decided_in_fact(first, ["b", "x+friction"]) == [("a", "b"), ("b", "c")]
+    assert pairs_decided_in_fact(first, ["c", "a", "b"]) == []

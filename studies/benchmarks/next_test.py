@@ -55,6 +55,21 @@ def _set_of(disc, truth):
                                     "right_winner")}
 
 
+def pairs_decided_in_fact(first, second):
+    """The pairs of the first set's members that the second discovery tells apart.
+
+    ``first``: the first discovery's set, each structure's name -> the member it is merged into
+    (itself for a member). ``second``: the names of every structure in the second set, merged
+    ones too. A member is kept when the second set holds it or a structure the first set merged
+    into it (a richer structure that was at its added components' zero, now needed); a pair is
+    decided when one member is kept and the other is not.
+    """
+    members = [name for name, member in first.items() if member == name]
+    kept = {first[name] for name in second if name in first}
+    return [(a, b) for i, a in enumerate(members) for b in members[i + 1:]
+            if (a in kept) != (b in kept)]
+
+
 def run_draw(seed, out):
     """Discover, ask for the next test, record it from the truth, discover again."""
     scenario = draw_scenario(seed, ranges=DRAW_RANGES)
@@ -88,9 +103,9 @@ def run_draw(seed, out):
     # the discovery again, on every recording with the new one
     disc2 = StructureDiscovery(seed=seed, use_sindy=False).fit(list(paths) + [new_path])
     after = _set_of(disc2, truth)
-    inside = {f.structure.name for f in disc2.indistinguishable_}
+    first = {f.structure.name: f.merged_into or f.structure.name for f in disc.indistinguishable_}
+    decided = pairs_decided_in_fact(first, [f.structure.name for f in disc2.indistinguishable_])
     pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
-    decided = [(a, b) for a, b in pairs if (a in inside) != (b in inside)]
     predicted_open = {tuple(sorted(u)) for u in best["undecided"]}
     agree = sum(((a, b) in decided) == (tuple(sorted((a, b))) not in predicted_open)
                 for a, b in pairs)
