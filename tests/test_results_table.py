@@ -164,3 +164,13 @@ def test_the_next_tests_default_seeds_are_the_discovery_records_misses_that_hold
     rows = load_records()["bench_discovery_quick"]["rows"]
     misses = {r["seed"] for r in rows if r["truth_in_set"] and not r["right_or_in_small_set"]}
     assert set(DEFAULT_SEEDS) == misses
+
+
+def test_every_record_holds_rows_of_one_commit_of_clean_code():
+    """A record's figures come from one version of the code: every row of it names the same
+    commit, and none was made from modified files (``+dirty``)."""
+    for name, record in load_records().items():
+        rows = record.get("rows") or record.get("plain_rows") or [record]
+        commits = {row.get("commit") for row in rows}
+        assert len(commits) == 1 and None not in commits, f"{name}: rows at {sorted(map(str, commits))}"
+        assert not next(iter(commits)).endswith("+dirty"), f"{name}: made from modified code"
