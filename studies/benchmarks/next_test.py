@@ -8,17 +8,17 @@ recordings' highest rate and median estimated noise, the members refitted) predi
 of structures the best test of the menu would decide. Checked by running that test: it is
 recorded from the draw's truth by the plain-Python reference path with the draw's own sensor,
 and the discovery runs again on all the draw's recordings. A pair of the first set is decided in
-fact when the second set holds one of its two structures and not the other. Deciding numbers:
-per draw, the set before and after (size, truth inside, right winner), the pairs predicted
-decided against the pairs decided in fact, and the pairs on which they agree.
+fact when the second set keeps one of its two members and not the other
+(:func:`pairs_decided_in_fact`). Deciding numbers: per draw, the set before and after (size,
+truth inside, right winner), the pairs predicted decided against the pairs decided in fact, and
+the pairs on which they agree.
 
 The default seeds are the discovery benchmark's misses whose set holds the truth
 (``studies/benchmarks/records/bench_discovery_quick.json``), sets of 6-10 structures drawn
 within the generator's ``papers`` ranges. Each draw runs two discoveries with the benchmark's
-quick settings (no SINDy seeds) and the suggestion's refits: about 15-25 minutes a draw on two
-cores. Rows are
-written to ``DIR/bench.json`` as they finish, each with the commit of the code that ran it
-(non-finite numbers as ``null``); a rerun keeps finished draws.
+quick settings (no SINDy seeds) and the suggestion's refits: about 5-20 minutes a draw on two
+cores. Rows are written to ``DIR/bench.json`` as they finish, each with the commit of the code
+that ran it (non-finite numbers as ``null``); a rerun keeps finished draws.
 
 Goals: none (a hypothesis checked by its deciding numbers); the run ends by saying so
 (:func:`studies.benchmarks.goals.report`) and exits 0.
