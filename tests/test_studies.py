@@ -111,8 +111,9 @@ def test_h1_runs_the_mcmc_ridge_and_the_report_embeds_it(quick_results):
     rows = {r["label"]: r for r in summary["mcmc_ridge"]["rows"]}
     assert set(rows) >= {"A amplitude+frequency", "A+B+open loop waveform"}
     # The quick one-cycle and A+B chains are not converged (their widths move with the chain's
-    # path); the open-loop rows are. Measured on quick runs of seeds 0-2 (the README's numbers
-    # are the full run's: test_full_ridge_study_gives_the_readme_numbers, slow).
+    # path); the open-loop rows are. Measured on quick runs of seeds 0-2 (the documented numbers
+    # are the full run's: test_full_ridge_study_leaves_one_cycle_on_a_ridge_that_more_data_shrink,
+    # slow).
     one = rows["A amplitude+frequency"]["width90_relative"]
     both = rows["A+B amplitude+frequency"]["width90_relative"]
     open_loop = rows["A+B amp+freq + open loop"]
@@ -137,26 +138,26 @@ def test_h1_runs_the_mcmc_ridge_and_the_report_embeds_it(quick_results):
 
 
 @pytest.mark.slow
-def test_full_ridge_study_gives_the_readme_numbers(tmp_path):
-    """The full ``python -m studies.calibration_ridge`` (seed 0; 7-8 min on 2 cores), whose numbers
-    the README quotes. Measured on seeds 0 and 1: corr(ln f, ln zm) 0.989 and
-    0.989 on one cycle's amplitude and frequency, f's 90 % width 120 % and 124 % of its median;
-    width shrinkage (first row's width over the row's, per parameter f, zm, Td) with controller B
-    10.9-16.6x and 6.6-16.4x, B and open loop 40-49x and 38-41x, the waveform of all records
-    77-85x and 68-89x. The one-cycle chain is a ridge (not converged, N/tau 17-20), so the factors
-    move with its width: asserted with the margins below, which the README states."""
+def test_full_ridge_study_leaves_one_cycle_on_a_ridge_that_more_data_shrink(tmp_path):
+    """The full ``python -m studies.calibration_ridge`` (seed 0; 2-4 min on 2 cores), whose numbers
+    docs/methods/calibration.md states. One cycle's amplitude and frequency leave a ridge: corr(ln
+    f, ln zm) 0.995 and 0.994 on seeds 0 and 1, its chain unconverged at the cap, so its widths are
+    lower bounds (6-13 times the two-controller widths). Against the converged two-controller
+    posterior, open-loop tests shrink the widths 2.2-5.8 times and the waveforms of all records
+    5.2-10 times (seeds 0 and 1, per parameter f, zm, Td); asserted with the margins below."""
     from studies import calibration_ridge
 
     summary = calibration_ridge.run(calibration_ridge.Config(), 0, tmp_path)
     rows = {r["label"]: r for r in summary["ridge"]["rows"]}
-    one = rows["A amplitude+frequency"]
-    assert one["corr_log_pair"] > 0.98 and one["width90_relative"]["backlash"] > 1.0
-    for label, (low, high) in (("A+B amplitude+frequency", (5.0, 20.0)),
-                               ("A+B amp+freq + open loop", (30.0, 60.0)),
-                               ("A+B+open loop waveform", (60.0, 100.0))):
-        for name, width in rows[label]["width90_relative"].items():
-            assert low < one["width90_relative"][name] / width < high, (label, name)
+    one, two = rows["A amplitude+frequency"], rows["A+B amplitude+frequency"]
+    assert one["corr_log_pair"] > 0.98 and not one["converged"] and two["converged"]
+    for name, width in two["width90_relative"].items():
+        assert one["width90_relative"][name] / width > 4.0, name
+    for label, (low, high) in (("A+B amp+freq + open loop", (1.5, 9.0)),
+                               ("A+B+open loop waveform", (3.5, 15.0))):
         assert rows[label]["converged"], label
+        for name, width in rows[label]["width90_relative"].items():
+            assert low < two["width90_relative"][name] / width < high, (label, name)
 
 
 def test_h2_flags_the_seventh_harmonic_of_m001f_only(quick_results):
