@@ -10,7 +10,7 @@ import pytest
 from discovery.calibration.likelihood import WaveformTerm
 from discovery.spectral.harmonics import whole_periods
 from discovery.spectral.samples import as_uniform_samples
-from discovery.structure.targets import cycle_of, stationary_tail
+from discovery.structure.cycle_tail import cycle_of, stationary_tail
 from models import CONTROLLER_A
 from models.features import CROSSING_HYSTERESIS, crossing_hysteresis
 from models.recording import Recording
@@ -52,8 +52,12 @@ def test_simulated_cycle_is_measured_at_the_records_multiple():
     """A cycle whose lobes alternate is read at the record's crossings per period, not decided
     afresh per simulated run: across the subharmonic threshold the free decision halves the
     frequency (a jump of the features for a small change of a parameter), the record's does not."""
-    from discovery.structure.targets import (SUBHARMONIC_FRACTION, _sizes, crossing_multiple,
-                                             fundamental_crossings)
+    from discovery.structure.cycle_tail import (
+        SUBHARMONIC_FRACTION,
+        _sizes,
+        crossing_multiple,
+        fundamental_crossings,
+    )
 
     w = 2 * np.pi * 3.0
     t = np.arange(0.0, 3.0, 2e-3)

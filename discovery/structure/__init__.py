@@ -18,9 +18,9 @@ Stages, one module each:
 * :mod:`.discrimination` -- which further test would tell the set's members apart.
 """
 from .coordinates import SearchSpace, UnknownParameterError
+from .cycle_tail import NoCycleError
 from .estimator import DiscoveryInputError, StructureDiscovery, validate_recordings
 from .ranking import StructureFit
-from .targets import NoCycleError
 
 __all__ = [
     "DiscoveryInputError",

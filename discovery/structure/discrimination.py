@@ -39,8 +39,9 @@ from models.structures import Structure
 
 from ..calibration.priors import SIGMA
 from ..prediction.design import Candidate, DesignRanking, rank_experiments
+from .cycle_tail import NoCycleError
 from .indistinguishable import TOL_ABS
-from .targets import NoCycleError, make_target
+from .targets import make_target
 
 __all__ = ["DiscriminationRanking", "default_candidates", "discriminating_tests", "design_over_set",
            "DECIDES"]

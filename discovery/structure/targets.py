@@ -11,7 +11,10 @@ Each recording then counts alike, however many samples it holds.
   each unit widened by the record's own wander between pieces of ``PERIODS`` periods (a cycle that
   is not periodic, as the band-pass loop's, differs from piece to piece); the simulated cycle's
   features are taken over as many periods as the record's tail holds (``WINDOW_PERIODS`` to
-  ``MAX_WINDOW_PERIODS``), so that they too average its wander.
+  ``MAX_WINDOW_PERIODS``), so that they too average its wander. A record whose cycle is still
+  settling (its size per period follows an exponential approach) is compared as the transient it
+  is: the simulation starts at the state of the tail's first periods and its features are taken
+  over the same periods as the record's.
   The frequency comes from mean crossings as docs/models.md#conventions measures it; the harmonics are Fourier
   coefficients over whole periods. They need no phase alignment of the simulated cycle with the
   record, and they stay defined for a cycle that is not periodic (the band-pass loop's), where a
@@ -36,13 +39,19 @@ import numpy as np
 from discovery.calibration.likelihood import estimate_noise
 from models.batch import BatchSimulator, output_rate_for
 from models.edge_timing import edge_timing_for
-from models.features import (
-    crossing_hysteresis,
-    cycle_crossings,
-    fourier_harmonics,
-    upward_mean_crossings,
-)
+from models.features import cycle_crossings
 from models.hypotheses import DeadZonePosition
+
+from .cycle_tail import (
+    N_HARMONICS,
+    NoCycleError,
+    crossing_multiple,
+    cycle_of,
+    period_sizes,
+    phase_free_harmonics,
+    settles,
+    stationary_tail,
+)
 
 __all__ = [
     "CycleTarget",
@@ -56,7 +65,6 @@ __all__ = [
     "PENALTY",
 ]
 
-N_HARMONICS = 7
 #: Relative errors that count as one unit of residual.
 FREQUENCY_TOLERANCE = 0.001
 HARMONIC_TOLERANCE = 0.003
@@ -87,160 +95,17 @@ WINDOW_PERIODS = 12
 MAX_WINDOW_PERIODS = 24
 #: Output rate (Hz) of the closed-loop simulations: 35x the 7th harmonic of a 2 Hz cycle.
 SIMULATED_RATE = 500.0
-#: Most upward mean crossings per period a cycle may have, and the tests that find them
-#: (:func:`fundamental_crossings`).
-MAX_CROSSINGS_PER_PERIOD = 3
-UNEQUAL_INTERVALS = 0.05
-REPEAT_RATIO = 0.3
-SUBHARMONIC_FRACTION = 0.2
-#: Relative peak-to-peak change that ends a record's stationary tail.
-TAIL_TOLERANCE = 0.15
+#: A settling record: periods whose first harmonics fix its first period's size,
+#: and periods a run gets, beyond ``TRANSIENT``, to reach that size.
+SIZE_FIT_PERIODS = 4
+SETTLING_LEAD_PERIODS = 8
+#: ... and how many periods back a run that starts past that size is extrapolated at most.
+MAX_EXTRAPOLATED_PERIODS = 2.0
 #: Whole periods each half of a cycle needs before the ranking splits it into two folds.
 MIN_HALF_PERIODS = 2
 #: Blocks an open-loop record is cut into for the ranking's folds (even blocks, odd blocks).
 OUTPUT_BLOCKS = 8
 _COUNT_LOCK = threading.Lock()
-
-
-class NoCycleError(ValueError):
-    """A closed-loop recording shows no limit cycle (fewer than two whole periods)."""
-
-
-def phase_free_harmonics(t, x, omega, n_harmonics=N_HARMONICS):
-    """Complex harmonics 1..n of ``x`` at ``omega`` over ``t``, phases referred to the first's.
-
-    ``c_k exp(-i k arg c_1)``: invariant to a time shift of the cycle.
-    """
-    c = fourier_harmonics(t, x, omega, n_harmonics)
-    k = np.arange(1, n_harmonics + 1)
-    rot = np.exp(-1j * np.angle(c[0]))
-    return c * rot**k
-
-
-def fundamental_crossings(ups, sizes=None, max_multiple=MAX_CROSSINGS_PER_PERIOD, signal=None):
-    """Every m-th of the upward mean crossings ``ups``, m the crossings per period of the cycle.
-
-    A cycle may cross its mean upwards more than once per period (a period-2 cycle with a large
-    and a small lobe, seen with a controller held at 200 Hz); then the intervals between
-    crossings, or the peak-to-peak ``sizes`` of the signal within them, repeat with period m and
-    their average is not the cycle. m > 1 is taken only when either differs by more than
-    ``UNEQUAL_INTERVALS`` from one interval to the next (a cycle that merely wanders, as the
-    band-pass loop's, varies ~1 %) and repeats at lag m: the spread of ``v[j+m] - v[j]`` under
-    ``REPEAT_RATIO`` of the spread of ``v`` (about sqrt(2) for values that vary at random), and,
-    when ``signal = (t, x)`` is given, its harmonic at the m-fold period is at least
-    ``SUBHARMONIC_FRACTION`` of the largest.
-    """
-    ups = np.asarray(ups, dtype=float)
-    series = [np.diff(ups)] + ([np.asarray(sizes, dtype=float)] if sizes is not None else [])
-    series = [v for v in series if v.size >= 4 and np.std(v) > UNEQUAL_INTERVALS * np.mean(v)]
-    for m in range(2, max_multiple + 1):
-        for v in series:
-            if v.size >= 2 * m + 1 and np.std(v[m:] - v[:-m]) < REPEAT_RATIO * np.std(v):
-                if signal is not None and not _subharmonic_present(*signal, ups[::m]):
-                    return ups
-                return ups[::m]
-    return ups
-
-
-def crossing_multiple(t, x, ups):
-    """Upward mean crossings per period of ``x`` between its fundamental crossings ``ups``."""
-    every = cycle_crossings(t, x)
-    inside = np.count_nonzero((every >= ups[0] - 1e-9) & (every < ups[-1] - 1e-9))
-    return max(1, int(round(inside / (ups.size - 1))))
-
-
-def _subharmonic_present(t, x, ups):
-    """True when the cycle measured between crossings ``ups`` has a real first harmonic.
-
-    A period-1 cycle whose lobes merely alternate a little (beating with a controller's hold)
-    repeats at lag 2 too, but its harmonic at half its frequency is small: measured at that
-    half, its features would hang on a first harmonic made of noise and drift.
-    """
-    w = (t >= ups[0]) & (t < ups[-1])
-    if w.sum() < 8:
-        return False
-    omega = 2 * math.pi * (ups.size - 1) / (ups[-1] - ups[0])
-    c = np.abs(phase_free_harmonics(t[w], x[w], omega))
-    return bool(c[0] >= SUBHARMONIC_FRACTION * np.max(c))
-
-
-def _sizes(t, x, ups):
-    """Peak-to-peak of ``x`` between consecutive crossings ``ups``."""
-    idx = np.searchsorted(t, ups)
-    return np.array([np.ptp(x[a:b]) if b > a else 0.0 for a, b in zip(idx[:-1], idx[1:])])
-
-
-def stationary_tail(t, d, name="recording"):
-    """The end of a record over which the cycle's amplitude is settled.
-
-    A record may start with a transient or on another attractor (paper 000's small cycle: the
-    bundled controller-B record holds a 2.6e-4 rad cycle for 14 s before the large one). Periods
-    are taken between upward mean crossings; walking back from the end, the tail keeps every
-    period whose peak-to-peak amplitude over it and the next period is within ``TAIL_TOLERANCE``
-    of the median of the last five.
-
-    Returns
-    -------
-    t, d : ndarray
-        The tail.
-    ups : ndarray
-        Upward mean crossings in it (at least three).
-
-    Raises
-    ------
-    NoCycleError
-        When the record's end holds fewer than two whole periods.
-    """
-    half = t >= 0.5 * (t[0] + t[-1])
-    amp = 0.5 * float(np.ptp(d[half]))
-    level = float(np.mean(d[half]))
-    ups = (upward_mean_crossings(t, d, level, crossing_hysteresis(d[half], amp)) if amp > 0
-           else np.zeros(0))
-    ups = fundamental_crossings(ups, _sizes(t, d, ups), signal=(t, d))
-    if ups.size < 3:
-        raise NoCycleError(
-            f"{name}: no limit cycle in the record ({max(ups.size - 1, 0)} whole periods in its "
-            "second half; at least two are needed)")
-    # peak-to-peak over two periods: lobes that alternate (a beat with a held controller) do not
-    # cut the tail, a change of attractor does
-    p2p = _sizes(t, d, ups)
-    if ups.size >= 4:
-        p2p = np.maximum(p2p[:-1], p2p[1:])
-    ref = float(np.median(p2p[-5:]))
-    first = p2p.size - 1
-    while first > 0 and abs(p2p[first - 1] / ref - 1.0) <= TAIL_TOLERANCE:
-        first -= 1
-    ups = ups[first:]
-    if ups.size < 3:
-        raise NoCycleError(f"{name}: the cycle's amplitude never settles (two whole periods alike "
-                           "are needed at the end of the record)")
-    sel = t >= ups[0] - 0.5 * (ups[1] - ups[0])
-    return t[sel], d[sel], ups
-
-
-def cycle_of(t, x, multiple=None):
-    """``(omega, harmonics, amplitude)`` of a noise-free simulated cycle, or ``None``.
-
-    ``multiple``: upward mean crossings per period, as the record's cycle was measured
-    (:func:`crossing_multiple`); ``None`` decides from ``x`` itself. A simulation compared with a
-    record must be measured the same way: a cycle whose lobes alternate a little (a controller
-    held at 200 Hz) is read as period 1 over a long record and as period 2 over a short simulated
-    window, and a decision taken afresh per run turns a 0.5 % change of a parameter into a jump
-    of the features by a factor of two (benchmark draw 1002: cost 0.8 -> 1500).
-    """
-    level = float(np.mean(x))
-    # the record's crossings are counted with the same Schmitt trigger (a flat stretch of the
-    # cycle near its mean must not add crossings on one side only)
-    c = cycle_crossings(t, x, level)
-    if multiple is None:
-        c = fundamental_crossings(c, _sizes(t, x, c), signal=(t, x))
-    else:
-        c = c[::multiple]
-    if c.size < 3:
-        return None
-    omega = 2 * math.pi * (c.size - 1) / (c[-1] - c[0])
-    sel = (t >= c[0]) & (t < c[-1])
-    return omega, phase_free_harmonics(t[sel], x[sel], omega), 0.5 * float(np.ptp(x))
 
 
 class _Target:
@@ -280,23 +145,42 @@ class CycleTarget(_Target):
         t_all, d_all = recording.t - recording.t[0], recording.delta
         t, d, ups = stationary_tail(t_all, d_all, str(recording.path or self.name))
         self.tail_start = float(t[0])
+        #: the cycle still settles over the tail (:func:`settles`): compared as a transient
+        self.settling = settles(t, d, ups)
+        # a settling cycle starts at its first two periods' state and is compared after them
+        start, ups = (ups[:3], ups[2:]) if self.settling else (ups, ups)
         self.omega = 2 * math.pi * (len(ups) - 1) / (ups[-1] - ups[0])
         w = (t >= ups[0]) & (t < ups[-1])
         self.harmonics = phase_free_harmonics(t[w], d[w], self.omega)
         self.mean = float(np.mean(d[w]))
-        self.amplitude = 0.5 * float(np.ptp(d))
+        self.amplitude = 0.5 * float(np.ptp(d[t >= ups[0] - 0.5 * (ups[1] - ups[0])]))
         self.scale = abs(self.harmonics[0])
         self.period = 2 * math.pi / self.omega
         self.multiple = crossing_multiple(t, d, np.asarray(ups))
         self.dt = float(dt)
-        self.initial = self._cycle_state(recording, t, d, ups)
+        start_omega = 2 * math.pi * (len(start) - 1) / (start[-1] - start[0])
+        self.initial = self._cycle_state(recording, t, d, start, start_omega)
         exp = recording.experiment()
         self.experiment = dataclasses.replace(exp, theta0=self.initial["theta0"],
                                               thetad0=self.initial["thetad0"])
         #: periods of the simulated window: as many as the record's tail holds, within
-        #: WINDOW_PERIODS .. MAX_WINDOW_PERIODS
-        self.window_periods = int(min(MAX_WINDOW_PERIODS, max(WINDOW_PERIODS, len(ups) - 1)))
-        self.t_end = TRANSIENT + self.window_periods * self.period * 1.3 + 0.2
+        #: WINDOW_PERIODS .. MAX_WINDOW_PERIODS (a settling record: all of its tail's)
+        if self.settling:
+            self.window_periods = len(ups) - 1
+            sizes = period_sizes(t, d, ups)
+            k = np.arange(min(SIZE_FIT_PERIODS, sizes.size))
+            #: the first period's first harmonic (a line through the first few: sensor noise) and
+            #: whether the cycle grows: the run's window starts where it passes that size
+            self.first_size = float(np.polyval(np.polyfit(k, sizes[k], 1), 0.0))
+            self.growing = bool(sizes[-1] >= sizes[0])
+            lead = max(TRANSIENT, SETTLING_LEAD_PERIODS * self.period)
+            self.t_end = (ups[-1] - ups[0]) + lead + 0.2
+        else:
+            self.window_periods = int(min(MAX_WINDOW_PERIODS, max(WINDOW_PERIODS, len(ups) - 1)))
+            self.t_end = TRANSIENT + self.window_periods * self.period * 1.3 + 0.2
+        #: periods of the compared window that are skipped and kept (a fold's half of a
+        #: settling record)
+        self.segment = (0, self.window_periods)
         self.simulator = BatchSimulator(self.experiment, self.t_end, self.dt,
                                         rate=output_rate_for(self.dt, SIMULATED_RATE))
         self.n_residuals = 1 + 2 * N_HARMONICS
@@ -327,6 +211,8 @@ class CycleTarget(_Target):
         if n < 2 * MIN_HALF_PERIODS:
             return half
         u = ups[: n // 2 + 1] if k == 0 else ups[n // 2:]
+        if self.settling:  # a transient's half is compared with the same half of the run
+            half.segment = (0, n // 2) if k == 0 else (n // 2, n - n // 2)
         w = (t >= u[0]) & (t < u[-1])
         omega = 2 * math.pi * (u.size - 1) / (u[-1] - u[0])
         half._observed = self._features(omega, phase_free_harmonics(t[w], d[w], omega))
@@ -353,7 +239,7 @@ class CycleTarget(_Target):
             rows.append(self._features(omega, phase_free_harmonics(t[sel], d[sel], omega)))
         return np.std(np.asarray(rows), axis=0, ddof=1)
 
-    def _cycle_state(self, recording, t, d, ups):
+    def _cycle_state(self, recording, t, d, ups, omega):
         """The loop's state at an upward mean crossing of the recorded cycle.
 
         From the cycle's Fourier series ``delta = mean + sum Re(a_k e^{i k w t})`` (whole periods
@@ -366,15 +252,16 @@ class CycleTarget(_Target):
         exp = recording.experiment()
         w = (t >= ups[0]) & (t < ups[-1])
         k = np.arange(1, N_HARMONICS + 1)
-        basis = np.exp(-1j * np.outer(k, self.omega * (t[w] - ups[0])))
+        basis = np.exp(-1j * np.outer(k, omega * (t[w] - ups[0])))
         a = 2.0 / w.sum() * (basis @ (d[w] - np.mean(d[w])))  # complex amplitudes at phase 0
-        kw = k * self.omega
+        kw = k * omega
         x = float(np.sum(a.real))
         y = float(np.sum((1j * kw * a).real))
+        yd = float(np.sum((-(kw**2) * a).real))
         thetad = float(exp.mu * np.sum((a / (1j * kw)).real))
         u = recording.u[recording.t - recording.t[0] >= t[0]]
         theta = float(-np.mean(u) / exp.kp - exp.kd * thetad) if exp.kp != 0 else 0.0
-        return {"theta0": theta, "thetad0": thetad, "x0": x, "y0": y}
+        return {"theta0": theta, "thetad0": thetad, "x0": x, "y0": y, "yd0": yd}
 
     def initial_conditions(self, params=None):
         """Actuator initial conditions (fields of ActuatorParams) of a simulation of ``params``.
@@ -390,7 +277,8 @@ class CycleTarget(_Target):
         if params is not None and y != 0.0:
             z = params.dead_zone if params.dead_zone_position is DeadZonePosition.VELOCITY else 0.0
             y += math.copysign(max(z - params.friction_offset, 0.0), y)
-        return {"x0": self.initial["x0"], "y0": y, "yd0": 0.0}
+        return {"x0": self.initial["x0"], "y0": y,
+                "yd0": self.initial["yd0"] if self.settling else 0.0}
 
     def residuals(self, param_sets):
         """Residuals of each set from :meth:`initial_conditions`' start, or from the record's
@@ -425,6 +313,11 @@ class CycleTarget(_Target):
         after = t >= TRANSIENT
         out = np.full((delta.shape[0], self.n_residuals), PENALTY)
         for i in np.flatnonzero(ok):
+            if self.settling:
+                features = self._transient_features(t, delta[i])
+                if features is not None:
+                    out[i] = (features - self._observed) / self.unit
+                continue
             m = delta[i, after]
             if 0.5 * np.ptp(m) < MIN_AMPLITUDE_RATIO * self.amplitude:
                 continue
@@ -436,6 +329,44 @@ class CycleTarget(_Target):
         out /= math.sqrt(self.n_residuals)
         return out
 
+    def _transient_features(self, t, x):
+        """Features of a run of a settling record over the periods that match the record's.
+
+        The run starts at the record's first periods' state, but the states the record does not
+        show (the delay line, the play, the valve's block) start at rest and cost the run a few
+        per cent of its size over its first periods. Along a slow approach to a cycle the size
+        alone says where the cycle is, so the compared window starts where the run's per-period
+        first harmonic passes the record's first (interpolated between the two windows that start
+        on either side of it) and holds as many periods as the record's tail: the comparison
+        keeps the growth over the tail, its frequency and waveform, and not the run's start.
+        ``None`` when the run does not hold them (it stops oscillating or is too short).
+        """
+        c = cycle_crossings(t, x, float(np.mean(x[t >= t[-1] - self.window_periods * self.period])))
+        c = c[:: self.multiple]
+        n = self.window_periods
+        if c.size < n + 3:
+            return None
+        sizes = period_sizes(t, x, c)
+        if np.max(sizes) < MIN_AMPLITUDE_RATIO * self.first_size:
+            return None
+        # the run's first period carries the start's transient; a run that starts past the size
+        # is extrapolated back from its next two periods (a smooth approach, a period or two)
+        passed = sizes[1:] >= self.first_size if self.growing else sizes[1:] <= self.first_size
+        last = c.size - 1 - n  # the last window that fits
+        j = 1 + int(np.argmax(passed)) if passed.any() else last
+        j = min(max(j, 2), last)
+        step = sizes[j] - sizes[j - 1]
+        w = (self.first_size - sizes[j - 1]) / step if step != 0 else 1.0
+        w = min(max(w, -MAX_EXTRAPOLATED_PERIODS), 1.0)
+        skip, keep = self.segment
+        both = []
+        for a in (j - 1, j):
+            u = c[a + skip: a + skip + keep + 1]
+            sel = (t >= u[0]) & (t < u[-1])
+            omega = 2 * math.pi * (u.size - 1) / (u[-1] - u[0])
+            both.append(self._features(omega, phase_free_harmonics(t[sel], x[sel], omega)))
+        return (1.0 - w) * both[0] + w * both[1]
+
     def offset(self, param_sets):
         """Mean of the record minus the simulated cycle's mean (a sensor offset), per set."""
         delta, ok, _ = self._simulated(param_sets)
@@ -445,7 +376,8 @@ class CycleTarget(_Target):
     def describe(self):
         return {"name": self.name, "kind": "closed", "experiment": self.experiment.to_dict(),
                 "frequency": self.omega, "amplitude": self.amplitude,
-                "H1": float(abs(self.harmonics[0])), "samples": int(self.recording.t.size),
+                "H1": float(abs(self.harmonics[0])), "settling": bool(self.settling),
+                "samples": int(self.recording.t.size),
                 "sample_rate": float(self.recording.sample_rate)}
 
 

@@ -57,7 +57,7 @@ ACCEPT_DT = 2e-4
 #: ``tests/test_scenarios.py::test_the_data_step_keeps_the_solver_error_under_the_smallest_noise``).
 DATA_DT = 5e-5
 #: Seconds at the end of a 30 s run over which a truth's cycle must be settled
-#: (:func:`discovery.structure.targets.stationary_tail`).
+#: (:func:`discovery.structure.cycle_tail.stationary_tail`).
 MIN_SETTLED = 8.0
 
 
@@ -185,7 +185,7 @@ def oscillates(params, experiment) -> bool:
     Settled as discovery reads a record: its stationary tail (the periods whose peak-to-peak stays
     within 15 % of the last ones') covers at least ``MIN_SETTLED`` s.
     """
-    from discovery.structure.targets import NoCycleError, stationary_tail
+    from discovery.structure.cycle_tail import NoCycleError, stationary_tail
 
     try:
         tr = simulate(params, experiment, 30.0, dt=ACCEPT_DT)
