@@ -257,11 +257,10 @@ class CycleTarget(_Target):
         kw = k * omega
         x = float(np.sum(a.real))
         y = float(np.sum((1j * kw * a).real))
-        yd = float(np.sum((-(kw**2) * a).real))
         thetad = float(exp.mu * np.sum((a / (1j * kw)).real))
         u = recording.u[recording.t - recording.t[0] >= t[0]]
         theta = float(-np.mean(u) / exp.kp - exp.kd * thetad) if exp.kp != 0 else 0.0
-        return {"theta0": theta, "thetad0": thetad, "x0": x, "y0": y, "yd0": yd}
+        return {"theta0": theta, "thetad0": thetad, "x0": x, "y0": y}
 
     def initial_conditions(self, params=None):
         """Actuator initial conditions (fields of ActuatorParams) of a simulation of ``params``.
@@ -277,8 +276,7 @@ class CycleTarget(_Target):
         if params is not None and y != 0.0:
             z = params.dead_zone if params.dead_zone_position is DeadZonePosition.VELOCITY else 0.0
             y += math.copysign(max(z - params.friction_offset, 0.0), y)
-        return {"x0": self.initial["x0"], "y0": y,
-                "yd0": self.initial["yd0"] if self.settling else 0.0}
+        return {"x0": self.initial["x0"], "y0": y, "yd0": 0.0}
 
     def residuals(self, param_sets):
         """Residuals of each set from :meth:`initial_conditions`' start, or from the record's
