@@ -119,6 +119,14 @@ def _sizes(t, x, ups):
     return np.array([np.ptp(x[a:b]) if b > a else 0.0 for a, b in zip(idx[:-1], idx[1:])])
 
 
+def _two_period_sizes(t, x, ups):
+    """Peak-to-peak of ``x`` over each two consecutive periods (over each one when there are
+    fewer than three): lobes that alternate (a beat with a held controller) do not read as a
+    change of size, a change of attractor does."""
+    p2p = _sizes(t, x, ups)
+    return np.maximum(p2p[:-1], p2p[1:]) if ups.size >= 4 else p2p
+
+
 def stationary_tail(t, d, name="recording"):
     """The end of a record over which the cycle's amplitude is settled.
 
@@ -150,11 +158,7 @@ def stationary_tail(t, d, name="recording"):
         raise NoCycleError(
             f"{name}: no limit cycle in the record ({max(ups.size - 1, 0)} whole periods in its "
             "second half; at least two are needed)")
-    # peak-to-peak over two periods: lobes that alternate (a beat with a held controller) do not
-    # cut the tail, a change of attractor does
-    p2p = _sizes(t, d, ups)
-    if ups.size >= 4:
-        p2p = np.maximum(p2p[:-1], p2p[1:])
+    p2p = _two_period_sizes(t, d, ups)
     ref = float(np.median(p2p[-5:]))
     first = p2p.size - 1
     while first > 0 and abs(p2p[first - 1] / ref - 1.0) <= TAIL_TOLERANCE:
@@ -189,14 +193,13 @@ def settles(t, d, ups) -> bool:
     tail then sits well under the settled cycle, which a comparison with the settled cycle reads
     as a wrong linear block.
     """
-    p2p = _sizes(t, d, ups)
-    if p2p.size < 2:
+    if ups.size < MIN_SETTLING_CROSSINGS:
         return False
-    p2p = np.maximum(p2p[:-1], p2p[1:])
+    p2p = _two_period_sizes(t, d, ups)
     noise_var = max((2.0 * estimate_noise(d)) ** 2, 1e-30 * float(np.max(p2p)) ** 2)
     with np.errstate(over="ignore", invalid="ignore"):
         gain = settling_gain(ups[1:-1], p2p, np.full(p2p.size, noise_var))
-    return bool(ups.size >= MIN_SETTLING_CROSSINGS and gain >= SETTLING_GAIN)
+    return bool(gain >= SETTLING_GAIN)
 
 
 def cycle_of(t, x, multiple=None):
