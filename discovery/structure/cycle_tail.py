@@ -174,11 +174,11 @@ def stationary_tail(t, d, name="recording"):
 def period_sizes(t, x, ups):
     """First-harmonic amplitude of ``x`` over each period between consecutive crossings ``ups``
     (a size that sensor noise does not bias, unlike the peak-to-peak)."""
+    idx = np.searchsorted(t, ups)  # as _sizes: the samples in [ups[j], ups[j + 1])
     out = np.empty(ups.size - 1)
-    for j in range(ups.size - 1):
-        sel = (t >= ups[j]) & (t < ups[j + 1])
+    for j, (a, b) in enumerate(zip(idx[:-1], idx[1:])):
         omega = 2 * math.pi / (ups[j + 1] - ups[j])
-        out[j] = abs(fourier_harmonics(t[sel], x[sel], omega, 1)[0])
+        out[j] = abs(fourier_harmonics(t[a:b], x[a:b], omega, 1)[0])
     return out
 
 
