@@ -19,6 +19,7 @@ FILE_SECONDS = {
     "test_discover.py": 150,
     "test_calibration_recovery.py": 70,
     "test_prediction.py": 60,
+    "test_step_error.py": 40,
     "test_command_replay.py": 60,
     "test_no_orphans.py": 45,
     "test_design.py": 45,

@@ -1,6 +1,7 @@
 """discovery.structure.set_posterior: the linear block's DC gain and bandwidth, the members'
-quantities, their equal-weight mixture with the structure-dependence rule, and the range the
-recordings allow."""
+quantities, their weighted mixture with the structure-dependence rule, the not-pinned verdict of
+every quantity against its prior-implied spread, the range the recordings allow, components the
+set leaves open and the step error's widening; and how the report's summary prints them."""
 import numpy as np
 import pytest
 from scipy import signal
@@ -31,15 +32,18 @@ def test_dc_gain_and_bandwidth_are_those_of_the_position_loop(params):
 
 def test_member_quantities_take_draws_and_fill_the_rest_from_the_fit():
     """Sampled fields come from the draws, the others from the fit; the velocity form's
-    threshold is ``z - off``; a member without friction has offset 0."""
+    threshold is ``z - off``; a component's quantity is there only where the member has the
+    component."""
     params = M000().to_dict()
     draws = {"dead_zone": np.array([0.008, 0.009]), "delay": np.array([0.001, 0.002])}
     q = member_quantities(params, draws)
     assert np.allclose(q["dead_zone[velocity]"], [0.008, 0.009])
     assert np.allclose(q["threshold"], np.array([0.008, 0.009]) - params["friction_offset"])
     assert np.allclose(q["backlash"], params["backlash"]) and np.allclose(q["delay"], [0.001, 0.002])
+    assert np.allclose(q["bandpass_gain"], params["bandpass_gain"])
     error = member_quantities(M002().to_dict(), {"delay": np.array([0.007])})
     assert "dead_zone[error]" in error and "threshold" not in error
+    assert "friction_offset" not in error and "bandpass_gain" not in error
 
 
 def _member(name, centre, sd, rng, n=4000):
@@ -107,28 +111,121 @@ def test_members_differing_in_the_delays_position_are_combined_to_cover_each_and
                for line in summary.splitlines())
 
 
-def test_the_summary_tells_a_quantity_the_recordings_leave_open_from_a_decided_one():
-    """A backlash whose member interval spans most of its prior is printed as not pinned, not as
-    decided because the members happen to agree; a dead zone the members agree on is decided
-    regardless of the structure; a delay they disagree on depends on it."""
+def _verdicts(combined, names=("a", "b")):
+    """The summary's table as quantity -> (median cell, interval cell, verdict cell)."""
     from tvcid.report import summary_lines
 
-    rng = np.random.default_rng(2)
-    a, b = _member("a", 2e-3, 1e-5, rng), _member("b", 3e-3, 1e-5, rng)
-    for m, centre in ((a, 0.02), (b, 0.0201)):
-        m.quantities["dead_zone[velocity]"] = centre + 1e-3 * rng.standard_normal(4000)
-        m.quantities["backlash"] = np.exp(rng.uniform(np.log(1e-6), np.log(1e-4), 4000))
-    combined = combine([a, b], seed=1).to_dict()
-    combined["members"][0]["posterior"] = {"not_pinned": ["backlash"]}
-    combined["members"][1]["posterior"] = {"not_pinned": []}
-    rows = [{"structure": s, "indistinguishable_from_best": True, "merged_into": None}
-            for s in ("a", "b")]
+    rows = [{"structure": n, "indistinguishable_from_best": True, "merged_into": None}
+            for n in names]
     lines = summary_lines({"structures": rows, "decided": {}, "set_posterior": combined})
-    verdict = {line.split("|")[1].strip(): line.split("|")[5].strip()
-               for line in lines if line.startswith("| ") and "quantity" not in line}
-    assert verdict == {"delay": "depends on the structure",
-                       "backlash": "not pinned by the recordings",
-                       "dead_zone[velocity]": "decided regardless of the structure"}, verdict
+    cells = [[c.strip() for c in li.split("|")[1:-1]] for li in lines if li.startswith("| ")]
+    return {c[0]: (c[1], c[2], c[4]) for c in cells if len(c) == 5 and c[0] != "quantity"}
+
+
+def test_every_quantity_is_judged_pinned_against_its_own_prior_implied_spread():
+    """A backlash whose draws span its prior is not pinned and prints the range the recordings
+    allow; a dead zone the members agree on, narrow against its prior, is decided regardless of
+    the structure; a delay they disagree on depends on it. A threshold ``z - off`` that motion
+    pins while the dead zone and the offset each span their priors (a ridge) is pinned: the
+    composite is judged on its own draws."""
+    rng = np.random.default_rng(2)
+    n = 4000
+    members = []
+    for name, delay in (("a", 2e-3), ("b", 3e-3)):
+        z = np.exp(rng.uniform(np.log(1e-3), np.log(3e-2), n))
+        off = z - 2e-3 - 1e-5 * rng.standard_normal(n)
+        quantities = {"delay": delay + 1e-5 * rng.standard_normal(n),
+                      "backlash": np.exp(rng.uniform(np.log(1e-6), np.log(1e-4), n)),
+                      "dead_zone[velocity]": z, "friction_offset": off, "threshold": z - off,
+                      "dc_gain": 0.93 + 1e-4 * rng.standard_normal(n)}
+        prior = {"delay": rng.uniform(5e-4, 2e-2, n),
+                 "backlash": np.exp(rng.uniform(np.log(1e-6), np.log(3e-3), n)),
+                 "dead_zone[velocity]": np.exp(rng.uniform(np.log(1e-3), np.log(3e-2), n)),
+                 "friction_offset": rng.uniform(-3e-2, 1e-2, n),
+                 "dc_gain": 1 / np.exp(rng.uniform(np.log(0.1), np.log(10), n))}
+        prior["threshold"] = prior["dead_zone[velocity]"] - prior["friction_offset"]
+        members.append(MemberPosterior(name, quantities, {"converged": True}, 0.5,
+                                       log_prob=np.zeros(n), prior_quantities=prior))
+    combined = combine(members, seed=1).to_dict()
+    q = combined["quantities"]
+    assert q["backlash"]["pinned"] is False and q["backlash"]["width_over_prior"] > 0.5
+    assert q["dead_zone[velocity]"]["pinned"] is False and q["friction_offset"]["pinned"] is False
+    assert q["threshold"]["pinned"] and q["threshold"]["width_over_prior"] < 0.01
+    assert q["dc_gain"]["pinned"]
+    verdict = {k: v[2] for k, v in _verdicts(combined).items()}
+    assert verdict["delay"] == "depends on the structure"
+    assert verdict["backlash"].startswith("not pinned by the recordings; they allow")
+    assert verdict["threshold"] == verdict["dc_gain"] == "decided regardless of the structure"
+    assert verdict["friction_offset"].startswith("not pinned")
+
+
+def test_weights_mix_the_members_by_the_data():
+    """A member with weight 0 adds nothing to the combined interval, flags no dependence on the
+    structure and widens no allowed range; with equal weights the same pair's interval spans
+    both, and the equal-weight mixture is stored beside the weighted one. Weights that are not
+    one non-negative number a member are refused."""
+    rng = np.random.default_rng(3)
+    a, b = _member("a", 2e-3, 1e-5, rng), _member("b", 3e-3, 1e-5, rng)
+    weighted = combine([a, b], weights=[1.0, 0.0], seed=1, criterion="stacking").to_dict()
+    d = weighted["quantities"]["delay"]
+    assert d["q95"] < 2.1e-3 and not d["depends_on_structure"]
+    assert d["equal_weights"]["q05"] < 2.01e-3 and d["equal_weights"]["q95"] > 2.99e-3
+    assert [m["weight"] for m in weighted["members"]] == [1.0, 0.0]
+    assert weighted["criterion"] == "stacking"
+    with pytest.raises(ValueError, match="weights must be 2 non-negative"):
+        combine([a, b], weights=[1.0, -1.0])
+
+
+def test_a_component_the_set_leaves_open_prints_as_present_or_absent():
+    """Members with and without a backlash: the combined backlash is the one *if present*, its
+    share of the weight is stated, and the summary prints "present or absent" with the interval
+    if present, never ``0 [0, 0]``."""
+    rng = np.random.default_rng(4)
+    with_it = _member("a", 2e-3, 1e-5, rng)
+    with_it.quantities["backlash"] = 1e-4 + 1e-5 * rng.standard_normal(4000)
+    without = MemberPosterior("b", {"delay": 2e-3 + 1e-5 * rng.standard_normal(4000)},
+                              {"converged": True}, 0.2)
+    combined = combine([with_it, without], weights=[0.25, 0.75], seed=1).to_dict()
+    q = combined["quantities"]["backlash"]
+    assert q["present"] == pytest.approx(0.25) and q["members"] == 1
+    assert q["q05"] == pytest.approx(1e-4 - 1.645e-5, rel=0.05)
+    median, interval, _ = _verdicts(combined)["backlash"]
+    assert median == "present or absent (25 % of the weight present)"
+    assert interval.startswith("if present, [") and "0, 0" not in interval
+
+
+def test_an_interval_narrower_than_the_step_error_is_widened_and_says_so():
+    """A DC gain whose 90 % interval (3.3e-5 wide) is narrower than twice its step error (5e-5)
+    is widened to its median +- the step error and the summary says so; the delay, far wider
+    than its step error, is untouched."""
+    rng = np.random.default_rng(5)
+    m = _member("a", 2e-3, 1e-4, rng)
+    m.quantities["dc_gain"] = 0.93 + 1e-5 * rng.standard_normal(4000)
+    m.step_error = {"dc_gain": 5e-5, "delay": 1e-6}
+    combined = combine([m], seed=1).to_dict()
+    dc, delay = combined["quantities"]["dc_gain"], combined["quantities"]["delay"]
+    assert dc["widened"] and dc["q95"] - dc["q05"] == pytest.approx(1e-4, rel=0.01)
+    assert not delay["widened"] and delay["q95"] - delay["q05"] == pytest.approx(3.29e-4, rel=0.1)
+    assert "widened to the step error, +-5e-05" in _verdicts(combined, ["a"])["dc_gain"][2]
+
+
+def test_the_richer_structure_of_a_component_left_open_is_calibrated_too():
+    """The set's distinct members lack a backlash the set leaves open: the best structure with
+    one, merged into a member, joins the calibration; a decided component adds none; one richer
+    structure holding two open components serves both."""
+    from discovery.structure.set_posterior import richer_members
+
+    base = "dz_velocity+delay_output"
+    rows = [{"structure": base, "indistinguishable_from_best": True, "merged_into": None},
+            {"structure": base + "+backlash", "indistinguishable_from_best": True, "merged_into": base},
+            {"structure": base + "+friction+backlash", "indistinguishable_from_best": True,
+             "merged_into": base},
+            {"structure": base + "+bandpass", "indistinguishable_from_best": False, "merged_into": None}]
+    assert [r["structure"] for r in richer_members(rows, {"backlash": None, "friction": False})] \
+        == [base + "+backlash"]
+    assert richer_members(rows, {"backlash": True, "friction": False}) == []
+    assert [r["structure"] for r in richer_members(rows, {"backlash": None, "friction": None})] \
+        == [base + "+friction+backlash"]
 
 
 def _bounded_from_above(rng, n=20000, bound=2e-4, edge=2e-5):
@@ -142,73 +239,26 @@ def _bounded_from_above(rng, n=20000, bound=2e-4, edge=2e-5):
     return kept, np.where(kept > bound, -0.5 * ((kept - bound) / edge) ** 2, 0.0)
 
 
-def test_allowed_range_finds_the_bound_the_data_set_where_the_interval_follows_the_prior():
-    """A backlash bounded from above at 2e-4 rad under a log-uniform prior from 1e-6 (draw 1000
-    of the wide set-coverage benchmark, as a known distribution): the 90 % interval follows the
-    prior's mass and its 95th percentile (1.7e-4) falls under a truth of 1.8e-4 just below the
-    bound; the allowed range reaches the prior's floor and the bound's 1.92-nat point (2e-4 +
-    1.96 sd of the edge = 2.39e-4) within 5 %, and holds the truth (read without the log
-    posterior, the range would run to the largest draw, 2.7e-4). On a quantity the data pin (a
-    Gaussian), the range is the mean +- 1.96 sd within 1 %."""
-    rng = np.random.default_rng(5)
-    values, log_prob = _bounded_from_above(rng)
-    assert np.quantile(values, 0.95) < 1.8e-4
-    low, high = allowed_range(values, log_prob)
-    assert low < 1.5e-6 and high == pytest.approx(2.39e-4, rel=0.05) and low < 1.8e-4 < high
-    g = 3e-3 + 1e-4 * rng.standard_normal(20000)
-    low, high = allowed_range(g, -0.5 * ((g - 3e-3) / 1e-4) ** 2)
-    assert low == pytest.approx(3e-3 - 1.96e-4, rel=0.01)
-    assert high == pytest.approx(3e-3 + 1.96e-4, rel=0.01)
-    assert allowed_range(g[:50], np.zeros(50)) is None  # too few draws to read a profile
-
-
 def test_combined_quantity_joins_the_members_allowed_ranges_and_the_summary_prints_them():
-    """Two members bounding the backlash at 2e-4 and 1e-4 rad: the combined allowed range runs
-    from the lower member's floor to the higher's bound; a member without log posteriors adds no
-    range. The summary prints the range beside a quantity not pinned."""
-    from tvcid.report import summary_lines
-
+    """Two members bounding the backlash at 2e-4 and 1e-4 rad under a prior from 1e-6: the
+    combined allowed range runs from the prior's floor to the higher member's bound; a member
+    without log posteriors adds no range. The summary prints the bound "down to the prior's
+    floor"."""
     rng = np.random.default_rng(6)
     members = []
     for name, bound in (("a", 2e-4), ("b", 1e-4)):
         values, log_prob = _bounded_from_above(rng, n=8000, bound=bound, edge=0.1 * bound)
+        prior = np.exp(rng.uniform(np.log(1e-6), np.log(3e-3), 8000))
         members.append(MemberPosterior(name, {"backlash": values, "delay": np.full(8000, 2e-3)},
-                                       {"converged": True}, 0.5, log_prob=log_prob))
+                                       {"converged": True}, 0.5, log_prob=log_prob,
+                                       prior_quantities={"backlash": prior}))
     combined = combine(members, seed=1)
     low, high = combined.quantities["backlash"]["allowed"]
     own = [allowed_range(m.quantities["backlash"], m.log_prob) for m in members]
-    assert low == min(r[0] for r in own) and high == max(r[1] for r in own)
+    assert low == min(r.low for r in own) and high == max(r.high for r in own)
     assert high == pytest.approx(2.39e-4, rel=0.05)
+    assert combined.quantities["backlash"]["allowed_open"] == [True, False]
     bare = combine([MemberPosterior("c", {"backlash": np.full(100, 1e-4)}, {}, 0.0)])
     assert bare.quantities["backlash"]["allowed"] is None
-    out = combined.to_dict()
-    out["members"][0]["posterior"] = {"not_pinned": ["backlash"]}
-    out["members"][1]["posterior"] = {"not_pinned": []}
-    rows = [{"structure": s, "indistinguishable_from_best": True, "merged_into": None}
-            for s in ("a", "b")]
-    lines = summary_lines({"structures": rows, "decided": {}, "set_posterior": out})
-    line = next(li for li in lines if li.startswith("| backlash |"))
-    assert f"not pinned by the recordings; they allow {low:.4g} to {high:.4g} |" in line, line
-
-
-def test_the_threshold_is_the_dead_zone_where_no_member_samples_a_friction_offset():
-    """Without a friction offset in any member, the velocity form's threshold ``z - off`` is the
-    dead zone itself and is printed as not pinned with it; where a member samples the offset,
-    the threshold is their combination, which motion can pin while neither part is."""
-    from tvcid.report import summary_lines
-
-    rng = np.random.default_rng(7)
-    z = np.exp(rng.uniform(np.log(1e-4), np.log(3e-2), 4000))
-    member = MemberPosterior("a", {"dead_zone[velocity]": z, "threshold": z}, {"converged": True}, 0.0)
-    out = combine([member], seed=1).to_dict()
-    rows = [{"structure": "a", "indistinguishable_from_best": True, "merged_into": None}]
-
-    def verdicts(parameters):
-        out["members"][0]["posterior"] = {"not_pinned": ["dead_zone"], "parameters": parameters}
-        lines = summary_lines({"structures": rows, "decided": {}, "set_posterior": out})
-        return {li.split("|")[1].strip(): li.split("|")[5].strip() for li in lines
-                if li.startswith("| ") and "quantity" not in li}
-
-    alone = verdicts({"dead_zone": {}, "delay": {}})
-    assert alone["threshold"] == alone["dead_zone[velocity]"] == "not pinned by the recordings"
-    assert verdicts({"dead_zone": {}, "friction_offset": {}})["threshold"] == ""
+    verdict = _verdicts(combined.to_dict())["backlash"][2]
+    assert verdict == f"not pinned by the recordings; they allow {high:.4g} down to the prior's floor"

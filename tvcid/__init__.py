@@ -7,6 +7,7 @@ The public API, for scripts and notebooks (the ``tvcid`` command line runs the s
 
     result = tvcid.discover(["cycle_A.csv", "square.csv"], "out")   # -> DiscoveryResult
     print(result.best["structure"], result.indistinguishable)
+    print(result.interval("delay"))          # the 90 % interval over the set the data leave open
     truth = tvcid.hypothesis("M000")
     trajectory = tvcid.simulate(truth, tvcid.CONTROLLER_A, 20.0)
 

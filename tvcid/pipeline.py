@@ -3,7 +3,8 @@ own recordings, then MCMC.
 
 Screening (SINDy seeds), fitting every structure by closed- and open-loop simulation, ranking by
 two-fold out-of-sample error (:class:`discovery.structure.StructureDiscovery`), then the MCMC
-calibration of the winner on all recordings (:class:`discovery.calibration.Calibration`); where
+calibration of every member of the set the recordings leave open, on all recordings
+(:class:`discovery.calibration.Calibration`), combined by the members' weights; where
 the recordings leave several structures, the test that would tell them apart (:func:`next_test`).
 Nothing is lost to a killed run: ``discovery.json`` is written as soon as the ranking is done and
 carries a hash of the inputs, so a rerun with the same recordings and options reuses it instead of
@@ -29,8 +30,11 @@ __all__ = ["DiscoveryResult", "add_recordings", "discover", "next_test", "inputs
 #: Layout of ``discovery.json``; ``--add`` refuses a directory written in another one.
 DISCOVERY_FORMAT = 2
 #: Distinct members of the set calibrated at most (best score first); the rest are listed in
-#: ``set_posterior.not_calibrated``.
+#: ``set_posterior.not_calibrated`` with their share of the weight by the ranking.
 MAX_MEMBERS = 6
+#: Posterior draws of each member at which its pointwise log-likelihood is evaluated for the
+#: members' weights (:func:`discovery.structure.set_weights.member_pointwise`).
+WEIGHT_DRAWS = 200
 
 
 def _json_default(v):
@@ -49,7 +53,8 @@ class DiscoveryResult:
     summary : dict
         The ranking (``structures``, best first), the set the recordings cannot tell apart
         (``indistinguishable``), the structural choices they decide (``decided``), the sensor
-        offsets and noise, the next test and the posterior of the winner.
+        offsets and noise, the next test, the posterior over the set (``set_posterior``: each
+        calibrated member's and their combination) and the winner's alone (``posterior``).
     out : Path or None
         The directory it was written to.
     """
@@ -88,8 +93,55 @@ class DiscoveryResult:
 
     @property
     def posterior(self):
-        """The MCMC summary of the winner (``parameters``: q05, q50, q95 each), or ``None``."""
+        """The MCMC summary of the winner alone (``parameters``: q05, q50, q95 each), or
+        ``None``; the set's combined posterior is :attr:`set_posterior`."""
         return self.summary.get("posterior")
+
+    @property
+    def set_posterior(self):
+        """The posterior over the set the recordings leave open, or ``None`` (no MCMC).
+
+        ``quantities`` maps each combined quantity (``delay``, ``dead_zone[velocity]``,
+        ``dc_gain``, ...) to its median and 90 % interval (``q50``, ``q05``, ``q95``), unit and
+        verdicts; ``members`` holds each calibrated structure's own posterior.
+        """
+        return self.summary.get("set_posterior")
+
+    def interval(self, name, level=0.90) -> tuple:
+        """The combined 90 % interval ``(q05, q95)`` of quantity ``name`` over the set.
+
+        Parameters
+        ----------
+        name : str
+            A key of ``set_posterior["quantities"]``: ``"delay"``, ``"dead_zone[velocity]"``,
+            ``"dc_gain"``, ...
+        level : float
+            The interval's probability; the summary stores the 90 % interval only.
+
+        Returns
+        -------
+        tuple of float
+            ``(q05, q95)``; NaN where the summary holds no finite value.
+
+        Raises
+        ------
+        ValueError
+            No set posterior (a run with ``mcmc=False``), an unknown quantity (the message names
+            those there are), or a level other than 0.90.
+        """
+        if not math.isclose(level, 0.90):
+            raise ValueError(f"interval level {level!r}: the summary stores the 90 % interval "
+                             "(q05, q95) only")
+        quantities = (self.set_posterior or {}).get("quantities")
+        if not quantities:
+            raise ValueError("no set posterior: the run stopped after the ranking (run discover "
+                             "with its MCMC to calibrate the set)")
+        if name not in quantities:
+            raise ValueError(f"unknown quantity {name!r}; the set's posterior has "
+                             f"{', '.join(quantities)}")
+        # a fresh run's summary holds non-finite values as such, one read back as None
+        ends = (quantities[name][k] for k in ("q05", "q95"))
+        return tuple(float(v) if v is not None and math.isfinite(v) else math.nan for v in ends)
 
     def to_dict(self) -> dict:
         """The summary as strict JSON values (non-finite numbers as ``None``)."""
@@ -160,7 +212,7 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     max_steps : int, optional
         MCMC step cap (default 2000, 150 with ``quick``).
     mcmc : bool
-        Calibrate the winner after the ranking.
+        Calibrate the set's members after the ranking.
     search : {"standard", "thorough", ...}
         Search sizes (:data:`discovery.structure.structure_search.SEARCHES`).
 
@@ -396,16 +448,22 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None)
 def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
     """MCMC of one member of the set (:func:`discovery.structure.set_posterior.calibrate_member`)
     on all recordings with their offsets removed, checkpointed in ``out``. Returns
-    ``(posterior, priors, simulated seconds of the start and of the sampling, chain file name)``."""
+    ``(posterior, priors, simulated seconds of the start and of the sampling, chain file name)``.
+
+    The chain's file is named by a hash of the member's parameters as strict JSON
+    (:func:`models.strict_json.jsonable` of the rebuilt :class:`models.ActuatorParams`): the
+    ranking of a fresh run holds an open saturation as infinity, the same ranking read back from
+    ``discovery.json`` as ``null``, and both must name the same chain for a rerun to resume it.
+    """
     from discovery.structure.set_posterior import calibrate_member
     from models import params_from_dict
     from models.structures import Structure
 
     p = params_from_dict("custom", row["params"])
+    tag = hashlib.sha256(json.dumps([jsonable(p.to_dict()), "set member", quick, seed],
+                                    sort_keys=True, allow_nan=False).encode()).hexdigest()[:10]
     # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
     p = p.replace(**closed[0].initial_conditions(p)) if closed else p
-    tag = hashlib.sha256(json.dumps([row["params"], "set member", quick, seed],
-                                    sort_keys=True, default=str).encode()).hexdigest()[:10]
     post, priors, simulated = calibrate_member(
         p, Structure.parse(row["structure"]), _corrected(recs, offsets), fixed=fixed, seed=seed,
         max_steps=max_steps or (150 if quick else 2000), backend=out / f"chain-{tag}.h5",
@@ -414,23 +472,30 @@ def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps,
 
 
 def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
-    """The posterior over the set: every distinct member calibrated
-    (:func:`_calibrate_member`, at most :data:`MAX_MEMBERS`, best score first), then combined
-    with equal weights (:func:`discovery.structure.set_posterior.combine`). Adds ``posterior``
-    (the winner's) and ``set_posterior`` (the members' and the combined one)."""
+    """The posterior over the set: every distinct member calibrated (:func:`_calibrate_member`,
+    at most :data:`MAX_MEMBERS`, best score first), and the richer structure of each component
+    the set leaves open that no distinct member has
+    (:func:`discovery.structure.set_posterior.richer_members`); then combined by the members'
+    weights (:func:`_set_weights`, :func:`discovery.structure.set_posterior.combine`). Adds
+    ``posterior`` (the winner's) and ``set_posterior`` (the members' and the combined one)."""
     from discovery.structure.set_posterior import (
         MemberPosterior,
         combine,
         member_quantities,
         not_pinned,
+        prior_quantities,
+        richer_members,
     )
+    from discovery.calibration.step_error import measure_step_error, widen_quantiles
+    from discovery.structure.set_weights import member_pointwise, uncalibrated_share, weigh_set
 
     t0 = time.perf_counter()
     rows = [s for s in summary["structures"]
             if s["indistinguishable_from_best"] and s["merged_into"] is None]
     best_score = rows[0]["score"]
-    members, simulated, start = [], 0.0, 0.0
-    for i, row in enumerate(rows[:MAX_MEMBERS]):
+    calibrated = rows[:MAX_MEMBERS] + richer_members(summary["structures"], summary["decided"])
+    members, pointwise, simulated, start = [], {}, 0.0, 0.0
+    for i, row in enumerate(calibrated):
         post, priors, seconds, chain = _calibrate_member(row, recs, closed, offsets, fixed, seed,
                                                          quick, max_steps, progress, out)
         simulated += seconds["start"] + seconds["sampling"]
@@ -440,7 +505,13 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
                                   "acceptance", "n_over_tau", "at_prior_bound", "laplace_move",
                                   "interval_drift")}
         kept["not_pinned"] = not_pinned(post, priors)
+        step = measure_step_error(post, seed=seed, params=row["params"])
+        simulated += step.simulated_seconds
+        kept["step_error"] = step.to_dict()
+        kept["parameters"] = widen_quantiles(kept["parameters"],
+                                             {n: v["error"] for n, v in step.parameters.items()})
         kept["structure"], kept["chain"] = row["structure"], chain
+        kept["merged_into"] = row["merged_into"]
         if i == 0:
             summary["posterior"] = kept
             from .figures import write_posterior_figures
@@ -449,10 +520,25 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
         draws = {n: post.samples[:, j] for j, n in enumerate(post.names)}
         margin = row.get("margin")
         ratio = (row["score"] - best_score) / margin if margin else 0.0
-        members.append(MemberPosterior(row["structure"], member_quantities(row["params"], draws),
-                                       kept, float(ratio), log_prob=post.log_prob))
-    combined = combine(members, seed=seed).to_dict()
-    combined["not_calibrated"] = [r["structure"] for r in rows[MAX_MEMBERS:]]
+        members.append(MemberPosterior(
+            row["structure"], member_quantities(row["params"], draws), kept, float(ratio),
+            log_prob=post.log_prob, prior_quantities=prior_quantities(row["params"], priors, seed=seed),
+            step_error={n: v["error"] for n, v in step.quantities.items()}))
+        if len(calibrated) > 1:
+            before = post.calibration.log_posterior_.simulated_seconds
+            pointwise[row["structure"]] = member_pointwise(post, n_draws=WEIGHT_DRAWS, seed=seed)
+            simulated += post.calibration.log_posterior_.simulated_seconds - before
+    names = [m.structure for m in members]
+    if len(members) > 1:
+        weighting = weigh_set(pointwise, rows=calibrated, seed=seed)
+        combined = combine(members, weights=weighting.of(names), seed=seed,
+                           criterion=weighting.rule).to_dict()
+        combined["weighting"] = weighting.to_dict()
+    else:
+        combined = combine(members, seed=seed, criterion="one structure").to_dict()
+    dropped = uncalibrated_share(rows + [r for r in calibrated if r not in rows], names, seed=seed)
+    combined["not_calibrated"] = dropped.names
+    combined["not_calibrated_share"] = dropped.share if dropped.names else None
     summary["set_posterior"] = combined
     summary["timings"]["mcmc"] = time.perf_counter() - t0
     summary.setdefault("simulated_seconds", {})["mcmc"] = simulated

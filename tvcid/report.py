@@ -42,6 +42,19 @@ def _convergence_line(members) -> str:
             "`--max-steps` continues the chains.")
 
 
+def _chain_cell(m) -> str:
+    """A member's chain in the summary's table: converged, or stopped at its cap with how far
+    its intervals still move."""
+    if m["converged"]:
+        return "converged"
+    post = m["posterior"]
+    d = post.get("interval_drift")
+    moves = (f"; its intervals move by up to {100 * d['largest']:.0f} % of their width between the "
+             "chain's halves" if d else "")
+    return (f"**stopped at its cap** ({post.get('iterations', '?')} steps): its intervals are lower "
+            f"bounds on the width{moves}")
+
+
 def _num(value, digits=4) -> str:
     """``value`` to ``digits`` significant digits; ``-`` for a missing or non-finite number."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
@@ -49,14 +62,64 @@ def _num(value, digits=4) -> str:
     return f"{value:.{digits}g}"
 
 
-def _quantity_parameter(name, members=()) -> str:
-    """The sampled parameter a combined quantity is (``dead_zone[velocity]`` -> ``dead_zone``);
-    the threshold ``z - off`` is the dead zone where no member samples a friction offset, else,
-    like the linear block's figures, a combination of several."""
-    if name == "threshold" and not any("friction_offset" in m["posterior"].get("parameters", {})
-                                       for m in members):
-        return "dead_zone"
-    return name.split("[")[0]
+def _allowed_text(q) -> str:
+    """The range the recordings allow, an end the prior sets named as such."""
+    lo, hi = q["allowed"]
+    low_open, high_open = q.get("allowed_open") or (False, False)
+    if low_open and high_open:
+        return "they allow the prior's whole range"
+    if low_open:
+        return f"they allow {_num(hi)} down to the prior's floor"
+    if high_open:
+        return f"they allow {_num(lo)} up to the prior's ceiling"
+    return f"they allow {_num(lo)} to {_num(hi)}"
+
+
+def _verdict(q) -> str:
+    """What a combined quantity's row says beside its interval."""
+    if q["q05"] == q["q95"] and not q.get("widened"):
+        return "fixed"
+    parts = []
+    if q["depends_on_structure"]:
+        parts.append("depends on the structure")
+    if q.get("pinned") is False:
+        parts.append("not pinned by the recordings")
+    elif q["members"] > 1 and not q["depends_on_structure"] and q.get("pinned"):
+        parts.append("decided regardless of the structure")
+    if q.get("pinned") is False and q.get("allowed"):
+        parts.append(_allowed_text(q))
+    if q.get("widened"):
+        parts.append(f"widened to the step error, +-{_num(q['step_error'], 2)}")
+    return "; ".join(parts)
+
+
+def _quantity_row(name, q) -> str:
+    """One row of the summary's table; a component the set leaves open reads "present or
+    absent" with its interval if present."""
+    interval = f"[{_num(q['q05'])}, {_num(q['q95'])}]"
+    if q.get("present", 1.0) < 1.0 - 1e-9:
+        return (f"| {name} | present or absent ({100 * q['present']:.0f} % of the weight present) | "
+                f"if present, {interval} | {q['unit']} | {_verdict(q)} |")
+    return f"| {name} | {_num(q['q50'])} | {interval} | {q['unit']} | {_verdict(q)} |"
+
+
+def _members_lines(sp) -> list:
+    """The set's weighting, the members left out, the capped chains and the prior bounds."""
+    lines = []
+    dropped = sp.get("not_calibrated") or []
+    if dropped:
+        share = sp.get("not_calibrated_share")
+        lines += ["", "Not calibrated (more structures than the cap): " + ", ".join(
+            f"`{n}`" for n in dropped) + (f", about {100 * share:.0f} % of the weight by their "
+                                          "held-out scores (the table's intervals leave them out)."
+                                          if share is not None else ".")]
+    bounds = [(m["structure"], m["posterior"].get("at_prior_bound") or [])
+              for m in sp["members"]]
+    bounds = [(s, b) for s, b in bounds if b]
+    if bounds:
+        lines += ["", "At a prior bound (a tenth of the draws or more within a tenth of the prior "
+                  "from it): " + "; ".join(f"`{s}`: {', '.join(b)}" for s, b in bounds) + "."]
+    return lines
 
 
 def summary_lines(summary) -> list:
@@ -76,32 +139,23 @@ def summary_lines(summary) -> list:
                  + (", ".join(open_) or "nothing") + ".")
     combined = (summary.get("set_posterior") or {}).get("quantities")
     if combined:
-        n = len(summary["set_posterior"]["members"])
-        lines += ["", (f"Over the set's {n} calibrated structures, {summary['set_posterior']['criterion']}:"
+        sp = summary["set_posterior"]
+        n = len(sp["members"])
+        lines += ["", (f"Over the set's {n} calibrated structures, {sp['criterion']}:"
                        if n > 1 else "The calibrated structure's posterior:"), "",
                   "| quantity | median | 90 % interval | unit | |", "|---|---|---|---|---|"]
-        open_params = sorted({n for m in summary["set_posterior"]["members"]
-                              for n in m["posterior"].get("not_pinned", [])})
-        for name, q in combined.items():
-            verdict = ("fixed or absent" if q["q05"] == q["q95"] else
-                       "depends on the structure" if q["depends_on_structure"] else
-                       "not pinned by the recordings"
-                       if _quantity_parameter(name, summary["set_posterior"]["members"]) in open_params
-                       else "decided regardless of the structure" if q["members"] > 1 else "")
-            if verdict.startswith("not pinned") and q.get("allowed"):
-                lo, hi = q["allowed"]
-                verdict += f"; they allow {_num(lo)} to {_num(hi)}"
-            lines.append(f"| {name} | {_num(q['q50'])} | [{_num(q['q05'])}, {_num(q['q95'])}] | "
-                         f"{q['unit']} | {verdict} |")
-        if open_params:
-            lines += ["", "Not pinned by the recordings (their intervals span most of the prior and "
-                      "follow where it puts its mass; the range the recordings allow is where the "
-                      "profile log posterior stays within 1.92 nats of the best): "
-                      + ", ".join(f"`{n}`" for n in open_params) + "."]
-        if summary["set_posterior"].get("not_calibrated"):
-            lines += ["", "Not calibrated (more structures than the cap): " + ", ".join(
-                f"`{n}`" for n in summary["set_posterior"]["not_calibrated"]) + "."]
-        lines += ["", _convergence_line(summary["set_posterior"]["members"])]
+        lines += [_quantity_row(name, q) for name, q in combined.items()]
+        if any(q.get("pinned") is False for q in combined.values()):
+            lines += ["", "Not pinned: the 90 % interval spans more than half the one the priors "
+                      "imply, so it follows where the prior puts its mass; the range the "
+                      "recordings allow is where the profile log posterior stays within 1.92 nats "
+                      "of the best."]
+        if n > 1 or not all(m["converged"] for m in sp["members"]):
+            lines += ["", "| structure | weight | equal weight | chain |", "|---|---|---|---|"]
+            lines += [f"| `{m['structure']}` | {m.get('weight', 1 / n):.2f} | "
+                      f"{m.get('equal_weight', 1 / n):.2f} | {_chain_cell(m)} |" for m in sp["members"]]
+        lines += _members_lines(sp)
+        lines += ["", _convergence_line(sp["members"])]
     else:
         lines += ["", "| parameter | value | 90 % interval | unit | from |", "|---|---|---|---|---|"]
         post = summary.get("posterior") or {}
@@ -242,17 +296,18 @@ def discovery_report(summary) -> str:
     if sp and len(sp["members"]) > 1:
         names = list(sp["quantities"])
         lines += ["## Each calibrated structure", "",
-                  "Median and 90 % interval of each quantity, per structure of the set (equal "
-                  "weights make the summary's combined intervals).", "",
-                  "| structure | converged | " + " | ".join(names) + " |",
-                  "|---|---|" + "---|" * len(names)]
+                  "Median and 90 % interval of each quantity, per structure of the set; the "
+                  "summary's combined intervals mix them by their weights.", "",
+                  "| structure | weight | converged | " + " | ".join(names) + " |",
+                  "|---|---|---|" + "---|" * len(names)]
         for m in sp["members"]:
             cells = []
             for n in names:
                 q = m["quantities"].get(n)
                 cells.append("" if q is None or q["q50"] is None else
                              f"{_num(q['q50'])} [{_num(q['q05'])}, {_num(q['q95'])}]")
-            lines.append(f"| `{m['structure']}` | {m['converged']} | " + " | ".join(cells) + " |")
+            lines.append(f"| `{m['structure']}` | {m.get('weight', 1 / len(sp['members'])):.2f} | "
+                         f"{m['converged']} | " + " | ".join(cells) + " |")
         lines.append("")
     lines += ["## Time", "", f"Search sizes: {summary.get('search', 'standard')}.", "",
               ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()

@@ -18,7 +18,7 @@ from models.hypotheses import ActuatorParams, params_from_dict
 from ..calibration.priors import SIGMA, LogUniform, Uniform
 
 __all__ = ["NoPosteriorError", "PosteriorDraws", "load_chain_draws", "load_posterior_draws",
-           "load_set_draws"]
+           "load_set_draws", "load_set_weights"]
 
 _PRIOR_KINDS = {"Uniform": Uniform, "LogUniform": LogUniform}
 
@@ -188,19 +188,26 @@ def load_chain_draws(path, n_draws=200, seed=0) -> PosteriorDraws:
                           fixed_sigma=None if fixed_sigma is None else float(fixed_sigma))
 
 
+def _set_members(directory: Path) -> list:
+    """The ``set_posterior.members`` of a discover directory's ``discovery.json``; ``[]`` for a
+    ``tvcid fit`` directory or a discover directory without a set posterior."""
+    discovery = directory / "discovery.json"
+    if not discovery.is_file() or (directory / "chain.h5").is_file():
+        return []
+    try:
+        members = json.loads(discovery.read_text())["set_posterior"]["members"]
+    except (ValueError, KeyError, TypeError):
+        return []
+    return members if isinstance(members, list) else []
+
+
 def load_set_draws(directory, n_draws=200, seed=0) -> dict:
     """Posterior draws of every calibrated member of a ``tvcid discover`` directory's set, as
     structure name -> :class:`PosteriorDraws` (best score first; ``n_draws`` each); a
     ``tvcid fit`` directory, or a discover directory without a set posterior, gives its one
     chain under the name of its hypothesis."""
     directory = Path(directory)
-    discovery = directory / "discovery.json"
-    members = []
-    if discovery.is_file() and not (directory / "chain.h5").is_file():
-        try:
-            members = json.loads(discovery.read_text())["set_posterior"]["members"]
-        except (ValueError, KeyError, TypeError):
-            members = []
+    members = _set_members(directory)
     if not members:
         draws = load_posterior_draws(directory, n_draws=n_draws, seed=seed)
         return {draws.base.name: draws}
@@ -209,3 +216,38 @@ def load_set_draws(directory, n_draws=200, seed=0) -> dict:
         chain = m["posterior"]["chain"]
         out[m["structure"]] = load_chain_draws(directory / chain, n_draws=n_draws, seed=seed)
     return out
+
+
+def load_set_weights(directory) -> dict | None:
+    """The weight of every member of a ``tvcid discover`` directory's set, as structure name ->
+    weight normalised to sum 1 over the members :func:`load_set_draws` reads.
+
+    The weights are ``discovery.json``'s ``set_posterior.members[i].weight``. ``None`` when no
+    member stores one, or the directory holds a single structure: the members then weigh
+    alike.
+
+    Raises
+    ------
+    ValueError
+        When some members store a weight and others not, a weight is not a finite number
+        >= 0, or every weight is 0.
+    """
+    directory = Path(directory)
+    members = _set_members(directory)
+    if len(members) < 2:
+        return None
+    stored = {m["structure"]: m.get("weight") for m in members}
+    if all(w is None for w in stored.values()):
+        return None
+    where = directory / "discovery.json"
+    missing = [n for n, w in stored.items() if w is None]
+    if missing:
+        raise ValueError(f"{where}: member {missing[0]} stores no weight while others do")
+    for name, w in stored.items():
+        number = isinstance(w, (int, float)) and not isinstance(w, bool)
+        if not (number and np.isfinite(w) and w >= 0):
+            raise ValueError(f"{where}: member {name}'s weight {w!r} is not a finite number >= 0")
+    total = float(sum(stored.values()))
+    if total <= 0:
+        raise ValueError(f"{where}: every member's weight is 0")
+    return {n: float(w) / total for n, w in stored.items()}

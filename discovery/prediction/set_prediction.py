@@ -2,15 +2,29 @@
 matter at this controller?
 
 Each member of a discover directory's set predicts the cycle with its own posterior
-(:func:`.cycles.predict_cycle`); the set's band is the equal-weight mixture of the members' draws
-(the weights of :mod:`discovery.structure.set_posterior`). The members *agree* at a setting when
-every pair of them agrees on whether the loop oscillates (both oscillate in most draws, or both do
-not) and, where both oscillate, their 90 % bands of amplitude and of frequency overlap once each is
-widened by what a recording of the cycle can resolve (:func:`measurement_resolution`); otherwise
-the choice of structure changes the answer there, and the output says so. Without the widening,
-members whose chains pin them tightly would be called apart for differences no recording could
-show (two members of one set, fitting the recorded cycles alike, predict them 0.1-0.5 % apart
-with bands narrower than that).
+(:func:`.cycles.predict_cycle`). The set's band is the mixture of the members' oscillating draws,
+member ``i``'s draws carrying together the mass ``w_i f_i`` (its weight ``w_i``, e.g. the set
+posterior's stored weight, times the fraction ``f_i`` of its draws that oscillate), so that a
+member oscillating in few of its draws holds as small a share of the band as its cycle has of
+the set's probability; the mixture oscillates with probability ``sum_i w_i f_i``.
+
+The members *agree* at a setting when every pair of them agrees on whether the loop oscillates
+(both oscillate in most draws, or both do not) and, where both oscillate, on the amplitude and on
+the frequency. Two members ``a`` and ``b`` agree on a quantity when the difference of their
+medians is within the 90 % half-width of the difference of two independent measurements, one
+under each:
+
+    |m_a - m_b| <= sqrt(h_a^2 + r_a^2 + h_b^2 + r_b^2),
+
+with ``h`` a member's 90 % half-width on the side facing the other (its band, moved out by the
+solver error) and ``r = 1.645 s m`` the 90 % half-width of a recording's measurement of the
+cycle at relative sd ``s`` (:func:`measurement_resolution`; 0 without one). Independent spreads add
+in quadrature: the sum of the half-widths (``2 h`` for two equal ones, against ``sqrt(2) h``)
+bounds the difference of two Gaussian measurements of one value at 98 %, not 90 %. Otherwise the
+choice of structure changes the answer there, and the output says so. Without ``r``, members
+whose chains pin them tightly would be called apart for differences no recording could show (two
+members of one set, fitting the recorded cycles alike, predict them 0.1-0.5 % apart with bands
+narrower than that).
 """
 from __future__ import annotations
 
@@ -21,16 +35,18 @@ import numpy as np
 
 from .cycles import CYCLE, PredictionConfig, cycle_map, predict_cycle
 
-__all__ = ["SetPrediction", "predict_cycle_over_set", "members_agree", "SetMap", "cycle_map_over_set",
-           "measurement_resolution", "run_resolution"]
+__all__ = ["SetPrediction", "predict_cycle_over_set", "members_agree", "SetMap",
+           "cycle_map_over_set", "measurement_resolution", "run_resolution"]
 
 #: The recorded cycle's features that stand for the predicted amplitude and frequency.
 _RESOLVED = {"amplitude": "H1", "frequency": "frequency"}
+#: Why a pair parts on a quantity.
+_DIFFER = {"amplitude": "amplitudes differ", "frequency": "frequencies differ"}
 #: Half-width of a 90 % interval in standard deviations.
 _Z90 = 1.6448536269514722
 
 
-def measurement_resolution(recordings, window=10.0, dt=5e-4) -> dict:
+def measurement_resolution(recordings, window=10.0, dt=5e-4, seed=0) -> dict:
     """Relative sd with which a recording resolves a cycle's amplitude and frequency.
 
     For each closed-loop recording, the features likelihood's covariance of its first harmonic
@@ -38,13 +54,15 @@ def measurement_resolution(recordings, window=10.0, dt=5e-4) -> dict:
     plus the cycle's own wander between windows:
     :class:`discovery.calibration.likelihood.features.FeatureTerm`), over the measured value; the
     median over the recordings. ``{"amplitude": sd, "frequency":
-    sd}`` (fractions), or ``None`` without a closed-loop recording."""
+    sd}`` (fractions), or ``None`` without a closed-loop recording. The Monte Carlo of recording
+    ``i`` draws from ``numpy.random.default_rng([seed, i])``."""
     from discovery.calibration.likelihood.features import FeatureTerm
 
     features = tuple(_RESOLVED.values())
     rows = []
     for i, rec in enumerate(r for r in recordings if r.kind == "closed"):
-        term = FeatureTerm(rec, window, 0.0, dt, features=features, rng=np.random.default_rng(i))
+        term = FeatureTerm(rec, window, 0.0, dt, features=features,
+                           rng=np.random.default_rng([seed, i]))
         sd = dict(zip(features, np.sqrt(np.diag(term.cov_hat)) / np.abs(term.observed)))
         rows.append({q: float(sd[f]) for q, f in _RESOLVED.items()})
     if not rows:
@@ -52,10 +70,10 @@ def measurement_resolution(recordings, window=10.0, dt=5e-4) -> dict:
     return {q: float(np.median([r[q] for r in rows])) for q in _RESOLVED}
 
 
-def run_resolution(directory) -> dict:
-    """:func:`measurement_resolution` of a ``tvcid discover`` directory's closed-loop recordings
-    (read from the paths its ``discovery.json`` names); ``None`` when it names none that can be
-    read."""
+def run_resolution(directory, seed=0) -> dict:
+    """:func:`measurement_resolution` (with ``seed``) of a ``tvcid discover`` directory's
+    closed-loop recordings (read from the paths its ``discovery.json`` names); ``None`` when it
+    names none that can be read."""
     import json
     from pathlib import Path
 
@@ -66,30 +84,63 @@ def run_resolution(directory) -> dict:
     except (OSError, ValueError, KeyError, TypeError):
         return None
     recordings = [load_recording(p) for p in paths if Path(p).is_file()]
-    return measurement_resolution(recordings) if recordings else None
+    return measurement_resolution(recordings, seed=seed) if recordings else None
 
 
-def _mixture_quantiles(predictions, name) -> dict:
-    """Quantiles of ``name`` over the oscillating draws of every member, equally weighted (each
-    member's oscillating draws resampled to the same count by a seeded generator)."""
-    rng = np.random.default_rng(0)
-    pools = []
-    for p in predictions:
+def _weighted_quantiles(values, weights, levels) -> np.ndarray:
+    """Quantiles of a discrete distribution: ``values`` with probabilities proportional to
+    ``weights``; each the smallest value at which the cumulative distribution reaches the level
+    (the inverted CDF: no interpolation across the gap between two members' cycles, which would
+    put a quantile where no draw is)."""
+    order = np.argsort(values)
+    v, w = np.asarray(values, float)[order], np.asarray(weights, float)[order]
+    cum = np.cumsum(w) / w.sum()
+    idx = np.searchsorted(cum, np.asarray(levels) * (1 - 1e-12), side="left")
+    return v[np.minimum(idx, v.size - 1)]
+
+
+def _mixture_band(predictions, weights, name) -> dict:
+    """Quantiles of ``name`` over the members' oscillating draws, member ``n``'s draws together
+    of mass ``weights[n]`` times its oscillating fraction (each draw ``weights[n] / n_draws``);
+    ``q05`` and ``q95`` moved out by the largest solver error of the members in the band."""
+    values, mass, error = [], [], 0.0
+    for n, p in predictions.items():
         mask = p.outcomes.outcome == CYCLE
-        values = np.asarray(getattr(p.outcomes, name))[mask]
-        if values.size:
-            pools.append(rng.choice(values, size=mask.size, replace=True))
-    if not pools:
+        if not mask.any() or weights[n] <= 0:
+            continue
+        values.append(np.asarray(getattr(p.outcomes, name))[mask])
+        mass.append(np.full(int(mask.sum()), weights[n] / mask.size))
+        e = p.solver_error.get(name, 0.0)
+        error = max(error, e) if np.isfinite(e) else error
+    if not values:
         return {"q05": None, "q50": None, "q95": None}
-    q = np.quantile(np.concatenate(pools), [0.05, 0.5, 0.95])
-    return {"q05": float(q[0]), "q50": float(q[1]), "q95": float(q[2])}
+    q = _weighted_quantiles(np.concatenate(values), np.concatenate(mass), [0.05, 0.5, 0.95])
+    return {"q05": float(q[0] - error), "q50": float(q[1]), "q95": float(q[2] + error)}
 
 
-def _overlap(a, b, resolution=0.0) -> bool:
-    """90 % bands ``a`` and ``b`` overlap, each widened by the 90 % interval of a measurement
-    with relative sd ``resolution`` at its median."""
-    wa, wb = (_Z90 * resolution * abs(x["q50"]) for x in (a, b))
-    return a["q05"] - wa <= b["q95"] + wb and b["q05"] - wb <= a["q95"] + wa
+def _normalised(weights, names) -> dict:
+    """``weights`` (name -> weight; ``None``: equal) over ``names``, summing to 1."""
+    if weights is None:
+        return {n: 1.0 / len(names) for n in names}
+    missing = [n for n in names if n not in weights]
+    if missing:
+        raise ValueError(f"no weight for member {missing[0]}")
+    w = {n: float(weights[n]) for n in names}
+    if not all(np.isfinite(v) and v >= 0 for v in w.values()) or sum(w.values()) <= 0:
+        raise ValueError(f"member weights must be finite, >= 0 and not all 0 (got {w})")
+    total = sum(w.values())
+    return {n: v / total for n, v in w.items()}
+
+
+def _apart(a, b, resolution=0.0) -> bool:
+    """Bands ``a`` and ``b`` (``q05``, ``q50``, ``q95``) differ by more than two independent
+    measurements do: ``|m_a - m_b| > sqrt(h_a^2 + r_a^2 + h_b^2 + r_b^2)`` (the module's rule),
+    ``h`` the half-width on the side facing the other, ``r`` the 90 % half-width of a
+    measurement with relative sd ``resolution`` at the median."""
+    lo, hi = (a, b) if a["q50"] <= b["q50"] else (b, a)
+    h_lo, h_hi = lo["q95"] - lo["q50"], hi["q50"] - hi["q05"]
+    r_lo, r_hi = (_Z90 * resolution * abs(x["q50"]) for x in (lo, hi))
+    return hi["q50"] - lo["q50"] > float(np.sqrt(h_lo**2 + r_lo**2 + h_hi**2 + r_hi**2))
 
 
 def members_agree(bands: dict, resolution=None) -> tuple:
@@ -109,10 +160,15 @@ def members_agree(bands: dict, resolution=None) -> tuple:
             continue
         for q in ("amplitude", "frequency"):
             if (a[q]["q50"] is not None and b[q]["q50"] is not None
-                    and not _overlap(a[q], b[q], resolution.get(q, 0.0))):
-                pairs.append((na, nb, f"{q} bands apart"))
+                    and _apart(a[q], b[q], resolution.get(q, 0.0))):
+                pairs.append((na, nb, _DIFFER[q]))
                 break
     return not pairs, pairs
+
+
+#: How the set's band mixes the members, as the output states it.
+MIXTURE_RULE = ("each member's oscillating draws together carry its weight times its "
+                "oscillating fraction")
 
 
 @dataclass(frozen=True)
@@ -125,45 +181,65 @@ class SetPrediction:
         Structure name -> :class:`.cycles.CyclePrediction`.
     resolution : dict or None
         What a recording resolves (:func:`measurement_resolution`), for :func:`members_agree`.
+    weights : dict or None
+        Structure name -> weight of the member in the set (normalised here); ``None``: equal.
     """
 
     members: dict = field(repr=False)
     resolution: dict = None
+    weights: dict = None
+
+    def member_weights(self) -> dict:
+        """Structure name -> weight, summing to 1."""
+        return _normalised(self.weights, list(self.members))
 
     def to_dict(self) -> dict:
+        """The mixture's bands and oscillating fraction (the module's rule), the verdict, and per
+        member its :meth:`.cycles.CyclePrediction.to_dict` with its ``weight`` and
+        ``share_of_band`` (its part of the mixture's oscillating mass)."""
+        w = self.member_weights()
         bands = {n: p.to_dict() for n, p in self.members.items()}
         agree, pairs = members_agree(bands, self.resolution)
-        preds = list(self.members.values())
+        mass = {n: w[n] * b["fraction_oscillating"] for n, b in bands.items()}
+        total = sum(mass.values())
+        for n, b in bands.items():
+            b["weight"] = w[n]
+            b["share_of_band"] = mass[n] / total if total > 0 else 0.0
         return {
-            "amplitude": _mixture_quantiles(preds, "amplitude"),
-            "frequency": _mixture_quantiles(preds, "frequency"),
-            "fraction_oscillating": float(np.mean([p.fraction_oscillating for p in preds])),
+            "amplitude": _mixture_band(self.members, w, "amplitude"),
+            "frequency": _mixture_band(self.members, w, "frequency"),
+            "fraction_oscillating": float(total),
             "members_agree": agree,
             "disagreeing": [{"members": [a, b], "why": why} for a, b, why in pairs],
             "members": bands,
-            "weights": "equal",
+            "weights": w,
+            "weights_stored": self.weights is not None,
+            "mixture": MIXTURE_RULE,
             "resolution": self.resolution,
         }
 
 
 def predict_cycle_over_set(member_draws: dict, setting, config=PredictionConfig(),
-                           describing=True, resolution=None) -> SetPrediction:
+                           describing=True, resolution=None, weights=None) -> SetPrediction:
     """:func:`.cycles.predict_cycle` for every member (``member_draws``: structure name ->
     :class:`.draws.PosteriorDraws`, e.g. :func:`.draws.load_set_draws`); ``resolution`` as in
-    :func:`members_agree`."""
+    :func:`members_agree`; ``weights``: structure name -> weight (e.g.
+    :func:`.draws.load_set_weights`; ``None``: equal)."""
     if not member_draws:
         raise ValueError("predict_cycle_over_set: no member")
+    _normalised(weights, list(member_draws))  # refuse bad weights before simulating
     return SetPrediction({n: predict_cycle(d, setting, config, describing=describing)
-                          for n, d in member_draws.items()}, resolution)
+                          for n, d in member_draws.items()}, resolution, weights)
 
 
 @dataclass(frozen=True)
 class SetMap:
     """:class:`.cycles.CycleMap` per member over one grid, and where the members disagree
-    (``resolution`` as in :func:`members_agree`)."""
+    (``resolution`` as in :func:`members_agree`; ``weights`` as in :class:`SetPrediction`)."""
 
     members: dict = field(repr=False)
     resolution: dict = None
+    weights: dict = None
 
     def disagreement(self) -> np.ndarray:
         """Boolean array over the grid: True where some pair of members disagrees
@@ -178,6 +254,7 @@ class SetMap:
 
     def to_dict(self) -> dict:
         return {"members": {n: m.to_dict() for n, m in self.members.items()},
+                "weights": _normalised(self.weights, list(self.members)),
                 "disagree": self.disagreement().tolist(), "resolution": self.resolution}
 
     def plot(self, ax=None):
@@ -200,10 +277,11 @@ class SetMap:
 
 
 def cycle_map_over_set(member_draws: dict, base, grid: dict, config=PredictionConfig(),
-                       describing=True, progress=False, resolution=None) -> SetMap:
+                       describing=True, progress=False, resolution=None, weights=None) -> SetMap:
     """:func:`.cycles.cycle_map` for every member over the same grid; ``resolution`` as in
-    :func:`members_agree`."""
+    :func:`members_agree`, ``weights`` as in :func:`predict_cycle_over_set`."""
     if not member_draws:
         raise ValueError("cycle_map_over_set: no member")
+    _normalised(weights, list(member_draws))
     return SetMap({n: cycle_map(d, base, grid, config, describing=describing, progress=progress)
-                   for n, d in member_draws.items()}, resolution)
+                   for n, d in member_draws.items()}, resolution, weights)

@@ -12,8 +12,9 @@ A set is *closed* when it holds one structure, or when its calibrated members ag
   :data:`.discrimination.DECIDES` (no recording of the test could tell them apart);
 * the limit cycle at controller settings the recordings did not use
   (:func:`discovery.prediction.set_prediction.predict_cycle_over_set`: both oscillate or both not,
-  and their 90 % bands of amplitude and frequency overlap, each widened by what a recording of
-  the cycle resolves).
+  and their medians of amplitude and frequency differ by no more than a difference of two
+  measurements allows, each member's 90 % half-width and what a recording of the cycle resolves
+  added in quadrature).
 
 Then the choice between them does not matter to what a user would measure or design for; a set
 that is not closed says at which test or setting the members part.

@@ -2,33 +2,37 @@
 
 Each distinct member of the indistinguishable set (:mod:`discovery.structure.indistinguishable`)
 is calibrated on its own, every parameter the recordings inform sampled, the linear block
-included. :func:`combine` then mixes the members' draws into one posterior of the physical
-quantities they share:
+included; where the set leaves a component open (backlash, friction offset, band-pass loop) and
+no distinct member has it, the richer structure merged into one is calibrated too.
+:func:`combine` then mixes the members' draws, each with its weight, into one posterior of the
+physical quantities they share:
 
 * ``dead_zone`` (rad on the error, rad/s on the velocity signal: members with the dead zone in
   different places are combined per place, ``dead_zone[error]`` and ``dead_zone[velocity]``);
 * ``threshold``: the velocity form's ``z - off``, which motion pins (docs/models.md#what-a-recording-pins);
-* ``backlash``, ``friction_offset`` (0 in a member without them) and ``delay``;
+* ``backlash``, ``friction_offset`` and ``bandpass_gain``, in the members that have the
+  component; ``present`` is the weight of those members, and where it is under 1 the set leaves
+  the component open: its interval is the one *if present*;
+* ``delay``;
 * the linear block's ``dc_gain`` (``1/K``, rad per rad of command) and ``bandwidth`` (rad/s, the
   -3 dB frequency of ``K1/(s^3 + K2 s^2 + K3 s + K K1)``, the position loop without its delay and
   nonlinearities).
 
-The weights are equal within the set. The set holds the structures whose held-out scores differ
-from the best by less than the margin the two folds' disagreement allows: the data do not rank
-them, so any weight that favours one (stacking of the held-out predictive, or Bayes factors of
-fits whose differences lie inside that noise) would rank them on noise. :class:`SetPosterior`
-records each member's score difference over the margin, the assumption's check: every ratio is
-at most 1 by the set's construction.
+The weights come from the data (:mod:`discovery.structure.set_weights`); the equal-weight
+mixture is kept beside them as the alternative the report states.
 
 A quantity *depends on the structure* when the spread of the members' medians exceeds half the
 median width of their own 90 % intervals: then the combined interval is wide because the members
 disagree, not because each is uncertain.
 
-Beside its interval, each quantity has the range the recordings *allow* (:func:`allowed_range`):
-where its profile log posterior stays within 1.92 nats of the best, the members' ranges joined.
-The priors are flat in the sampling coordinates, so this is a profile-likelihood range, which
-does not depend on how a prior spreads its mass: on a quantity the recordings do not pin, the 90 %
-interval is mostly the prior's, the allowed range says where the recordings bound it.
+A quantity is *not pinned* when, in a member that has it, its 90 % interval spans more than half
+of the 90 % interval its prior implies (the member's priors sampled and mapped through
+:func:`member_quantities`, in the quantity's own coordinate: log where its values are positive
+and span over a decade): composite quantities are judged on their own draws, not through the
+parameters they are made of. Beside its interval, each quantity has the range the recordings
+*allow* (:func:`discovery.calibration.profile_range.allowed_range`): where its profile log
+posterior stays within 1.92 nats of the best, the members' ranges joined; an end the prior sets
+is *open* (the prior's floor or ceiling).
 """
 from __future__ import annotations
 
@@ -37,24 +41,30 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from discovery.calibration.profile_range import ALLOWED_DROP, allowed_range
+
 __all__ = ["MemberPosterior", "SetPosterior", "allowed_range", "calibrate_member", "combine",
            "linear_block_dc_gain_and_bandwidth", "member_priors", "member_quantities",
-           "member_walkers", "not_pinned", "QUANTITY_UNITS"]
+           "member_walkers", "not_pinned", "prior_quantities", "richer_members",
+           "QUANTITY_UNITS", "COMPONENT_QUANTITIES", "ALLOWED_DROP"]
 
 #: Unit of each combined quantity (the dead zone's depends on its place).
 QUANTITY_UNITS = {
     "dead_zone[error]": "rad", "dead_zone[velocity]": "rad/s", "threshold": "rad/s",
-    "backlash": "rad", "friction_offset": "rad/s", "delay": "s", "dc_gain": "rad/rad",
-    "bandwidth": "rad/s",
+    "backlash": "rad", "friction_offset": "rad/s", "bandpass_gain": "1", "delay": "s",
+    "dc_gain": "rad/rad", "bandwidth": "rad/s",
 }
+#: The quantity of each optional component (:data:`models.structures.COMPONENT_FIELDS`).
+COMPONENT_QUANTITIES = {"friction": "friction_offset", "backlash": "backlash",
+                        "bandpass": "bandpass_gain"}
 #: A quantity depends on the structure when the members' medians spread by more than this
 #: fraction of the median width of their 90 % intervals.
 STRUCTURE_DEPENDENCE = 0.5
-#: Drop of the log posterior (nats) that bounds the values the recordings allow
-#: (:func:`allowed_range`): a profile likelihood's 95 % point for one quantity (3.84 / 2).
-ALLOWED_DROP = 1.92
-#: Bins of a quantity's range over which its profile is read.
-ALLOWED_BINS = 40
+#: A quantity is not pinned when its 90 % interval spans more than this fraction of the one its
+#: prior implies.
+NOT_PINNED_FRACTION = 0.5
+#: Prior draws that map a member's priors to its quantities' prior-implied spread.
+PRIOR_DRAWS = 4000
 #: Frequencies (rad/s) on which the linear block's -3 dB point is found.
 _OMEGA = np.logspace(-1, 4.5, 1200)
 
@@ -83,57 +93,59 @@ def linear_block_dc_gain_and_bandwidth(gain, damping, stiffness, feedback_gain):
     return 1.0 / k, bandwidth
 
 
-def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS):
-    """The values of one quantity the recordings allow, read off a member's draws.
-
-    The draws' range is cut into ``bins`` bins (in log where the values are positive and span
-    over a decade); a bin's profile is the largest log posterior of its draws, and the range
-    runs from the first to the last bin whose profile is within ``drop`` nats of the largest of
-    all, its ends read at the outermost draws of those two bins that are within ``drop`` too.
-    With priors flat in the sampling coordinates (log-uniform and uniform), the log posterior is
-    the log likelihood plus a constant, so this is a profile-likelihood range: unlike the 90 %
-    interval, it does not follow where the prior puts its mass. Sparse draws at an edge read the
-    profile low there, so the range errs narrow. Returns ``(low, high)``, or ``None`` under
-    ``2 bins`` finite draws."""
-    v = np.asarray(values, dtype=float)
-    lp = np.broadcast_to(np.asarray(log_prob, dtype=float), v.shape)
-    ok = np.isfinite(v) & np.isfinite(lp)
-    v, lp = v[ok], lp[ok]
-    if v.size < 2 * bins:
-        return None
-    lo, hi = float(v.min()), float(v.max())
-    if hi <= lo:
-        return lo, hi
-    log = lo > 0 and hi > 10 * lo
-    x = np.log(v) if log else v
-    edges = np.linspace(x.min(), x.max(), bins + 1)
-    index = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)
-    profile = np.full(bins, -np.inf)
-    np.maximum.at(profile, index, lp)
-    within = lp >= lp.max() - drop
-    kept = np.flatnonzero(profile >= lp.max() - drop)
-    return (float(v[within & (index == kept[0])].min()),
-            float(v[within & (index == kept[-1])].max()))
-
-
 def member_quantities(params: dict, draws: dict) -> dict:
     """The combined quantities of one member: its fitted ``params`` (a dict of
     :class:`models.ActuatorParams` fields) with the sampled fields replaced by ``draws`` (name ->
-    array, natural units); every array the same length."""
+    array, natural units); every array the same length. A component's quantity is there only
+    where the member has the component (sampled, or nonzero in ``params``)."""
     n = len(next(iter(draws.values()))) if draws else 1
-    value = {name: np.broadcast_to(np.asarray(draws.get(name, params[name]), dtype=float), (n,))
+    value = {name: np.broadcast_to(np.asarray(draws.get(name, params.get(name, 0.0)), dtype=float), (n,))
              for name in ("gain", "damping", "stiffness", "feedback_gain", "dead_zone",
-                          "friction_offset", "backlash", "delay")}
+                          "friction_offset", "backlash", "bandpass_gain", "delay")}
     position = str(params.get("dead_zone_position", "error"))
-    out = {f"dead_zone[{position}]": value["dead_zone"], "backlash": value["backlash"],
-           "delay": value["delay"]}
+    out = {f"dead_zone[{position}]": value["dead_zone"], "delay": value["delay"]}
+    for name in COMPONENT_QUANTITIES.values():
+        if name in draws or float(params.get(name, 0.0) or 0.0) != 0.0:
+            out[name] = value[name]
     if position == "velocity":
         out["threshold"] = value["dead_zone"] - value["friction_offset"]
-        out["friction_offset"] = value["friction_offset"]
     dc, bw = linear_block_dc_gain_and_bandwidth(value["gain"], value["damping"],
                                                 value["stiffness"], value["feedback_gain"])
     out["dc_gain"], out["bandwidth"] = dc, bw
     return {k: np.array(v, dtype=float) for k, v in out.items()}
+
+
+def prior_quantities(params: dict, priors: dict, n=PRIOR_DRAWS, seed=0) -> dict:
+    """The combined quantities under a member's priors alone: ``n`` draws of every prior in
+    ``priors`` (name -> :class:`discovery.calibration.priors.Prior`) mapped through
+    :func:`member_quantities` with the unsampled fields at ``params``; the spread against which
+    :func:`combine` judges whether the recordings pin a quantity."""
+    rng = np.random.default_rng(seed)
+    draws = {name: np.asarray(prior.to_natural(prior.sample_internal(rng, n)), dtype=float)
+             for name, prior in priors.items()}
+    return member_quantities(params, draws)
+
+
+def richer_members(rows, decided) -> list:
+    """The rows of the ranking to calibrate beyond the set's distinct members: for each
+    component the set leaves open (``decided[component] is None``) that no distinct member has,
+    the best-scored structure merged into a member that has it. ``rows`` are the ranking's rows
+    (``structure``, ``indistinguishable_from_best``, ``merged_into``), best first."""
+    from models.structures import Structure
+
+    members = [r for r in rows if r["indistinguishable_from_best"]]
+    distinct = [r for r in members if r["merged_into"] is None]
+    have = {c for r in distinct for c in Structure.parse(r["structure"]).components}
+    out = []
+    for component in COMPONENT_QUANTITIES:
+        if decided.get(component, False) is not None or component in have:
+            continue
+        richer = [r for r in members if r["merged_into"] is not None and r not in out
+                  and component in Structure.parse(r["structure"]).components]
+        if richer:
+            out.append(richer[0])
+            have |= set(Structure.parse(richer[0]["structure"]).components)
+    return out
 
 
 def member_priors(params, structure, names, delay_floor):
@@ -177,7 +189,7 @@ def member_walkers(n_parameters) -> int:
     return max(16, 2 * int(n_parameters) + 6)
 
 
-def not_pinned(post, priors, fraction=0.5) -> list:
+def not_pinned(post, priors, fraction=NOT_PINNED_FRACTION) -> list:
     """Sampled parameters whose 90 % interval spans more than ``fraction`` of their prior (in
     the prior's own coordinate): the recordings do not pin them."""
     out = []
@@ -240,9 +252,14 @@ class MemberPosterior:
         Its calibration's summary (:meth:`discovery.calibration.Posterior.summary`): every
         sampled parameter's quantiles, convergence, ``at_prior_bound``.
     score_over_margin : float
-        ``(score - best score) / margin``: at most 1 for a member of the set.
+        ``(score - best score) / margin``: at most 1 for a distinct member of the set.
     log_prob : ndarray, optional
         The log posterior of each draw (for :func:`allowed_range`).
+    prior_quantities : dict, optional
+        Combined quantity -> draws under the priors alone (:func:`prior_quantities`).
+    step_error : dict, optional
+        Combined quantity -> how far its median moves when the integration step is halved
+        (:mod:`discovery.calibration.step_error`).
     """
 
     structure: str
@@ -250,6 +267,8 @@ class MemberPosterior:
     summary: dict = field(default_factory=dict)
     score_over_margin: float = 0.0
     log_prob: np.ndarray | None = None
+    prior_quantities: dict | None = None
+    step_error: dict | None = None
 
     @property
     def converged(self) -> bool:
@@ -258,40 +277,60 @@ class MemberPosterior:
 
 @dataclass
 class SetPosterior:
-    """The members' posteriors and their equal-weight mixture (:func:`combine`)."""
+    """The members' posteriors, their weights and their mixture (:func:`combine`).
+
+    Attributes
+    ----------
+    members : list of MemberPosterior
+    quantities : dict
+        Quantity -> its combined summary (:func:`combine`).
+    criterion : str
+        How the members are weighted, stated for the report.
+    weights : ndarray
+        Each member's weight (summing to 1).
+    """
 
     members: list
     quantities: dict
     criterion: str
+    weights: np.ndarray = None
 
     def interval(self, name, level=0.90):
-        """The combined ``level`` interval of quantity ``name``."""
+        """The combined 90 % interval ``(q05, q95)`` of quantity ``name`` (widened to the step
+        error where it is narrower)."""
+        if level != 0.90:
+            raise ValueError(f"interval: only the 90 % interval is stored (got level {level})")
         q = self.quantities[name]
         return q["q05"], q["q95"]
 
     def to_dict(self) -> dict:
+        w = self.weights if self.weights is not None else np.full(len(self.members), 1 / len(self.members))
         return {
             "criterion": self.criterion,
             "quantities": self.quantities,
-            "members": [{"structure": m.structure, "weight": 1.0 / len(self.members),
+            "members": [{"structure": m.structure, "weight": float(wi),
+                         "equal_weight": 1.0 / len(self.members),
                          "score_over_margin": m.score_over_margin, "converged": m.converged,
                          "quantities": {k: _quantiles(v) for k, v in m.quantities.items()},
-                         "posterior": m.summary} for m in self.members],
+                         "step_error": m.step_error,
+                         "posterior": m.summary} for m, wi in zip(self.members, w)],
         }
 
     def plot(self, ax=None, names=("backlash", "delay", "threshold")):
-        """Each member's 90 % interval and median (lines) beside the combined one (thick), for the
-        quantities ``names`` the set has; returns the axes (one per quantity)."""
+        """Each member's 90 % interval and median (lines, thicker for more weight) beside the
+        combined one (thick), for the quantities ``names`` the set has; returns the axes (one
+        per quantity)."""
         import matplotlib.pyplot as plt
 
         names = [n for n in names if n in self.quantities]
         if ax is None:
             ax = plt.subplots(1, len(names), figsize=(3.2 * len(names), 2.8), squeeze=False)[1][0]
+        w = self.weights if self.weights is not None else np.full(len(self.members), 1 / len(self.members))
         for a, name in zip(np.atleast_1d(ax), names):
-            rows = [(m.structure, _quantiles(m.quantities[name])) for m in self.members
-                    if name in m.quantities]
-            for i, (_, q) in enumerate(rows):
-                a.plot([q["q05"], q["q95"]], [i, i], color="C0", lw=1.5)
+            rows = [(m.structure, _quantiles(m.quantities[name]), wi)
+                    for m, wi in zip(self.members, w) if name in m.quantities]
+            for i, (_, q, wi) in enumerate(rows):
+                a.plot([q["q05"], q["q95"]], [i, i], color="C0", lw=0.8 + 3 * wi)
                 a.plot(q["q50"], i, "o", color="C0", ms=3)
             c = self.quantities[name]
             a.plot([c["q05"], c["q95"]], [-1, -1], color="C3", lw=4)
@@ -311,48 +350,131 @@ def _quantiles(values) -> dict:
     return {"q05": float(q05), "q50": float(q50), "q95": float(q95)}
 
 
-def combine(members, n_draws=4000, seed=0) -> SetPosterior:
-    """Mix the members' draws with equal weights into one posterior per shared quantity.
+def _in_log(values) -> bool:
+    """Whether a quantity is judged in log: its values are positive and span over a decade."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return bool(v.size and v.min() > 0 and v.max() > 10 * v.min())
 
-    Each member contributes ``n_draws / len(members)`` draws (resampled with a seeded
-    ``numpy.random.Generator``); a quantity only some members have (the dead zone at one place,
-    the velocity form's threshold) is mixed over those members.
+
+def width_over_prior(values, prior_values) -> float | None:
+    """The 90 % width of a quantity's draws over the 90 % width its prior implies, both in the
+    prior draws' coordinate (log where they are positive and span over a decade); ``None``
+    without prior draws."""
+    if prior_values is None:
+        return None
+    p = np.asarray(prior_values, dtype=float)
+    v = np.asarray(values, dtype=float)
+    p, v = p[np.isfinite(p)], v[np.isfinite(v)]
+    if p.size < 20 or v.size < 20:
+        return None
+    if _in_log(p):
+        v = v[v > 0]
+        if v.size < 20:
+            return None
+        p, v = np.log(p), np.log(v)
+    prior_width = float(np.diff(np.quantile(p, (0.05, 0.95)))[0])
+    width = float(np.diff(np.quantile(v, (0.05, 0.95)))[0])
+    return width / prior_width if prior_width > 0 else (0.0 if width == 0 else float("inf"))
+
+
+#: Members with less than this share of the weight of those having a quantity neither flag it
+#: as depending on the structure nor widen its allowed range.
+NEGLIGIBLE_WEIGHT = 0.01
+
+
+def combine(members, weights=None, n_draws=4000, seed=0, criterion=None) -> SetPosterior:
+    """Mix the members' draws, each with its weight, into one posterior per shared quantity.
+
+    Parameters
+    ----------
+    members : list of MemberPosterior
+    weights : array_like, optional
+        Each member's weight (normalised here); equal where omitted.
+    n_draws : int
+        Draws of the mixture, shared among the members by weight (each member's resampled
+        with a seeded ``numpy.random.Generator``).
+    criterion : str, optional
+        How the weights were made, for the report.
 
     Returns
     -------
     SetPosterior
-        ``quantities``: name -> ``q05``, ``q50``, ``q95``, ``unit``, ``members`` (how many have
-        it), ``depends_on_structure`` and ``spread_over_width`` (the rule of the module's
-        docstring), and ``allowed``: ``[low, high]``, the members' :func:`allowed_range` joined
-        (``None`` where no member has its draws' log posterior).
+        ``quantities``: name -> ``q05``, ``q50``, ``q95`` (of the members that have the
+        quantity, by their weights), ``unit``, ``members`` (how many have it), ``present`` (their
+        share of the weight: under 1 where the set leaves the component or place open),
+        ``depends_on_structure`` and ``spread_over_width`` (the module docstring's rule),
+        ``width_over_prior`` (the largest over the members that have it) and ``pinned``
+        (``None`` without prior draws), ``allowed`` (``[low, high]``, the members'
+        :func:`allowed_range` joined, or ``None``) with ``allowed_open`` (``[low end, high
+        end]``: set by the prior), ``step_error`` with ``widened`` (the interval widened to at
+        least the median +- the step error, :mod:`discovery.calibration.step_error`), and
+        ``equal_weights`` (the equal-weight mixture's ``q05``, ``q50``, ``q95``).
     """
     if not members:
         raise ValueError("combine: no member to combine")
+    w = np.full(len(members), 1.0) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (len(members),) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+        raise ValueError(f"combine: weights must be {len(members)} non-negative numbers, not all 0 "
+                         f"(got {weights!r})")
+    w = w / w.sum()
     rng = np.random.default_rng(seed)
-    per = max(1, n_draws // len(members))
     present = {n for m in members for n in m.quantities}
     names = [n for n in QUANTITY_UNITS if n in present] + sorted(present - set(QUANTITY_UNITS))
     quantities = {}
     for name in names:
-        having = [m for m in members if name in m.quantities]
-        mixed = np.concatenate([rng.choice(m.quantities[name], size=per, replace=True)
-                                for m in having])
+        having = [i for i, m in enumerate(members) if name in m.quantities]
+        share = float(w[having].sum())
+        inner = w[having] / share if share > 0 else np.full(len(having), 1 / len(having))
+        mixed = _mix([members[i].quantities[name] for i in having], inner, n_draws, rng)
+        equal = _mix([members[i].quantities[name] for i in having],
+                     np.full(len(having), 1 / len(having)), n_draws, rng)
         q = _quantiles(mixed)
-        own = [_quantiles(m.quantities[name]) for m in having]
+        counted = [i for i, wi in zip(having, inner) if wi >= NEGLIGIBLE_WEIGHT] or having
+        own = [_quantiles(members[i].quantities[name]) for i in counted]
         medians = [o["q50"] for o in own if o["q50"] is not None]
         widths = [o["q95"] - o["q05"] for o in own if o["q50"] is not None]
         spread = (max(medians) - min(medians)) if medians else 0.0
         width = float(np.median(widths)) if widths else 0.0
         ratio = spread / width if width > 0 else (0.0 if spread == 0 else float("inf"))
-        ranges = [allowed_range(m.quantities[name], m.log_prob) for m in having
-                  if m.log_prob is not None]
+        ranges = [allowed_range(members[i].quantities[name], members[i].log_prob) for i in counted
+                  if members[i].log_prob is not None]
         ranges = [r for r in ranges if r is not None]
-        allowed = [min(r[0] for r in ranges), max(r[1] for r in ranges)] if ranges else None
+        allowed, allowed_open = None, None
+        if ranges:
+            low = min(ranges, key=lambda r: r.low)
+            high = max(ranges, key=lambda r: r.high)
+            allowed = [low.low, high.high]
+            allowed_open = [any(r.low_open for r in ranges if r.low <= low.low),
+                            any(r.high_open for r in ranges if r.high >= high.high)]
+        over = [width_over_prior(members[i].quantities[name],
+                                 (members[i].prior_quantities or {}).get(name)) for i in counted]
+        over = [o for o in over if o is not None]
+        errors = [float((members[i].step_error or {}).get(name) or 0.0) for i in counted]
+        step = max(errors) if errors else 0.0
+        widened = bool(q["q50"] is not None and step > 0 and q["q95"] - q["q05"] < 2 * step)
+        if widened:
+            q = {"q05": min(q["q05"], q["q50"] - step), "q50": q["q50"],
+                 "q95": max(q["q95"], q["q50"] + step)}
         quantities[name] = {**q, "unit": QUANTITY_UNITS.get(name, ""), "members": len(having),
+                            "present": share,
                             "spread_over_width": ratio,
-                            "depends_on_structure": bool(len(having) > 1 and ratio > STRUCTURE_DEPENDENCE),
-                            "allowed": allowed}
-    criterion = ("equal weights: the members' held-out scores differ from the best by less than "
-                 "the margin the folds' disagreement allows (largest difference "
-                 f"{max(m.score_over_margin for m in members):.2f} margins)")
-    return SetPosterior(list(members), quantities, criterion)
+                            "depends_on_structure": bool(len(counted) > 1 and ratio > STRUCTURE_DEPENDENCE),
+                            "width_over_prior": max(over) if over else None,
+                            "pinned": (max(over) <= NOT_PINNED_FRACTION) if over else None,
+                            "allowed": allowed, "allowed_open": allowed_open,
+                            "step_error": step or None, "widened": widened,
+                            "equal_weights": _quantiles(equal)}
+    if criterion is None:
+        criterion = ("equal weights" if weights is None else "weights given")
+    return SetPosterior(list(members), quantities, criterion, w)
+
+
+def _mix(draws, weights, n_draws, rng):
+    """``n_draws`` draws of the mixture of ``draws`` (one array a member) by ``weights``: each
+    member resampled for its share, rounded, at least one draw for a positive weight."""
+    counts = np.maximum(np.round(np.asarray(weights) * n_draws).astype(int),
+                        (np.asarray(weights) > 0).astype(int))
+    parts = [rng.choice(np.asarray(d, dtype=float), size=k, replace=True)
+             for d, k in zip(draws, counts) if k > 0]
+    return np.concatenate(parts) if parts else np.array([])

@@ -1,4 +1,4 @@
-"""Coverage of ``tvcid discover``'s printed intervals: structure and linear block unknown.
+"""Coverage of what ``tvcid discover`` prints: structure and linear block unknown.
 
 ``python -m studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--ranges wide|papers]
 [--jobs J | --dask ADDRESS] [--out DIR]``
@@ -7,26 +7,56 @@ Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded; the disco
 seeds by default) is a truth over every structure of the grammar and a test design over the
 generator's ranges (``wide`` by default: thresholds and delays over a decade; limit cycles at
 1-3 controller settings, continuous or held at 200 Hz, open-loop squares, sines and staircases or
-none, acquisition at 200 Hz to 2 kHz, noise, sensor offset, quantisation). Its recordings are made by the plain-Python reference simulator and written with
-measured-style sidecars (commands only as samples); the whole ``tvcid discover`` runs on them
-(:func:`tvcid.pipeline.discover`): the structure search, the set, the calibration of every member
-and their combination. The row records, for each quantity of the combined posterior
-(:mod:`discovery.structure.set_posterior`), whether the truth lies inside the printed 90 %
-interval.
+none, acquisition at 200 Hz to 2 kHz, noise, sensor offset, quantisation). Its recordings are made
+by the plain-Python reference simulator and written with measured-style sidecars (commands only as
+samples); the whole ``tvcid discover`` runs on them (:func:`tvcid.pipeline.discover`): the
+structure search, the set, the calibration of every member and their combination.
 
-Goals, over at least 30 draws: the truth inside the combined 90 % interval in 80-97 % of the
-draws for each of the dead zone (the threshold ``z - off`` where the truth's dead zone acts on the
-velocity signal: what motion pins), the backlash and the delay; every member's chain converged.
-Rows are written to ``DIR/bench.json`` as each draw ends (a rerun resumes); each names the commit
-of the code that ran it.
+The row judges what the report prints for every quantity of the combined posterior
+(:func:`discovery.structure.set_posterior.combine`: the dead zone at each place, the threshold,
+the backlash, the friction offset, the band-pass gain, the delay, the DC gain and the bandwidth),
+each by one rule, named in the row:
+
+* ``interval``: the truth has the quantity, the report prints it, and it is pinned (``pinned``
+  true, or ``None`` where no prior judges it): covered when the truth lies inside the printed 90 %
+  interval (widened to the step error where ``discover`` widens it). A component the set leaves
+  open (``present`` under 1, printed "present or absent; if present, ...") is judged on its
+  interval if present.
+* ``allowed``: as above, but not pinned: covered when the truth lies inside the range the
+  recordings allow; an open end (the prior's floor or ceiling) bounds nothing on its side. A
+  not-pinned quantity without an allowed range is judged on its interval and flagged
+  ``allowed_missing``.
+* ``absent``: the truth lacks the component (backlash, friction offset, band-pass loop): covered
+  when the report prints it absent or "present or absent"; not when it prints it present.
+* ``lacking``: the truth has the quantity and the report does not print it (a component decided
+  absent, the dead zone at a place no member puts it): not covered.
+
+A dead-zone place, or the threshold, that the truth does not have is printed but not judged
+(``rule`` ``None``): the truth's own place is. Beside the verdict, each printed quantity records
+its step error, whether ``discover`` widened it, and whether its printed interval is narrower than
+twice the step error (the width of ``q50 +- step error``, which ``discover`` widens to). An
+interval judged on its interval rule also records its width relative to its median,
+``(q95 - q05) / |q50|`` (in linear units, ``None`` for a median of 0): the summary's median of it
+shows whether coverage is bought by width.
+
+Goals, over at least 30 finished draws: for each printed quantity, the truth covered in 80-97 %
+of the draws that judge it; no printed interval narrower than twice its step error. The chains'
+convergence is reported, not a goal: the draws with a chain stopped at its cap are counted apart
+(``by_chains``), not left out. Rows are written to ``DIR/bench.json`` as each draw ends (a rerun
+resumes; rows of an earlier layout, judged on the interval alone, are run again); each names the
+commit of the code that ran it.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import time
 from pathlib import Path
 
-from discovery.structure.set_posterior import member_quantities
+import numpy as np
+
+from discovery.structure.set_posterior import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
 from models.strict_json import write_json
 
 from ..common import code_commit
@@ -36,61 +66,130 @@ from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
 
 CODE_COMMIT = code_commit()
-#: The band the share of truths inside a 90 % interval must fall in.
+#: The band the share of truths covered must fall in.
 GOAL_BAND = (0.80, 0.97)
-#: Quantities the goals are stated for; ``dead zone`` is the threshold for a velocity-form truth.
-GOAL_QUANTITIES = ("dead zone", "backlash", "delay")
+#: The quantities the report prints, each with its goal.
+GOAL_QUANTITIES = tuple(QUANTITY_UNITS)
 #: Draws at least, for the goals to be judged.
 MIN_DRAWS = 30
+#: The rules a judged quantity is judged by (the module docstring).
+RULES = ("interval", "allowed", "absent", "lacking")
+#: ``present`` under this prints "present or absent" (the report's own tolerance).
+PRESENT_BELOW = 1.0 - 1e-9
+#: A width within this relative slack of twice the step error is not narrower: the widening's
+#: own rounding.
+STEP_SLACK = 1e-9
 
 
 def truth_quantities(truth) -> dict:
-    """The combined quantities of the truth itself (:func:`member_quantities` with no draws)."""
+    """The combined quantities the truth has (:func:`member_quantities` with no draws: a
+    component the truth lacks is left out)."""
     return {k: float(v[0]) for k, v in member_quantities(truth.to_dict(), {}).items()}
 
 
-def goal_quantity(name, truth_values) -> str:
-    """The combined quantity a goal's ``name`` reads for this truth."""
-    if name != "dead zone":
-        return name
-    return "threshold" if "threshold" in truth_values else "dead_zone[error]"
+def printed_as(q) -> str:
+    """How the report prints combined quantity ``q`` (``None``: the set lacks it): ``absent``,
+    ``present or absent`` (``present`` under 1) or ``present``."""
+    if q is None:
+        return "absent"
+    return "present or absent" if q.get("present", 1.0) < PRESENT_BELOW else "present"
+
+
+def inside_interval(value, q) -> bool:
+    """Whether ``value`` lies inside ``q``'s printed 90 % interval (none printed: no)."""
+    return q["q05"] is not None and q["q95"] is not None and q["q05"] <= value <= q["q95"]
+
+
+def inside_allowed(value, allowed, allowed_open=None) -> bool:
+    """Whether ``value`` lies inside ``allowed`` (``[low, high]``); an end ``allowed_open`` marks
+    as the prior's bound bounds nothing on its side."""
+    low_open, high_open = allowed_open or (False, False)
+    return bool((low_open or value >= allowed[0]) and (high_open or value <= allowed[1]))
+
+
+def judge(name, value, q) -> tuple:
+    """``(rule, covered, allowed_missing)`` for quantity ``name`` with truth ``value`` (``None``:
+    the truth lacks it) against the combined summary ``q`` (``None``: the set lacks it); the rule
+    ``None`` where the quantity is not judged."""
+    component = name in COMPONENT_QUANTITIES.values()
+    if value is None or not math.isfinite(value):
+        if component and value is None:
+            return "absent", printed_as(q) != "present", False
+        return None, None, False
+    if q is None:
+        return "lacking", False, False
+    if q.get("pinned") is False:
+        if q.get("allowed") is not None:
+            return "allowed", inside_allowed(value, q["allowed"], q.get("allowed_open")), False
+        return "interval", inside_interval(value, q), True
+    return "interval", inside_interval(value, q), False
+
+
+def narrower_than_step(q):
+    """Whether ``q``'s printed interval is narrower than twice its step error (``None`` without
+    a step error or an interval)."""
+    step = q.get("step_error")
+    if not step or q["q05"] is None or q["q95"] is None:
+        return None
+    return bool(q["q95"] - q["q05"] < 2 * step * (1 - STEP_SLACK))
+
+
+def quantity_entry(name, value, q) -> dict:
+    """One quantity of a row: what is printed, the truth, the rule and the verdict, the step
+    error's check and, for an interval the rule judges, its relative width."""
+    rule, covered, allowed_missing = judge(name, value, q)
+    q = q or {}
+    q05, q50, q95 = q.get("q05"), q.get("q50"), q.get("q95")
+    allowed = q.get("allowed")
+    known = value is not None and math.isfinite(value)
+    width = None
+    if rule == "interval" and None not in (q05, q50, q95) and q50 != 0:
+        width = (q95 - q05) / abs(q50)
+    return {
+        "truth": value, "printed": printed_as(q or None), "present": q.get("present", 0.0),
+        "q05": q05, "q50": q50, "q95": q95, "pinned": q.get("pinned"),
+        "allowed": allowed, "allowed_open": q.get("allowed_open"),
+        "rule": rule, "covered": covered, "allowed_missing": allowed_missing,
+        # both tests, whatever the rule: how the interval and the range would have judged
+        "inside": inside_interval(value, q) if known and q else None,
+        "inside_allowed": (inside_allowed(value, allowed, q.get("allowed_open"))
+                           if known and allowed is not None else None),
+        "relative_width": width, "step_error": q.get("step_error"),
+        "widened": bool(q.get("widened", False)),
+        "narrower_than_step": narrower_than_step(q) if q else None,
+    }
 
 
 def coverage_row(seed, truth, structure, summary) -> dict:
-    """The row of one draw: per quantity the truth, the combined interval and whether it holds
-    the truth (a quantity the set lacks, such as the dead zone at the truth's place, counts as
-    outside); and the range the recordings allow (:func:`discovery.structure.set_posterior.allowed_range`)
-    and whether it holds the truth (``None`` where the run has none)."""
+    """The row of one draw: per quantity printed or held by the truth, :func:`quantity_entry`;
+    ``goals`` maps each judged quantity to its verdict; the members, their weights and which
+    chains stopped at their cap."""
     values = truth_quantities(truth)
-    combined = summary["set_posterior"]["quantities"]
-    inside = {}
-    for name, value in values.items():
-        q = combined.get(name)
-        held = q is not None and q["q05"] is not None and q["q05"] <= value <= q["q95"]
-        allowed = None if q is None else q.get("allowed")
-        inside[name] = {"truth": value, "q05": None if q is None else q["q05"],
-                        "q95": None if q is None else q["q95"], "inside": bool(held),
-                        "allowed": allowed,
-                        "inside_allowed": (bool(allowed[0] <= value <= allowed[1]) if allowed
-                                           else False if q is None else None)}
-    members = summary["set_posterior"]["members"]
+    sp = summary["set_posterior"]
+    combined = sp["quantities"]
+    # every component is judged, present in the truth or not
+    seen = set(values) | set(combined) | set(COMPONENT_QUANTITIES.values())
+    names = [n for n in QUANTITY_UNITS if n in seen] + sorted(seen - set(QUANTITY_UNITS))
+    quantities = {n: quantity_entry(n, values.get(n), combined.get(n)) for n in names}
+    members = sp["members"]
     return {
         "seed": seed,
         "structure": structure.name,
         "truth_in_set": structure.name in set(summary["indistinguishable"]),
         "members": [m["structure"] for m in members],
+        "weights": [m.get("weight") for m in members],
         "converged": all(m["converged"] for m in members),
+        "stopped_at_cap": [m["structure"] for m in members if not m["converged"]],
         "not_pinned": sorted({n for m in members for n in m["posterior"].get("not_pinned", [])}),
-        "quantities": inside,
-        "goals": {g: inside[goal_quantity(g, values)]["inside"] for g in GOAL_QUANTITIES},
-        "goals_allowed": {g: inside[goal_quantity(g, values)]["inside_allowed"]
-                          for g in GOAL_QUANTITIES},
+        "quantities": quantities,
+        "goals": {n: e["covered"] for n, e in quantities.items() if e["rule"] is not None},
+        "narrower_than_step": [n for n, e in quantities.items() if e["narrower_than_step"]],
         "commit": CODE_COMMIT,
     }
 
 
 def run_draw(seed, out_dir, quick, ranges="wide") -> dict:
-    """Make one draw's recordings, run ``tvcid discover`` on them, and score its intervals."""
+    """Make one draw's recordings, run ``tvcid discover`` on them, and judge what it prints."""
     from tvcid.pipeline import discover
 
     scenario = draw_scenario(seed, ranges=ranges)
@@ -123,63 +222,131 @@ def cycles_only(row) -> bool:
     return bool(kinds) and "open" not in kinds
 
 
+def of_this_layout(row) -> bool:
+    """Whether a finished row judges its quantities by this module's rules (an earlier layout
+    judged the interval alone and has no ``rule``)."""
+    quantities = row.get("quantities") or {}
+    return bool(quantities) and all("rule" in e for e in quantities.values())
+
+
+def _tally(rows, names) -> dict:
+    """Per quantity, the draws covering it over the draws judging it."""
+    out = {}
+    for q in names:
+        judged = [r["quantities"][q] for r in rows
+                  if q in r["quantities"] and r["quantities"][q]["rule"] is not None]
+        out[q] = {"covered": sum(bool(e["covered"]) for e in judged), "draws": len(judged)}
+    return out
+
+
 def summarise(rows) -> dict:
-    """Share of finished draws with the truth inside, per goal quantity and per combined
-    quantity; draws converged; truth in the set. ``by_chains`` splits the goals' counts between
-    draws whose every chain converged and the others (does a chain stopped at its cap still
-    cover?); ``cycles_only`` counts the draws of limit cycles alone and their converged ones;
-    ``allowed`` counts, per goal, the truths inside the range the recordings allow, over the
-    draws that have one."""
-    done = [r for r in rows if "error" not in r]
-    n = len(done)
+    """The table over the rows.
 
-    def inside(part):
-        return {g: sum(r["goals"][g] for r in part) for g in GOAL_QUANTITIES}
-
-    per_goal = inside(done)
-    names = sorted({q for r in done for q in r["quantities"]})
-    per_quantity = {q: {"inside": sum(r["quantities"][q]["inside"] for r in done if q in r["quantities"]),
-                        "draws": sum(q in r["quantities"] for r in done)} for q in names}
+    Returns
+    -------
+    dict
+        ``draws`` (finished rows of this layout), ``failed``, ``old_layout`` (finished rows of an
+        earlier layout: not judged); ``quantities``: per quantity ``covered`` of ``draws`` (those
+        judging it), ``by_rule`` (the same per rule), ``allowed_missing`` (not pinned, judged on
+        the interval for want of a range), ``median_relative_width`` over ``widths`` intervals
+        judged on the interval rule; ``by_chains``: ``converged`` and ``stopped at the cap``,
+        each ``draws`` and per quantity ``covered`` of ``draws``; ``allowed``: per quantity the
+        truths ``inside`` the range the recordings allow over the ``draws`` that print one;
+        ``step``: printed ``intervals`` with a step error, those ``narrower`` than twice it,
+        those ``widened``, and those ``without_step_error``; ``converged``, ``truth_in_set``,
+        ``cycles_only`` (``draws`` and their ``converged``).
+    """
+    finished = [r for r in rows if "error" not in r]
+    done = [r for r in finished if of_this_layout(r)]
+    extra = sorted({q for r in done for q in r["quantities"]} - set(GOAL_QUANTITIES))
+    names = list(GOAL_QUANTITIES) + extra
+    tally = _tally(done, names)
+    quantities = {}
+    for q in names:
+        judged = [r["quantities"][q] for r in done
+                  if q in r["quantities"] and r["quantities"][q]["rule"] is not None]
+        widths = [e["relative_width"] for e in judged if e["relative_width"] is not None]
+        quantities[q] = {
+            **tally[q],
+            "by_rule": {rule: {"covered": sum(bool(e["covered"]) for e in judged if e["rule"] == rule),
+                               "draws": sum(e["rule"] == rule for e in judged)} for rule in RULES},
+            "allowed_missing": sum(bool(e["allowed_missing"]) for e in judged),
+            "median_relative_width": float(np.median(widths)) if widths else None,
+            "widths": len(widths),
+        }
     by_chains = {}
     for label, converged in (("converged", True), ("stopped at the cap", False)):
         part = [r for r in done if bool(r["converged"]) is converged]
-        by_chains[label] = {"draws": len(part), "inside": inside(part)}
+        by_chains[label] = {"draws": len(part), "quantities": _tally(part, names)}
+    allowed = {}
+    for q in names:
+        judged = [r["quantities"][q] for r in done
+                  if q in r["quantities"] and r["quantities"][q]["rule"] is not None
+                  and r["quantities"][q]["inside_allowed"] is not None]
+        allowed[q] = {"inside": sum(e["inside_allowed"] for e in judged), "draws": len(judged)}
+    printed = [e for r in done for e in r["quantities"].values() if e["printed"] != "absent"]
+    step = {"intervals": sum(e["narrower_than_step"] is not None for e in printed),
+            "narrower": sum(bool(e["narrower_than_step"]) for e in printed),
+            "widened": sum(e["widened"] for e in printed),
+            "without_step_error": sum(e["narrower_than_step"] is None for e in printed)}
     only = [r for r in done if cycles_only(r)]
-    allowed = {g: {"inside": sum(bool(r.get("goals_allowed", {}).get(g)) for r in done),
-                   "draws": sum(r.get("goals_allowed", {}).get(g) is not None for r in done)}
-               for g in GOAL_QUANTITIES}
-    return {"draws": n, "failed": len(rows) - n, "inside": per_goal, "quantities": per_quantity,
+    return {"draws": len(done), "failed": len(rows) - len(finished),
+            "old_layout": len(finished) - len(done), "quantities": quantities,
+            "by_chains": by_chains, "allowed": allowed, "step": step,
             "converged": sum(r["converged"] for r in done),
-            "truth_in_set": sum(r["truth_in_set"] for r in done), "by_chains": by_chains,
-            "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)},
-            "allowed": allowed}
+            "truth_in_set": sum(r["truth_in_set"] for r in done),
+            "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)}}
 
 
 def coverage_goals(table) -> list:
     """The goals of the module's docstring; not met under :data:`MIN_DRAWS` draws."""
     n = table["draws"]
+    enough = n >= MIN_DRAWS
     lo, hi = GOAL_BAND
     goals = []
-    for g in GOAL_QUANTITIES:
-        k = table["inside"][g]
-        share = k / n if n else None
-        goals.append(Goal(f"{g}: truth inside the combined 90 % interval",
-                          share if n >= MIN_DRAWS else None, low=lo, high=hi, fmt="{:.0%}",
-                          shown=f"{k} of {n}" + (f" = {share:.0%}" if share is not None else ""),
+    for q in GOAL_QUANTITIES:
+        c = table["quantities"][q]
+        k, m = c["covered"], c["draws"]
+        share = k / m if m else None
+        goals.append(Goal(f"{q}: truth covered by what the report prints",
+                          share if enough else None, low=lo, high=hi, fmt="{:.0%}",
+                          shown=f"{k} of {m}" + (f" = {share:.0%}" if share is not None else ""),
                           target=f"{lo:.0%} to {hi:.0%} over >= {MIN_DRAWS} draws"))
-    goals.append(Goal.count("draws with every member's chain converged", table["converged"], n))
+    s = table["step"]
+    goals.append(Goal("printed intervals narrower than twice their step error",
+                      s["narrower"] if enough else None, high=0, fmt="{:d}",
+                      shown=f"{s['narrower']} of {s['intervals']}",
+                      target=f"none over >= {MIN_DRAWS} draws"))
     return goals
+
+
+def drop_old_layout(path) -> int:
+    """Remove from ``path`` (a ``bench.json``) the finished rows of an earlier layout, so that a
+    rerun runs their draws again; returns how many."""
+    path = Path(path)
+    if not path.exists():
+        return 0
+    record = json.loads(path.read_text())
+    keep = [r for r in record["rows"] if "error" in r or of_this_layout(r)]
+    dropped = len(record["rows"]) - len(keep)
+    if dropped:
+        write_json(path, {**record, "rows": keep, "table": summarise(keep)})
+    return dropped
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_draw_options(parser, "short chains (150 steps), 2 draws", 2, "results/bench_set_coverage")
     args = parser.parse_args(argv)
+    dropped = drop_old_layout(Path(args.out) / "bench.json")
+    if dropped:
+        print(f"{dropped} draws of an earlier layout run again")
 
     def describe(row):
-        inside = ", ".join(f"{g} {'in' if v else 'OUT'}" for g, v in row["goals"].items())
+        verdicts = ", ".join(f"{q} {'in' if v else 'OUT'}" for q, v in row["goals"].items())
+        stopped = len(row["stopped_at_cap"])
         return (f"draw {row['seed']}: truth {row['structure']}, set of {len(row['members'])}, "
-                f"converged {row['converged']}: {inside} [{row['seconds_discover']:.0f} s]")
+                f"{stopped} chains stopped at the cap: {verdicts} [{row['seconds_discover']:.0f} s]")
 
     def save(path, rows):
         write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows)})
@@ -187,9 +354,18 @@ def main(argv=None) -> int:
     rows = run_benchmark(args, guarded_draw, describe, save)
     table = summarise(rows)
     print(f"\n{table['draws']} draws ({table['failed']} failed); truth in the set "
-          f"{table['truth_in_set']}; chains converged in {table['converged']}")
+          f"{table['truth_in_set']}; every chain converged in {table['converged']}")
     for q, c in table["quantities"].items():
-        print(f"  {q:22s} inside {c['inside']} of {c['draws']}")
+        rules = ", ".join(f"{rule} {r['covered']} of {r['draws']}"
+                          for rule, r in c["by_rule"].items() if r["draws"])
+        width = c["median_relative_width"]
+        print(f"  {q:22s} covered {c['covered']} of {c['draws']} ({rules or 'none judged'}); "
+              f"median relative width {'-' if width is None else f'{width:.2g}'}")
+    for label, part in table["by_chains"].items():
+        print(f"  {label}: {part['draws']} draws")
+    s = table["step"]
+    print(f"  printed intervals narrower than twice the step error: {s['narrower']} of "
+          f"{s['intervals']} ({s['widened']} widened, {s['without_step_error']} without a step error)")
     return goal_report(coverage_goals(table))
 
 

@@ -10,13 +10,20 @@ from ._common import parse_assignments
 def register(sub):
     p = sub.add_parser(
         "discover",
-        help="discover the actuator's structure and parameters from recordings, then calibrate",
+        help="discover the actuator's structure and parameters from recordings, with the "
+        "posterior over the structures they leave open",
         description="Fit every structure of the model's grammar (dead zone on the error or the "
         "velocity signal; delay at the output, before the integrator or before the first "
         "integrator; friction offset, backlash, band-pass loop on/off) to all recordings by "
-        "simulation, rank them by two-fold out-of-sample error, report the structures the data "
-        "cannot tell apart, and calibrate the winner with MCMC. Sidecars need only kind (and kp, "
-        "kd, mu, controller_rate in closed loop); hypothesis/parameters keys are ignored.",
+        "simulation, rank them by two-fold out-of-sample error, report the set of structures the "
+        "data cannot tell apart, calibrate each distinct member of that set with MCMC (best score "
+        "first, up to a cap; the rest are named) and combine their posteriors. Prints what "
+        "report.md's summary shows: the structural choices decided and open, and each physical "
+        "quantity over the set (median, 90 % interval, unit, verdict); the winner's own "
+        "posterior is a section of report.md. Sidecars need only kind (and kp, kd, mu, "
+        "controller_rate in closed loop); hypothesis/parameters keys are ignored. The same "
+        "command again resumes an interrupted run: the ranking is reused and every chain "
+        "continues from its checkpoint.",
     )
     p.add_argument("files", nargs="*", metavar="FILE.csv", help="recordings (CSV + JSON sidecar)")
     p.add_argument("--add", nargs="+", default=None, metavar="NEW.csv",
@@ -29,12 +36,15 @@ def register(sub):
                    "(repeatable), e.g. --fix gain=305500 --fix delay_position=output")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     p.add_argument("--quick", action="store_true",
-                   help="a short chain (150 steps) after the default searches (tests, CI)")
+                   help="short chains (150 steps each) after the default searches (tests, CI)")
     p.add_argument("--thorough", action="store_true",
                    help="larger searches (about 1.6x the default's time; the discovery benchmark "
                    "measures the default)")
-    p.add_argument("--max-steps", type=int, default=None, help="MCMC step cap (default 2000, quick 150)")
-    p.add_argument("--no-mcmc", action="store_true", help="stop after the ranking")
+    p.add_argument("--max-steps", type=int, default=None,
+                   help="MCMC step cap of each member's chain (default 2000, quick 150); the same "
+                   "command with a larger cap continues the chains")
+    p.add_argument("--no-mcmc", action="store_true",
+                   help="stop after the ranking (no posterior; the summary shows the best fit)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.set_defaults(func=run)
@@ -59,15 +69,35 @@ def run(args) -> int:
                           search="thorough" if args.thorough else "standard",
                           max_steps=args.max_steps, mcmc=not args.no_mcmc,
                           progress=not args.no_progress)
-    best = result.best
-    print(f"best: {best['structure']} (score {best['score']:.4g}, {best['criterion']})")
-    same = [s["structure"] for s in result.summary["structures"][1:] if s["indistinguishable_from_best"]]
-    if same:
-        print("indistinguishable from it: " + ", ".join(same))
-    post = result.posterior
-    if post:
-        for n, q in post["parameters"].items():
-            print(f"  {n:<16s} {q['q50']:.4g}  90 % [{q['q05']:.4g}, {q['q95']:.4g}]")
-        print(f"  converged: {post['converged']}")
-    print(f"wrote {Path(args.out) / 'discovery.json'}, {Path(args.out) / 'report.md'}")
+    print(console_summary(result, Path(args.out)))
     return 0
+
+
+def console_summary(result, out) -> str:
+    """What ``tvcid discover`` prints: ``report.md``'s summary without its heading
+    (:func:`tvcid.report.summary_lines`: the choices decided and open, each quantity over the
+    set), one line pointing to the winner's own posterior, and the files written.
+
+    Parameters
+    ----------
+    result : tvcid.pipeline.DiscoveryResult
+    out : str or Path
+        The run's directory.
+
+    Returns
+    -------
+    str
+    """
+    from ..report import summary_lines
+
+    lines = summary_lines(result.to_dict())
+    while lines and (not lines[0].strip() or lines[0].startswith("#")):
+        lines.pop(0)
+    while lines and not lines[-1].strip():
+        lines.pop()
+    report = Path(out) / "report.md"
+    if result.posterior:
+        lines += ["", f"The best structure's own posterior (`{result.best['structure']}`, one "
+                  f"member of the set) is in {report}."]
+    lines += [f"wrote {Path(out) / 'discovery.json'}, {report}"]
+    return "\n".join(lines)

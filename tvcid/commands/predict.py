@@ -24,9 +24,12 @@ def register(sub):
         "With --grid (once or twice) it maps them over controller values and writes "
         "MAP_DIR/map.json, map.csv and map.png (medians, band width, stability boundary). On a "
         "discover directory whose set holds several structures, every member predicts with its "
-        "own posterior, the band is their equal-weight mixture, and the output says whether the "
-        "members agree at that controller or the choice of structure changes the answer (with "
-        "--grid: MAP_DIR/disagreement.png, where they disagree).",
+        "own posterior; the band mixes the members' oscillating draws, each member's carrying its "
+        "weight (the set posterior's, equal where the run stores none) times the fraction of its "
+        "draws that oscillate; and the output says whether the members agree at that controller "
+        "(their medians differ by no more than two independent measurements would) or the choice "
+        "of structure changes the answer (with --grid: MAP_DIR/disagreement.png, where they "
+        "disagree).",
     )
     p.add_argument("directory", metavar="DIR", help="output directory of tvcid fit or tvcid discover")
     add_controller_arguments(p)
@@ -43,7 +46,9 @@ def register(sub):
                    help="seconds of the median model's run that finds its cycle at each setting "
                    "(0: start every draw near rest; then raise --transient)")
     p.add_argument("--no-df", action="store_true", help="skip the describing-function prediction")
-    p.add_argument("--seed", type=int, default=0, help="seed of the draws' selection")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of every random draw: the posterior draws' selection, the in-loop "
+                   "noise of each draw, the recordings' resolution")
     p.add_argument("--json", action="store_true", help="print the one-setting result as JSON")
     p.add_argument("--out", metavar="MAP_DIR", help="output directory of a --grid map (required with --grid)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -100,7 +105,8 @@ def run(args) -> int:
                 setting.replace(**{key: float(v)})
             except ValueError as exc:
                 raise ValueError(f"--grid {key}: {exc}") from None
-    config = PredictionConfig(transient=args.transient, window=args.window, pilot=args.pilot)
+    config = PredictionConfig(transient=args.transient, window=args.window, pilot=args.pilot,
+                              seed=args.seed)
     members = load_set_draws(args.directory, n_draws=args.draws, seed=args.seed)
     if len(members) > 1:
         return _run_over_set(args, members, setting, grid, config)
@@ -159,7 +165,9 @@ def _band(q, scale, unit) -> str:
 def _run_over_set(args, members, setting, grid, config) -> int:
     """Every member of a discover directory's set predicts; the mixture's band, and whether the
     members agree (:mod:`discovery.prediction.set_prediction`)."""
+    from discovery.prediction.draws import load_set_weights
     from discovery.prediction.set_prediction import (
+        MIXTURE_RULE,
         cycle_map_over_set,
         predict_cycle_over_set,
         run_resolution,
@@ -167,37 +175,46 @@ def _run_over_set(args, members, setting, grid, config) -> int:
     from models import strict_json
     from models.strict_json import write_json
 
-    resolution = run_resolution(args.directory)
+    weights = load_set_weights(args.directory)
+    resolution = run_resolution(args.directory, seed=args.seed)
     if not grid:
         result = predict_cycle_over_set(members, setting, config, describing=not args.no_df,
-                                        resolution=resolution).to_dict()
+                                        resolution=resolution, weights=weights).to_dict()
         if args.json:
             print(strict_json.dumps(result))
             return 0
         n = len(next(iter(members.values())))
-        print(f"the set's {len(members)} structures, {n} posterior draws each, equal weights "
+        source = ("weights of the set's posterior" if weights is not None
+                  else "equal weights (the run stores none)")
+        print(f"the set's {len(members)} structures, {n} posterior draws each, {source} "
               f"({args.directory})")
         print(f"  amplitude  {_band(result['amplitude'], 1e3, 'mrad')}")
         print(f"  frequency  {_band(result['frequency'], 1.0, 'rad/s')}")
+        print(f"  oscillating {result['fraction_oscillating']:.0%} (the members' fractions, "
+              f"weighted); in the band {MIXTURE_RULE}")
         within = ("" if resolution is None else
-                  f", each widened by what a recording resolves: amplitude "
+                  f", each with what a recording resolves: amplitude "
                   f"{100 * resolution['amplitude']:.2g} %, frequency "
                   f"{100 * resolution['frequency']:.2g} % sd")
         if result["members_agree"]:
-            print(f"  the members agree at this controller (their bands overlap{within}): the "
-                  "choice of structure does not change the answer here")
+            print(f"  the members agree at this controller (their medians differ by no more than "
+                  f"two independent measurements would{within}): the choice of structure does "
+                  "not change the answer here")
         else:
             why = "; ".join(f"{d['members'][0]} / {d['members'][1]}: {d['why']}"
                             for d in result["disagreeing"])
             print(f"  the choice of structure changes the answer here ({why})")
         for name, b in result["members"].items():
-            print(f"  {name}: amplitude {_band(b['amplitude'], 1e3, 'mrad')}; frequency "
-                  f"{_band(b['frequency'], 1.0, 'rad/s')}; oscillating {b['fraction_oscillating']:.0%}")
+            print(f"  {name}: weight {b['weight']:.3g}, oscillating {b['fraction_oscillating']:.0%}"
+                  f" ({b['share_of_band']:.0%} of the band); amplitude "
+                  f"{_band(b['amplitude'], 1e3, 'mrad')}; frequency "
+                  f"{_band(b['frequency'], 1.0, 'rad/s')}")
         return 0
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     smap = cycle_map_over_set(members, setting, grid, config, describing=not args.no_df,
-                              progress=not args.no_progress, resolution=resolution)
+                              progress=not args.no_progress, resolution=resolution,
+                              weights=weights)
     write_json(out / "map.json", smap.to_dict(), indent=1)
     import matplotlib
 

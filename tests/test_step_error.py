@@ -1,0 +1,236 @@
+"""discovery.calibration.step_error: the widening rule, the tilt that moves a posterior, and the
+step error measured on real calibrations (a quantity pinned tighter than the step resolves is
+widened; one far wider than it is left as it is; the measured move agrees with the difference of
+the two steps' optima)."""
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from discovery.calibration import Calibration
+from discovery.calibration.likelihood.solver import SOLVER_ERROR_FACTOR
+from discovery.calibration.runner import ConvergenceWarning
+from discovery.calibration.step_error import (
+    combined_step_error,
+    halved_log_posterior,
+    measure_step_error,
+    tilt_shift,
+    widen_interval,
+    widen_quantiles,
+)
+from models import M000, OpenLoop, hypothesis, simulate
+from models.recording import recording_from_trajectory, save_recording
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+# -- (a) the rule, on numbers --------------------------------------------------------------------
+def test_an_interval_narrower_than_twice_the_step_error_is_widened_to_the_median_plus_or_minus_it():
+    low, high, widened = widen_interval(0.93480, 0.93482, 0.93485, 1e-4)
+    assert widened and low == pytest.approx(0.93472) and high == pytest.approx(0.93492)
+    # one side already beyond the error keeps its end, the other is widened
+    low, high, widened = widen_interval(0.9, 1.0, 1.00001, 0.06)
+    assert widened and low == 0.9 and high == pytest.approx(1.06)
+
+
+def test_an_interval_at_least_twice_the_step_error_wide_is_kept():
+    assert widen_interval(1.0, 1.5, 2.0, 0.25) == (1.0, 2.0, False)  # exactly 2 e wide
+    assert widen_interval(1.0, 1.1, 2.0, 0.01) == (1.0, 2.0, False)
+    assert widen_interval(1.0, 1.1, 1.2, 0.0) == (1.0, 1.2, False)
+    # not measured: nothing changes
+    assert widen_interval(1.0, 1.1, 1.2, None) == (1.0, 1.2, False)
+    assert widen_interval(1.0, 1.1, 1.2, math.nan) == (1.0, 1.2, False)
+    with pytest.raises(ValueError, match="size"):
+        widen_interval(1.0, 1.1, 1.2, -1.0)
+
+
+def test_a_table_of_quantities_is_widened_entry_by_entry_and_keeps_the_sampled_ends():
+    table = {"dc_gain": {"q05": 0.93480, "q50": 0.93482, "q95": 0.93485, "unit": "rad/rad"},
+             "delay": {"q05": 1.6e-3, "q50": 1.7e-3, "q95": 1.8e-3},
+             "backlash": {"q05": 1e-4, "q50": 1.1e-4, "q95": 1.2e-4}}
+    out = widen_quantiles(table, {"dc_gain": 1e-4, "delay": 1e-6})
+    dc = out["dc_gain"]
+    assert dc["widened"] and dc["step_error"] == 1e-4 and dc["unit"] == "rad/rad"
+    assert (dc["q05_sampled"], dc["q95_sampled"]) == (0.93480, 0.93485)
+    assert dc["q05"] == pytest.approx(0.93472) and dc["q95"] == pytest.approx(0.93492)
+    assert not out["delay"]["widened"] and out["delay"]["q05"] == 1.6e-3
+    assert "widened" not in out["backlash"] and out["backlash"] == table["backlash"]
+    assert table["dc_gain"]["q05"] == 0.93480  # the input is left as it is
+    # a mixture of members moves by the largest of its members' errors
+    assert combined_step_error([{"delay": 1e-6, "dc_gain": 2e-5}, {"delay": 3e-6},
+                                {"delay": math.nan}]) == {"delay": 3e-6, "dc_gain": 2e-5}
+
+
+# -- the tilt ------------------------------------------------------------------------------------
+def test_a_linear_tilt_moves_a_gaussian_by_covariance_times_slope_even_beyond_its_width():
+    """A correlated 3-d Gaussian, its log density changed by ``g . z`` plus 0.3 nats of
+    roughness: the move is ``C g``, here 8 sd along the first axis, where importance weights
+    keep under 1 % of the points; without roughness it is exact."""
+    rng = np.random.default_rng(1)
+    a = rng.standard_normal((3, 3))
+    cov = a @ a.T + 0.5 * np.eye(3)
+    draws = rng.multivariate_normal([1.0, -2.0, 0.5], cov, size=4000)
+    g = np.linalg.solve(cov, np.array([8.0 * math.sqrt(cov[0, 0]), 0.0, 0.0]))
+    points = draws[:40]
+    smooth = points @ g + 3.0
+    shift, _, residual_sd = tilt_shift(draws, points, smooth)
+    np.testing.assert_allclose(shift, np.cov(draws, rowvar=False) @ g, rtol=1e-9)
+    assert residual_sd < 1e-9
+    rough = smooth + 0.3 * rng.standard_normal(points.shape[0])
+    shift, shift_cov, residual_sd = tilt_shift(draws, points, rough)
+    sampled = np.cov(draws, rowvar=False) @ g  # the draws' own covariance
+    assert np.all(np.abs(shift - sampled) < 4 * np.sqrt(np.diag(shift_cov)))
+    assert np.linalg.norm(shift - cov @ g) < 0.05 * np.linalg.norm(cov @ g)
+    assert residual_sd == pytest.approx(0.3, rel=0.35)
+    w = np.exp(rough - rough.max())
+    assert w.sum() ** 2 / (w @ w) < 0.1 * points.shape[0]
+    with pytest.raises(ValueError, match="coefficients"):
+        tilt_shift(draws, points[:4], smooth[:4])
+
+
+# -- (b) real calibrations -----------------------------------------------------------------------
+def _calibrate(recordings, params, base=None, likelihood="waveform", steps=40, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return Calibration(base or M000(), params=params, likelihood=likelihood, n_walkers=8,
+                           max_steps=steps, stop_when_converged=False, seed=1,
+                           global_search=False, **kwargs).fit(recordings)
+
+
+def _optimum(lp, z0, scale):
+    """The maximum of ``lp`` near ``z0`` (internal coordinates): Nelder-Mead restarted twice."""
+    from scipy.optimize import minimize
+
+    for _ in range(3):
+        res = minimize(lambda z: -float(np.ravel(lp(z[None, :]))[0]), z0, method="Nelder-Mead",
+                       options={"initial_simplex": np.vstack([z0, z0 + np.diag(scale)]),
+                                "xatol": 1e-4 * scale.min(), "fatol": 1e-5, "maxfev": 600})
+        z0 = res.x
+    return z0
+
+
+def _optima_shift(cal):
+    """The move of the maximum a posteriori from the calibration's step to half of it
+    (natural units)."""
+    post = cal.posterior_
+    lp, half = cal.log_posterior_, halved_log_posterior(cal)
+    scale = post.internal.std(axis=0)
+    full = _optimum(lp, post.internal[np.argmax(post.log_prob)], scale)
+    return lp.natural(_optimum(half, full, scale))[0] - lp.natural(full)[0]
+
+
+def test_the_half_step_likelihood_is_the_calibrations_own_built_at_half_the_step():
+    """On M000's bundled open-loop sine (5e-4 s, not refined): the half-step log posterior is
+    the one a calibration given half the step builds (same priors, its step checked at the same
+    maximum), value for value, while it differs from the full step's by about a nat across the
+    posterior."""
+    rec = DATA / "m000_open_sine.csv"
+    cal = _calibrate([rec], ("feedback_gain", "delay"))
+    post = cal.posterior_
+    half = halved_log_posterior(cal)
+    own = Calibration(M000(), params=post.names, likelihood="waveform", dt=cal.dt_ / 2,
+                      n_walkers=8, priors=dict(cal.priors_), start=cal.map_start_).setup([rec])
+    own._refine_steps_at(cal.map_start_, save=False)
+    assert [t.simulator.dt for t in half.terms] == [t.simulator.dt for t in own.terms_] == [2.5e-4]
+    z = post.internal[np.random.default_rng(0).choice(len(post.internal), 16, replace=False)]
+    lh = half(z)
+    np.testing.assert_allclose(lh, own.log_posterior_(z), rtol=0, atol=1e-9)
+    assert np.std(lh - cal.log_posterior_(z)) > 0.1
+
+
+@pytest.fixture(scope="module")
+def quiet_square(tmp_path_factory):
+    """M000's open-loop square (+-20 mrad at 1 Hz, 4 s) recorded with 2e-7 rad of noise, a
+    hundredth of the bundled records': its step stays at the refinement's cap (1/8 of 5e-4 s)
+    and the feedback gain is pinned to about 1e-6."""
+    truth = hypothesis("M000", noise_seed=4, noise_power=4e-17, noise_band=500.0)
+    run = simulate(truth, OpenLoop.square(2e-2, 1.0), 4.0, rate=1000.0)
+    path = save_recording(tmp_path_factory.mktemp("quiet") / "square.csv",
+                          *recording_from_trajectory(run))
+    return path, truth.replace(noise_power=0.0)
+
+
+def test_a_gain_pinned_tighter_than_the_step_resolves_is_widened_to_its_step_error(quiet_square):
+    """Feedback gain and delay on the quiet square (no discrepancy factor, so the interval is the
+    data's alone): the feedback gain's and the DC gain's 90 % intervals are about 1e-6 wide, a
+    tenth of what halving the step moves them by, and are widened; the DC gain's error is the
+    feedback gain's through ``1/K``. The move lies within a factor 2 of the difference of the two
+    steps' maxima (here the tilt extrapolates beyond the posterior's width: the importance
+    weights keep a few per cent of the points). The calibration itself is left as it was, and
+    the cost is the points' evaluations at half the step plus the set-up's few runs."""
+    path, base = quiet_square
+    cal = _calibrate([path], ("feedback_gain", "delay"), base=base, discrepancy=False)
+    post = cal.posterior_
+    lp, point = cal.log_posterior_, post.internal[:1]
+    before, steps = lp(point), [t.simulator.dt for t in cal.terms_]
+    error = measure_step_error(post, seed=0)
+    assert lp(point) == pytest.approx(before, abs=1e-9)
+    assert [t.simulator.dt for t in cal.terms_] == steps
+    assert error.steps == {"square": [steps[0], steps[0] / 2]}
+    assert error.n_points == 32 and error.n_failed == 0
+
+    k = post.names.index("feedback_gain")
+    fb = error.parameters["feedback_gain"]
+    assert math.isfinite(fb["error"]) and fb["error"] > 0
+    assert fb["error"] == SOLVER_ERROR_FACTOR * (abs(fb["shift"]) + fb["se"])
+    assert fb["se"] < 0.2 * abs(fb["shift"])
+    q05, q50, q95 = np.quantile(post.samples[:, k], (0.05, 0.5, 0.95))
+    assert q95 - q05 < 0.5 * fb["error"]
+    low, high, widened = widen_interval(q05, q50, q95, fb["error"])
+    assert widened and high - low == pytest.approx(2 * fb["error"])
+    dc = error.quantities["dc_gain"]
+    assert dc["error"] == pytest.approx(fb["error"] / q50**2, rel=0.05)
+    assert math.isfinite(error.error("bandwidth")) and error.error("bandwidth") > 0
+    gains = 1 / post.samples[:, k]
+    assert widen_interval(*np.quantile(gains, (0.05, 0.5, 0.95)), error.error("dc_gain"))[2]
+
+    optima = _optima_shift(cal)
+    assert 0.5 < fb["shift"] / optima[k] < 2.0, (fb["shift"], optima[k])
+
+    per_point = sum(t.simulator.t_end for t in cal.terms_)
+    assert 32 * per_point <= error.simulated_seconds <= (32 + 12) * per_point
+    assert error.simulated_steps >= 2 * 32 * sum(t.simulator.t_end / t.simulator.dt
+                                                 for t in cal.terms_)
+
+
+def test_the_step_error_matches_the_move_of_the_maximum_on_the_bundled_square():
+    """M000's bundled open-loop square at its own step (1e-4 s, noise 2e-5 rad): the feedback
+    gain's and the delay's moves when the step is halved agree with the moves of the maximum a
+    posteriori within 25 %, two seeds' subsamples with each other within 10 %; the intervals are
+    2-6 times twice the step error and are kept."""
+    cal = _calibrate([DATA / "m000_open_square.csv"], ("feedback_gain", "delay"))
+    post = cal.posterior_
+    a, b = measure_step_error(post, seed=0), measure_step_error(post, seed=1, quantities=False)
+    optima = _optima_shift(cal)
+    for j, name in enumerate(post.names):
+        shift = a.parameters[name]["shift"]
+        assert shift == pytest.approx(optima[j], rel=0.25), name
+        assert shift == pytest.approx(b.parameters[name]["shift"], rel=0.1), name
+        q05, q50, q95 = np.quantile(post.samples[:, j], (0.05, 0.5, 0.95))
+        assert q95 - q05 > 2 * a.parameters[name]["error"]
+        assert widen_interval(q05, q50, q95, a.parameters[name]["error"]) == (q05, q95, False)
+
+
+def test_an_interval_far_wider_than_the_step_error_is_left_as_it_is():
+    """Delay and dead zone on one bundled limit cycle (features, its first-order solver error
+    corrected): the intervals are over a hundred times what halving the step moves them by,
+    and the table keeps every end. The combined quantities follow the sampled ones (the
+    threshold moves with the dead zone) and those of fixed fields do not move."""
+    cal = _calibrate([DATA / "m000_closed_A.csv"], ("delay", "dead_zone"), likelihood="features")
+    post = cal.posterior_
+    error = measure_step_error(post, seed=0)
+    summary = post.summary()["parameters"]
+    out = widen_quantiles(summary, error.errors)
+    for name in post.names:
+        e = error.parameters[name]["error"]
+        assert math.isfinite(e) and e > 0
+        width = summary[name]["q95"] - summary[name]["q05"]
+        assert width > 100 * e, (name, width, e)
+        assert not out[name]["widened"]
+        assert (out[name]["q05"], out[name]["q95"]) == (summary[name]["q05"], summary[name]["q95"])
+    combined = error.quantities
+    assert {"dead_zone[velocity]", "threshold", "delay", "dc_gain", "bandwidth"} <= set(combined)
+    assert combined["threshold"]["shift"] == pytest.approx(error.parameters["dead_zone"]["shift"])
+    assert combined["dc_gain"]["error"] == combined["bandwidth"]["error"] == 0.0
