@@ -262,3 +262,19 @@ def test_combined_quantity_joins_the_members_allowed_ranges_and_the_summary_prin
     assert bare.quantities["backlash"]["allowed"] is None
     verdict = _verdicts(combined.to_dict())["backlash"][2]
     assert verdict == f"not pinned by the recordings; they allow {high:.4g} down to the prior's floor"
+
+
+def test_an_open_end_short_of_the_prior_is_where_the_draws_end():
+    """A backlash bounded at 1e-3 rad whose draws stop at 1e-6 (a chain that has not gone
+    lower) while its prior reaches down to 3e-8: the low end is open but not the prior's, and
+    the summary says the draws end there instead of naming the prior's floor."""
+    rng = np.random.default_rng(8)
+    values, log_prob = _bounded_from_above(rng, n=8000, bound=1e-3, edge=1e-4)
+    prior = np.exp(rng.uniform(np.log(3e-8), np.log(3e-3), 8000))
+    member = MemberPosterior("a", {"backlash": values}, {"converged": True}, 0.0,
+                             log_prob=log_prob, prior_quantities={"backlash": prior})
+    q = combine([member], seed=1).quantities["backlash"]
+    assert q["pinned"] is False
+    assert q["allowed_open"] == [True, False] and q["allowed_at_prior"] == [False, False]
+    verdict = _verdicts(combine([member], seed=1).to_dict(), ["a"])["backlash"][2]
+    assert f"they allow {q['allowed'][0]:.4g} or below (where the draws end) to" in verdict

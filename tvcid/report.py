@@ -63,16 +63,23 @@ def _num(value, digits=4) -> str:
 
 
 def _allowed_text(q) -> str:
-    """The range the recordings allow, an end the prior sets named as such."""
+    """The range the recordings allow. An open end the prior sets is named as the prior's floor
+    or ceiling; one where a chain's draws end before the profile falls is a bound at least that
+    far out."""
     lo, hi = q["allowed"]
     low_open, high_open = q.get("allowed_open") or (False, False)
-    if low_open and high_open:
+    low_prior, high_prior = q.get("allowed_at_prior") or (low_open, high_open)
+    if low_prior and high_prior:
         return "they allow the prior's whole range"
-    if low_open:
-        return f"they allow {_num(hi)} down to the prior's floor"
-    if high_open:
-        return f"they allow {_num(lo)} up to the prior's ceiling"
-    return f"they allow {_num(lo)} to {_num(hi)}"
+    low = ("the prior's floor" if low_prior else
+           f"{_num(lo)} or below (where the draws end)" if low_open else _num(lo))
+    high = ("the prior's ceiling" if high_prior else
+            f"{_num(hi)} or above (where the draws end)" if high_open else _num(hi))
+    if low_prior:
+        return f"they allow {high} down to the prior's floor"
+    if high_prior:
+        return f"they allow {low} up to the prior's ceiling"
+    return f"they allow {low} to {high}"
 
 
 def _verdict(q) -> str:
@@ -91,6 +98,20 @@ def _verdict(q) -> str:
     if q.get("widened"):
         parts.append(f"widened to the step error, +-{_num(q['step_error'], 2)}")
     return "; ".join(parts)
+
+
+def _weighting(sp) -> str:
+    """How the members are weighted, in a phrase (the rule in full is ``criterion``)."""
+    w = sp.get("weighting") or {}
+    method = w.get("method")
+    if method == "pseudo-BMA+":
+        return "weighted by pseudo-BMA+ on their leave-one-out predictive densities"
+    if method == "held-out scores":
+        return ("weighted by each one's probability of the lowest expected held-out score "
+                "(leave-one-out importance sampling is unreliable on these recordings)")
+    if method == "equal":
+        return "with equal weights (neither the predictive densities nor the scores weigh them)"
+    return sp["criterion"]
 
 
 def _quantity_row(name, q) -> str:
@@ -141,7 +162,7 @@ def summary_lines(summary) -> list:
     if combined:
         sp = summary["set_posterior"]
         n = len(sp["members"])
-        lines += ["", (f"Over the set's {n} calibrated structures, {sp['criterion']}:"
+        lines += ["", (f"Over the set's {n} calibrated structures, {_weighting(sp)}:"
                        if n > 1 else "The calibrated structure's posterior:"), "",
                   "| quantity | median | 90 % interval | unit | |", "|---|---|---|---|---|"]
         lines += [_quantity_row(name, q) for name, q in combined.items()]

@@ -407,7 +407,9 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None) -> SetP
         ``width_over_prior`` (the largest over the members that have it) and ``pinned``
         (``None`` without prior draws), ``allowed`` (``[low, high]``, the members'
         :func:`allowed_range` joined, or ``None``) with ``allowed_open`` (``[low end, high
-        end]``: set by the prior), ``step_error`` with ``widened`` (the interval widened to at
+        end]``: the profile has not fallen by the drop where the draws end) and
+        ``allowed_at_prior`` (that open end is the prior's: the prior stops the draws there;
+        an open end short of it is where a chain's draws end), ``step_error`` with ``widened`` (the interval widened to at
         least the median +- the step error, :mod:`discovery.calibration.step_error`), and
         ``equal_weights`` (the equal-weight mixture's ``q05``, ``q50``, ``q95``).
     """
@@ -440,13 +442,18 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None) -> SetP
         ranges = [allowed_range(members[i].quantities[name], members[i].log_prob) for i in counted
                   if members[i].log_prob is not None]
         ranges = [r for r in ranges if r is not None]
-        allowed, allowed_open = None, None
+        allowed, allowed_open, allowed_prior = None, None, None
         if ranges:
             low = min(ranges, key=lambda r: r.low)
             high = max(ranges, key=lambda r: r.high)
             allowed = [low.low, high.high]
             allowed_open = [any(r.low_open for r in ranges if r.low <= low.low),
                             any(r.high_open for r in ranges if r.high >= high.high)]
+            bounds = _prior_bounds([(members[i].prior_quantities or {}).get(name) for i in counted])
+            allowed_prior = [bool(allowed_open[0] and bounds is not None
+                                  and _near(allowed[0], bounds[0], bounds)),
+                             bool(allowed_open[1] and bounds is not None
+                                  and _near(allowed[1], bounds[1], bounds))]
         over = [width_over_prior(members[i].quantities[name],
                                  (members[i].prior_quantities or {}).get(name)) for i in counted]
         over = [o for o in over if o is not None]
@@ -463,11 +470,35 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None) -> SetP
                             "width_over_prior": max(over) if over else None,
                             "pinned": (max(over) <= NOT_PINNED_FRACTION) if over else None,
                             "allowed": allowed, "allowed_open": allowed_open,
+                            "allowed_at_prior": allowed_prior,
                             "step_error": step or None, "widened": widened,
                             "equal_weights": _quantiles(equal)}
     if criterion is None:
         criterion = ("equal weights" if weights is None else "weights given")
     return SetPosterior(list(members), quantities, criterion, w)
+
+
+#: An open end of the allowed range within this fraction of the prior's range (in the
+#: quantity's coordinate) of the prior's own end reaches it: the prior stops the draws there.
+PRIOR_END = 0.05
+
+
+def _prior_bounds(prior_draws):
+    """The prior's range of a quantity (the extremes of its members' prior draws), or ``None``."""
+    parts = [np.asarray(p, dtype=float) for p in prior_draws if p is not None]
+    parts = [p[np.isfinite(p)] for p in parts]
+    parts = [p for p in parts if p.size]
+    if not parts:
+        return None
+    return float(min(p.min() for p in parts)), float(max(p.max() for p in parts))
+
+
+def _near(value, end, bounds) -> bool:
+    """Whether ``value`` lies within :data:`PRIOR_END` of the prior's range from its ``end``."""
+    lo, hi = bounds
+    if lo > 0 and hi > 10 * lo and value > 0:
+        value, end, lo, hi = (math.log(v) for v in (value, end, lo, hi))
+    return abs(value - end) <= PRIOR_END * (hi - lo)
 
 
 def _mix(draws, weights, n_draws, rng):
