@@ -172,6 +172,8 @@ def test_weights_mix_the_members_by_the_data():
     assert d["equal_weights"]["q05"] < 2.01e-3 and d["equal_weights"]["q95"] > 2.99e-3
     assert [m["weight"] for m in weighted["members"]] == [1.0, 0.0]
     assert weighted["criterion"] == "stacking"
+    both = combine([a, b], weights=[0.6, 0.4], seed=1).quantities["delay"]
+    assert both["q05"] < 2.01e-3 and both["q95"] > 2.99e-3 and both["depends_on_structure"]
     with pytest.raises(ValueError, match="weights must be 2 non-negative"):
         combine([a, b], weights=[1.0, -1.0])
 
@@ -278,3 +280,26 @@ def test_an_open_end_short_of_the_prior_is_where_the_draws_end():
     assert q["allowed_open"] == [True, False] and q["allowed_at_prior"] == [False, False]
     verdict = _verdicts(combine([member], seed=1).to_dict(), ["a"])["backlash"][2]
     assert f"they allow {q['allowed'][0]:.4g} or below (where the draws end) to" in verdict
+
+
+def test_the_summary_marks_a_chain_stopped_at_its_cap_and_names_prior_bounds_and_dropped_members():
+    """A member whose chain stopped at its cap is marked in the summary's table with how far
+    its intervals still move; a parameter at its prior's bound is named; members beyond the cap
+    are named with their share of the weight."""
+    rng = np.random.default_rng(9)
+    a, b = _member("a", 2e-3, 1e-4, rng), _member("b", 2e-3, 1e-4, rng)
+    b.summary = {"converged": False, "iterations": 2000, "n_over_tau": 14.0,
+                 "interval_drift": {"largest": 0.3, "parameter": "delay"},
+                 "at_prior_bound": ["backlash"]}
+    combined = combine([a, b], weights=[0.7, 0.3], seed=1).to_dict()
+    combined["not_calibrated"], combined["not_calibrated_share"] = ["c", "d"], 0.12
+    rows = [{"structure": n, "indistinguishable_from_best": True, "merged_into": None}
+            for n in ("a", "b", "c", "d")]
+    from tvcid.report import summary_lines
+
+    text = "\n".join(summary_lines({"structures": rows, "decided": {}, "set_posterior": combined}))
+    assert "| `a` | 0.70 | 0.50 | converged |" in text
+    assert ("| `b` | 0.30 | 0.50 | **stopped at its cap** (2000 steps): its intervals are lower "
+            "bounds on the width; its intervals move by up to 30 % of their width") in text
+    assert "`b`: backlash." in text and "At a prior bound" in text
+    assert "`c`, `d`, about 12 % of the weight by their held-out scores" in text
