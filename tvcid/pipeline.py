@@ -475,9 +475,13 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     """The posterior over the set: every distinct member calibrated (:func:`_calibrate_member`,
     at most :data:`MAX_MEMBERS`, best score first), and the richer structure of each component
     the set leaves open that no distinct member has
-    (:func:`discovery.structure.set_posterior.richer_members`); then combined by the members'
-    weights (:func:`_set_weights`, :func:`discovery.structure.set_posterior.combine`). Adds
-    ``posterior`` (the winner's) and ``set_posterior`` (the members' and the combined one)."""
+    (:func:`discovery.structure.set_posterior.richer_members`). Each member's step error is
+    measured (:func:`discovery.calibration.step_error.measure_step_error`) and its pointwise
+    log-likelihood evaluated for the weights (:func:`discovery.structure.set_weights.weigh_set`);
+    then the members are combined by those weights
+    (:func:`discovery.structure.set_posterior.combine`), and the members beyond the cap named
+    with their share of the weight by the ranking. Adds ``posterior`` (the winner's) and
+    ``set_posterior`` (the members', their weights and the combined one)."""
     from discovery.structure.set_posterior import (
         MemberPosterior,
         combine,
