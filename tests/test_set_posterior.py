@@ -181,7 +181,7 @@ def test_weights_mix_the_members_by_the_data():
 def test_a_component_the_set_leaves_open_prints_as_present_or_absent():
     """Members with and without a backlash: the combined backlash is the one *if present*, its
     share of the weight is stated, and the summary prints "present or absent" with the interval
-    if present, never ``0 [0, 0]``."""
+    if present, never ``0 [0, 0]``, and the range its member allows, pinned or not."""
     rng = np.random.default_rng(4)
     with_it = _member("a", 2e-3, 1e-5, rng)
     with_it.quantities["backlash"] = 1e-4 + 1e-5 * rng.standard_normal(4000)
@@ -191,9 +191,13 @@ def test_a_component_the_set_leaves_open_prints_as_present_or_absent():
     q = combined["quantities"]["backlash"]
     assert q["present"] == pytest.approx(0.25) and q["members"] == 1
     assert q["q05"] == pytest.approx(1e-4 - 1.645e-5, rel=0.05)
-    median, interval, _ = _verdicts(combined)["backlash"]
+    median, interval, verdict = _verdicts(combined)["backlash"]
     assert median == "present or absent (25 % of the weight present)"
     assert interval.startswith("if present, [") and "0, 0" not in interval
+    with_it.log_prob = -0.5 * ((with_it.quantities["backlash"] - 1e-4) / 1e-5) ** 2
+    low, high = combine([with_it, without], weights=[0.25, 0.75], seed=1).quantities["backlash"]["allowed"]
+    verdict = _verdicts(combine([with_it, without], weights=[0.25, 0.75], seed=1).to_dict())["backlash"][2]
+    assert verdict == f"they allow {low:.4g} to {high:.4g}"
 
 
 def test_an_interval_narrower_than_the_step_error_is_widened_and_says_so():
