@@ -105,12 +105,19 @@ class WarmStart:
             p[K.P_HIST_VALUE], p[K.P_HIST_SLOPE] = k * self.history[0], k * self.history[1]
 
 
+#: A warm start scales the reference run's state by at most this factor; a reference run
+#: smaller than the target by more has decayed to rest (:func:`warm_start_state`).
+MAX_WARM_SCALE = 1000.0
+
+
 def warm_start_state(params: ActuatorParams, experiment, dt, t_ref=20.0, rms_target=math.nan):
     """Cycle state of ``params`` in the closed loop ``experiment`` after ``t_ref`` seconds.
 
     ``rms_target`` (rad): the size runs started from it are scaled to (:class:`WarmStart`).
-    Returns ``None`` for an open-loop experiment, a diverging run or one that does not oscillate
-    (the caller then starts from the hypothesis' own initial conditions).
+    Returns ``None`` for an open-loop experiment, a diverging run or one that does not oscillate,
+    a run decaying to rest included (its size under ``rms_target / MAX_WARM_SCALE``: scaled up,
+    the state of a vanishing transient overflows the run); the caller then starts from the
+    hypothesis' own initial conditions.
     """
     if not isinstance(experiment, ClosedLoop):
         return None
@@ -123,6 +130,8 @@ def warm_start_state(params: ActuatorParams, experiment, dt, t_ref=20.0, rms_tar
     if fields is None:
         return None
     state, rms_ref = fields
+    if math.isfinite(rms_target) and rms_ref * MAX_WARM_SCALE < rms_target:
+        return None  # the reference run has decayed to rest: scaling its state is no cycle
     return WarmStart(**state, dead_zone_ref=float(params.dead_zone), rms_ref=rms_ref,
                      rms_target=float(rms_target))
 

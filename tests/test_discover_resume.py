@@ -132,3 +132,38 @@ def test_a_run_stopped_in_its_second_members_chain_resumes_both_where_they_stopp
     assert np.array_equal(_chain(out / chains[0]), done)
     continued = _chain(out / chains[1])
     assert len(continued) == STEPS and np.array_equal(continued[:STOP_AT], stopped)
+
+
+def test_a_member_whose_chain_cannot_start_is_left_out_and_named(tmp_path, recording,
+                                                                   monkeypatch):
+    """The second member's calibration finds no starting point with a finite posterior (a
+    set-coverage draw's member whose runs do not sustain the recorded cycle): the run goes on,
+    the set's posterior is the first member's, and the report names the member left out."""
+    from discovery.calibration.start import NoFiniteStartError
+    from discovery.structure import set_posterior
+
+    import discovery.structure
+
+    import tvcid.pipeline
+
+    monkeypatch.setattr(discovery.structure, "StructureDiscovery", _Ranking)
+    monkeypatch.setattr(tvcid.pipeline, "next_test", lambda *a: None)
+    calibrate = set_posterior.calibrate_member
+
+    def second_fails(params, structure, *args, **kwargs):
+        if structure.delay_position.value == "before_integrator":
+            raise NoFiniteStartError("could not place the walkers where the posterior is finite")
+        return calibrate(params, structure, *args, **kwargs)
+
+    monkeypatch.setattr(set_posterior, "calibrate_member", second_fails)
+    out = tmp_path / "run"
+    fixes = [a for k, v in FIXED.items() for a in ("--fix", f"{k}={v}")]
+    assert main(["discover", recording, *fixes, "--quick", "--seed", "1", "--max-steps",
+                 str(STEPS), "--no-progress", "--out", str(out)]) == 0
+    summary = json.loads((out / "discovery.json").read_text())
+    sp = summary["set_posterior"]
+    assert [m["structure"] for m in sp["members"]] == [Structure.of_params(TRUTH).name]
+    assert [f["structure"] for f in sp["failed"]] == [
+        Structure.of_params(TRUTH.replace(delay_position="before_integrator")).name]
+    report = (out / "report.md").read_text().split("## Recordings")[0]
+    assert "Could not be calibrated, and left out of the combined posterior: `dz_velocity+" in report

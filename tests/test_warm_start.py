@@ -108,3 +108,24 @@ def test_continued_runs_cut_the_worst_transient_error_of_proposals_near_their_wa
     continued = np.array([short.loglike([q], sigma)[0] for q in proposals])
     assert short.continuation.continued == len(proposals)
     assert np.max(np.abs(continued - reference)) < 0.25 * np.max(np.abs(shared - reference))
+
+
+def test_a_reference_run_decaying_to_rest_gives_no_warm_start():
+    """A set-coverage draw's member (seed 3000's first): at its fitted parameters the 20 s
+    reference run from the record's cycle state decays to rest (its rms about 1e-9 rad against
+    the record's 5.6e-4), and scaling that state up by 10^5 overflows every run. No warm start
+    is made there; the run from the member's own initial conditions stays finite; a cycle the
+    size of its target still gets one."""
+    from models.experiments import ClosedLoop
+
+    loop = ClosedLoop(kp=5.84, kd=0.062, mu=12.3, sample_rate=200.0)
+    member = M002().replace(
+        gain=377949.63, damping=193.241, stiffness=10794.726, feedback_gain=1.166968,
+        dead_zone=0.00468005, dead_zone_position="velocity", backlash=0.0, delay=0.00316066,
+        delay_position="output", friction_offset=-0.00247006, bandpass_gain=0.0,
+        y0=0.0143397, yd0=0.0, x0=1.31325e-05)
+    assert warm_start_state(member, loop, DT, rms_target=5.633e-4) is None
+    delta, ok = BatchSimulator(loop, 20.0, DT, warm_start=None).run([member])
+    assert ok[0] and np.all(np.isfinite(delta))
+    ws = warm_start_state(M002(), CONTROLLER_A, DT)
+    assert warm_start_state(M002(), CONTROLLER_A, DT, rms_target=ws.rms_ref) is not None

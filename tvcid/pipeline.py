@@ -480,8 +480,11 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     log-likelihood evaluated for the weights (:func:`discovery.structure.set_weights.weigh_set`);
     then the members are combined by those weights
     (:func:`discovery.structure.set_posterior.combine`), and the members beyond the cap named
-    with their share of the weight by the ranking. Adds ``posterior`` (the winner's) and
-    ``set_posterior`` (the members', their weights and the combined one)."""
+    with their share of the weight by the ranking. A member whose chain cannot start (no point
+    about its fit where every recording's likelihood is finite) is left out and named in
+    ``set_posterior.failed``. Adds ``posterior`` (the first calibrated member's, the winner's
+    where it calibrates) and ``set_posterior`` (the members', their weights and the combined
+    one)."""
     from discovery.structure.set_posterior import (
         MemberPosterior,
         combine,
@@ -490,6 +493,7 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
         prior_quantities,
         richer_members,
     )
+    from discovery.calibration.start import NoFiniteStartError
     from discovery.calibration.step_error import measure_step_error, widen_quantiles
     from discovery.structure.set_weights import member_pointwise, uncalibrated_share, weigh_set
 
@@ -499,9 +503,15 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     best_score = rows[0]["score"]
     calibrated = rows[:MAX_MEMBERS] + richer_members(summary["structures"], summary["decided"])
     members, pointwise, simulated, start = [], {}, 0.0, 0.0
-    for i, row in enumerate(calibrated):
-        post, priors, seconds, chain = _calibrate_member(row, recs, closed, offsets, fixed, seed,
-                                                         quick, max_steps, progress, out)
+    failed = []
+    for row in calibrated:
+        try:
+            post, priors, seconds, chain = _calibrate_member(row, recs, closed, offsets, fixed,
+                                                             seed, quick, max_steps, progress, out)
+        except NoFiniteStartError as exc:
+            # the rest of the set still has its posterior; the report names this member
+            failed.append({"structure": row["structure"], "reason": str(exc)})
+            continue
         simulated += seconds["start"] + seconds["sampling"]
         start += seconds["start"]
         s = post.summary()
@@ -516,7 +526,7 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
                                              {n: v["error"] for n, v in step.parameters.items()})
         kept["structure"], kept["chain"] = row["structure"], chain
         kept["merged_into"] = row["merged_into"]
-        if i == 0:
+        if not members:
             summary["posterior"] = kept
             from .figures import write_posterior_figures
 
@@ -533,6 +543,14 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
             pointwise[row["structure"]] = member_pointwise(post, n_draws=WEIGHT_DRAWS, seed=seed)
             simulated += post.calibration.log_posterior_.simulated_seconds - before
     names = [m.structure for m in members]
+    if not members:
+        summary["set_posterior"] = {"criterion": "no member calibrated", "quantities": {},
+                                    "members": [], "failed": failed,
+                                    "not_calibrated": [r["structure"] for r in rows[MAX_MEMBERS:]]}
+        summary["timings"]["mcmc"] = time.perf_counter() - t0
+        summary.setdefault("simulated_seconds", {})["mcmc"] = simulated
+        summary["simulated_seconds"]["mcmc_start"] = start
+        return summary
     if len(members) > 1:
         weighting = weigh_set(pointwise, rows=calibrated, seed=seed)
         combined = combine(members, weights=weighting.of(names), seed=seed,
@@ -543,6 +561,7 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     dropped = uncalibrated_share(rows + [r for r in calibrated if r not in rows], names, seed=seed)
     combined["not_calibrated"] = dropped.names
     combined["not_calibrated_share"] = dropped.share if dropped.names else None
+    combined["failed"] = failed
     summary["set_posterior"] = combined
     summary["timings"]["mcmc"] = time.perf_counter() - t0
     summary.setdefault("simulated_seconds", {})["mcmc"] = simulated

@@ -135,6 +135,11 @@ def _members_lines(sp) -> list:
             f"`{n}`" for n in dropped) + (f", about {100 * share:.0f} % of the weight by their "
                                           "held-out scores (the table's intervals leave them out)."
                                           if share is not None else ".")]
+    failed = sp.get("failed") or []
+    if failed:
+        lines += ["", "Could not be calibrated, and left out of the combined posterior: " + "; ".join(
+            f"`{f['structure']}` ({f['reason']}: about its fit some recording's run fails or "
+            "shows no cycle the likelihood can compare)" for f in failed) + "."]
     bounds = [(m["structure"], m["posterior"].get("at_prior_bound") or [])
               for m in sp["members"]]
     bounds = [(s, b) for s, b in bounds if b]
@@ -194,6 +199,8 @@ def summary_lines(summary) -> list:
             else:
                 lines.append(f"| {name} | {_num(best['params'][name])} | not sampled | {unit} | "
                              "fit of the best structure |")
+        if (summary.get("set_posterior") or {}).get("failed"):
+            lines += _members_lines(summary["set_posterior"])
     nt = summary.get("next_test")
     lines.append("")
     if not nt:

@@ -47,6 +47,12 @@ SCOUT_ROUNDS = 3
 SUSPECT_INFLATION = 10.0
 
 
+
+class NoFiniteStartError(RuntimeError):
+    """No starting point of the walkers has a finite posterior: around the start, some
+    recording's run fails or shows no cycle the likelihood can compare."""
+
+
 class StartSearch:
     """The start of a calibration's chain: a part of
     :class:`discovery.calibration.calibration.Calibration`.
@@ -98,7 +104,7 @@ class StartSearch:
         self.initial_axes_ = axes
         out = self._walkers_around(lp, z0, axes, rng)
         if out is None:
-            raise RuntimeError("could not place the walkers where the posterior is finite")
+            raise NoFiniteStartError("could not place the walkers where the posterior is finite")
         if self._chooses_transient():
             self._choose_transients(lp, z0, axes, out, rng)
         if self._set_transient_variance(lp, out) and self.discrepancy:
