@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from discovery.calibration.profile_range import ALLOWED_DROP, allowed_range
+from discovery.calibration.step_error import widen_interval
 
 __all__ = ["MemberPosterior", "SetPosterior", "allowed_range", "calibrate_member", "combine",
            "linear_block_dc_gain_and_bandwidth", "member_priors", "member_quantities",
@@ -459,10 +460,10 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None) -> SetP
         over = [o for o in over if o is not None]
         errors = [float((members[i].step_error or {}).get(name) or 0.0) for i in counted]
         step = max(errors) if errors else 0.0
-        widened = bool(q["q50"] is not None and step > 0 and q["q95"] - q["q05"] < 2 * step)
-        if widened:
-            q = {"q05": min(q["q05"], q["q50"] - step), "q50": q["q50"],
-                 "q95": max(q["q95"], q["q50"] + step)}
+        widened = False
+        if q["q50"] is not None and step > 0:
+            low, high, widened = widen_interval(q["q05"], q["q50"], q["q95"], step)
+            q = {"q05": low, "q50": q["q50"], "q95": high}
         quantities[name] = {**q, "unit": QUANTITY_UNITS.get(name, ""), "members": len(having),
                             "present": share,
                             "spread_over_width": ratio,
