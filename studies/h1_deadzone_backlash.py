@@ -56,9 +56,10 @@ class Config:
     ridge: calibration_ridge.Config = calibration_ridge.Config()
 
 
-# the quick ridge's M002-M001i comparison is a smoke run: 20 steps (no quick check reads it)
+# the quick ridge's M002-M001i comparison is a smoke run: 20 steps from each hypothesis' local
+# maximum, without the global search (no quick check reads it)
 QUICK = Config(family_widths=tuple(np.round(np.geomspace(5e-5, 1.2e-3, 5), 8)), t_end=15.0, window=8.0,
-               ridge=replace(calibration_ridge.QUICK, compare_steps=20))
+               ridge=replace(calibration_ridge.QUICK, compare_steps=20, compare_global_search=False))
 
 
 def simulate_family(family, config):

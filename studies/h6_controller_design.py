@@ -126,7 +126,7 @@ class Config:
     filter_transient: float = 10.0
 
 
-QUICK = Config(steps=40, draws=20, kp=(3.0, 12.0, 5), kd=(0.02, 0.12, 4),
+QUICK = Config(steps=20, draws=20, kp=(3.0, 12.0, 5), kd=(0.02, 0.12, 4),
                kd_boundary=(0.03, 0.065, 6), lead_poles=(6.0, 60.0, 4),
                notch_dampings=(0.02, 0.5, 4), design_draws=16, design_truths=4)
 

@@ -24,6 +24,7 @@ FILE_SECONDS = {
     "test_no_orphans.py": 45,
     "test_design.py": 45,
     "test_threads.py": 35,
+    "test_discover_dask.py": 90,
     "test_calibration_mismatch.py": 25,
     "test_discrimination.py": 20,
     "test_sindy_m001.py": 20,

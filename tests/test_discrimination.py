@@ -89,12 +89,12 @@ def test_default_menu_spans_slow_and_fast_tests_and_both_controllers():
 
 def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     """``tvcid discover``'s ``next_test`` on a set of two (paper 002's and paper 001's actuators,
-    as a ranking would list them, with the bundled M000 cycle as the recording): the unmerged
-    members are weighed on the default menu at the recordings' rate and median noise, and the
-    report gives the best test and its verdict with the figure; a set of one gives ``None``
-    and no section."""
+    as a ranking would list them, with the last 10 s of the bundled M000 cycle A as the
+    recording: the refits simulate the record's length): the unmerged members are weighed on the
+    default menu at the recordings' rate and median noise, and the report gives the best test
+    and its verdict with the figure; a set of one gives ``None`` and no section."""
     from models import M002, M001i
-    from models.recording import load_recording
+    from models.recording import load_recording, save_recording
     from tvcid.pipeline import next_test
     from tvcid.report import _next_test_lines
 
@@ -105,7 +105,10 @@ def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     structures = [entry(M002()), entry(M001i()), entry(M002().replace(backlash=0.0), True, "x"),
                   entry(M001i().replace(dead_zone=0.02), False)]
     summary = {"structures": structures, "sensor_noise": {"a": 2e-5, "b": "nan", "c": 4e-5}}
-    recs = [load_recording("data/m000_closed_A.csv")]
+    cycle = load_recording("data/m000_closed_A.csv")
+    keep = cycle.columns["t"] >= cycle.columns["t"][-1] - 10.0
+    tail = {k: v[keep] - v[keep][0] if k == "t" else v[keep] for k, v in cycle.columns.items()}
+    recs = [load_recording(save_recording(tmp_path / "cycle_A_tail.csv", tail, cycle.meta))]
     nt = next_test(summary, recs, 0, tmp_path)
     assert nt["members"] == ["dz_error+delay_output+backlash", "dz_velocity+delay_output+backlash"]
     assert nt["noise_sd"] == pytest.approx(3e-5) and nt["n_pairs"] == 1

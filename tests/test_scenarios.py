@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from models import simulate
 from models.hypotheses import DeadZonePosition
 from models.recording import load_recording
 from models.structures import structure_space
@@ -179,9 +180,12 @@ def test_heldout_cases_are_the_papers_placements_and_oscillate():
         assert errors and all(v == 0.0 for v in errors.values()), name
 
 
-def test_an_added_test_is_recorded_once_and_again_when_its_scenario_changes(tmp_path):
+def test_an_added_test_is_recorded_once_and_again_when_its_scenario_changes(tmp_path, monkeypatch):
     """The loop's and the next-test benchmark's added test: recorded from the truth beside the
-    draw, kept on a rerun of the same scenario, made again for another one."""
+    draw, kept on a rerun of the same scenario, made again for another one. The bookkeeping is
+    tested here: the numba kernel makes the data in place of the reference path (10 s per
+    simulated second at its step)."""
+    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", simulate)
     sc = shortened(draw_scenario(24), closed=6.0, open_=4.0)
     square = RecordingDesign("open", 1.0, 1000.0, waveform="square", amplitude=0.01, frequency=2.0)
     extended, path = record_added_test(sc, square, tmp_path)
@@ -197,10 +201,12 @@ def test_an_added_test_is_recorded_once_and_again_when_its_scenario_changes(tmp_
     assert again == path and not np.allclose(load_recording(again).delta, rec.delta)
 
 
-def test_an_unfinished_draw_keeps_the_recordings_it_finished(tmp_path):
+def test_an_unfinished_draw_keeps_the_recordings_it_finished(tmp_path, monkeypatch):
     """A benchmark stopped while it made a draw's recordings: on the rerun each recording whose
     ``truth/recNN.json`` holds the scenario is kept, the others are made; another scenario's
-    recordings are all made again."""
+    recordings are all made again. The bookkeeping is tested here: the numba kernel makes the
+    data in place of the reference path."""
+    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", simulate)
     sc = shortened(draw_scenario(2), closed=2.0, open_=1.0)
     paths = write_recordings(sc, tmp_path, dt=5e-4)
     assert len(paths) >= 2

@@ -215,18 +215,18 @@ def test_discover_reports_the_generating_structure_and_its_threshold(discover_qu
 
 
 def test_h6_controller_design_predicts_filters_boundary_and_next_test(quick_results):
-    """Quick run of ``h6_controller_design`` (M000 calibrated on the four bundled records, 40
-    steps; 20 draws; about 30 s): the Kp x Kd map holds both sides of the stability boundary, and
-    at controller A's Kp the draws' boundary lies within one scan step of the generating model's;
-    at controller A a lead 5/20 rad/s raises the median frequency and shrinks the cycle (measured
-    on the full run, seed 0: 8.54 -> 11.91 rad/s, 5.45 -> 0.456 mrad), a bending mode (60 rad/s,
-    damping 0.02, gain 0.01) makes the plain PD diverge and a notch at 60 rad/s restores a cycle,
-    as the generating model's own 120 s runs do; the predicted medians are within 5 % of those
-    runs (measured: 0.02-1.2 % on the full run, up to 2.5 % on quick ones; M000's cycle is not
-    periodic: its amplitude with the lead moves 4 % between 4 s windows); the draws' majority
-    outcome is the generating model's at 80 % of the map's settings or more (measured: all 20);
-    the most informative test of the menu is not a repeat of a bundled record and beats every
-    repeat."""
+    """Quick run of ``h6_controller_design`` (M000 calibrated on the four bundled records, 20
+    steps; 20 draws; about 75 CPU-s): the Kp x Kd map holds both sides of the stability boundary,
+    and at controller A's Kp the draws' boundary lies within one scan step of the generating
+    model's; at controller A a lead 5/20 rad/s raises the median frequency and shrinks the cycle
+    (measured on the full run, seed 0: 8.54 -> 11.91 rad/s, 5.45 -> 0.456 mrad), a bending mode
+    (60 rad/s, damping 0.02, gain 0.01) makes the plain PD diverge and a notch at 60 rad/s
+    restores a cycle, as the generating model's own 120 s runs do; the predicted medians are
+    within 5 % of those runs (measured: 0.02-1.2 % on the full run, up to 1.1 % on the quick one;
+    M000's cycle is not periodic: its amplitude with the lead moves 4 % between 4 s windows); the
+    draws' majority outcome is the generating model's at 80 % of the map's settings or more
+    (measured: all 20); the most informative test of the menu is not a repeat of a bundled record
+    and beats every repeat."""
     summary = _summary(quick_results, "h6_controller_design")
     out = quick_results / "h6_controller_design"
     m = summary["map"]

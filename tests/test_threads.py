@@ -7,6 +7,7 @@ import discovery.structure.search as search
 import discovery.threads as threads
 from discovery.structure import StructureDiscovery
 from discovery.threads import one_blas_thread
+from models import simulate
 from models.structures import Structure
 from studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
 
@@ -56,7 +57,10 @@ def test_threaded_discovery_is_the_loop_discovery(tmp_path, monkeypatch):
     monkeypatch.setattr(structure_search, "OPEN_LOOP_RESTARTS", (2, 2))
     s = Structure("velocity", "output", friction=True, backlash=True, bandpass=False)
     scenario = shortened(draw_scenario(5, structure=s), closed=10.0, open_=5.0)
-    paths = write_recordings(scenario, tmp_path, dt=5e-4)  # coarse: any data will do here
+    # coarse, and made by the numba kernel in place of the plain-Python reference path (which
+    # costs more than the discoveries): any data will do here
+    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", simulate)
+    paths = write_recordings(scenario, tmp_path, dt=5e-4)
     fixed = {"dead_zone_position": "velocity", "delay_position": "output", "bandpass_gain": 0.0}
     runs = {}
     for threaded in (True, False):

@@ -10,7 +10,9 @@ Nothing is lost to a killed run: ``discovery.json`` is written as soon as the ra
 carries a hash of the inputs, so a rerun with the same recordings and options reuses it instead of
 searching again, and the chain is checkpointed, so the MCMC resumes where it stopped.
 :func:`discover` returns a :class:`DiscoveryResult` and writes ``discovery.json`` and
-``report.md`` with the figures beside them (docs/methods/discovery.md).
+``report.md`` with the figures beside them (docs/methods/discovery.md). With ``dask``, the
+classes' global searches (:mod:`discovery.structure.tasks`) and the members' calibrations
+(:mod:`tvcid.members`) run on a Dask cluster, with the same result (docs/cluster.md).
 """
 from __future__ import annotations
 
@@ -194,7 +196,7 @@ def _corrected(recordings, offsets):
 
 
 def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=True,
-             progress=True, search="standard") -> DiscoveryResult:
+             progress=True, search="standard", dask=None) -> DiscoveryResult:
     """Run the whole discovery on ``files`` into ``out``: ``tvcid discover``'s pipeline.
 
     Parameters
@@ -215,6 +217,12 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
         Calibrate the set's members after the ranking.
     search : {"standard", "thorough", ...}
         Search sizes (:data:`discovery.structure.structure_search.SEARCHES`).
+    dask : str, optional
+        Run the global searches of the classes' largest structures and the members'
+        calibrations on the Dask scheduler at this address (``tcp://HOST:8786``), or on a
+        cluster of ``N`` one-thread worker processes on this machine (``local:N``); the same
+        result as without it (docs/cluster.md: on a cluster, ``out`` must be on a file system
+        the workers share, for the chains).
 
     Returns
     -------
@@ -226,13 +234,24 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     A finished ranking of the same inputs already in ``out`` is reused (``resumed_ranking``), and
     an interrupted chain resumes from its checkpoint.
     """
+    from discovery.executors import check_dask_address, executor_from
     from discovery.structure import validate_recordings
-    from discovery.structure.targets import make_target
-    from models.structures import shared_choices
 
+    if dask is not None:
+        check_dask_address(dask)  # a bad address, or no Dask: one line before any work
     out = Path(out)
     recs = validate_recordings(files)
     out.mkdir(parents=True, exist_ok=True)
+    with executor_from(dask=dask) as executor:
+        return _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search,
+                         executor)
+
+
+def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, executor):
+    """:func:`discover` on validated recordings, the independent work through ``executor``."""
+    from discovery.structure.targets import make_target
+    from models.structures import shared_choices
+
     inputs = inputs_hash(recs, fixed, seed, search)
     previous = _previous_ranking(out, inputs)
     if previous is not None:
@@ -246,7 +265,7 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
         summary.setdefault("decided", shared_choices(summary["indistinguishable"]))
     else:
         summary, closed, offsets, t_disc = _rank_structures(
-            recs, fixed, seed, search, progress, inputs)
+            recs, fixed, seed, search, progress, inputs, executor=executor)
         _write(out, summary)  # the ranking survives whatever happens to the chain
     if "next_test" not in summary:
         t0 = time.perf_counter()
@@ -255,7 +274,7 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
         _write(out, summary)
     if mcmc:
         summary = _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps,
-                             progress, out)
+                             progress, out, executor)
     summary["timings"]["discovery"] = t_disc
     _write(out, summary)
     return DiscoveryResult(summary, out)
@@ -298,7 +317,7 @@ def _earlier_run(out, fixed):
 
 
 def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc=True,
-                   progress=True) -> DiscoveryResult:
+                   progress=True, dask=None) -> DiscoveryResult:
     """The experiment loop: add recordings to an earlier :func:`discover` run in ``out``.
 
     Every structure is refitted by least squares from its optimum of the earlier run on all the
@@ -306,11 +325,15 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
     ranked; the set, its posterior and the next test are made again. The earlier run's fixed
     set-up, seed and search sizes are kept. Refused with one line, before anything is written:
     no earlier run in ``out``, one of another version, a different ``fixed``, or a recording
-    already in the run. Rerun after an interruption, the same ``--add`` resumes.
+    already in the run. Rerun after an interruption, the same ``--add`` resumes. ``dask`` runs
+    the members' calibrations as :func:`discover`'s does (the refits run in this process).
     """
+    from discovery.executors import check_dask_address
     from discovery.structure import validate_recordings
     from models import params_from_dict
 
+    if dask is not None:
+        check_dask_address(dask)
     out = Path(out)
     earlier = _earlier_run(out, fixed)
     added = earlier.get("added") or []
@@ -320,7 +343,7 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
         # the same --add, interrupted after its ranking: resume it
         return discover(earlier["recordings"], out, fixed=earlier["fixed"], seed=earlier["seed"],
                         quick=quick, max_steps=max_steps, mcmc=mcmc, progress=progress,
-                        search=earlier["search"])
+                        search=earlier["search"], dask=dask)
     old = validate_recordings(earlier["recordings"])
     known = {Path(r.path).resolve(): r for r in old}
     hashes = {_data_hash(r): r for r in old}
@@ -341,7 +364,7 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
     summary["earlier_set"] = earlier["indistinguishable"]
     _write(out, summary)  # the ranking survives whatever happens to the chains
     return discover(summary["recordings"], out, fixed=fixed, seed=seed, quick=quick,
-                    max_steps=max_steps, mcmc=mcmc, progress=progress, search=search)
+                    max_steps=max_steps, mcmc=mcmc, progress=progress, search=search, dask=dask)
 
 
 def median_sensor_noise(summary) -> float:
@@ -409,12 +432,12 @@ def _previous_ranking(out, inputs):
     return summary
 
 
-def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None):
+def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None, executor=None):
     from discovery.structure import StructureDiscovery
 
     t0 = time.perf_counter()
-    disc = StructureDiscovery(fixed=fixed, seed=seed, search=search,
-                              progress=progress).fit(recs, previous=previous)
+    disc = StructureDiscovery(fixed=fixed, seed=seed, search=search, progress=progress,
+                              executor=executor).fit(recs, previous=previous)
     t_disc = time.perf_counter() - t0
     summary = {
         "format": DISCOVERY_FORMAT,
@@ -471,7 +494,8 @@ def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps,
     return post, priors, simulated, f"chain-{tag}.h5"
 
 
-def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
+def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out,
+               executor=None):
     """The posterior over the set: every distinct member calibrated (:func:`_calibrate_member`,
     at most :data:`MAX_MEMBERS`, best score first), and the richer structure of each component
     the set leaves open that no distinct member has
@@ -484,18 +508,14 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     about its fit where every recording's likelihood is finite) is left out and named in
     ``set_posterior.failed``. Adds ``posterior`` (the first calibrated member's, the winner's
     where it calibrates) and ``set_posterior`` (the members', their weights and the combined
-    one)."""
-    from discovery.structure.set_posterior import (
-        MemberPosterior,
-        combine,
-        member_quantities,
-        not_pinned,
-        prior_quantities,
-        richer_members,
-    )
-    from discovery.calibration.start import NoFiniteStartError
-    from discovery.calibration.step_error import measure_step_error, widen_quantiles
-    from discovery.structure.set_weights import member_pointwise, uncalibrated_share, weigh_set
+    one). Each member's own work is a task of ``executor``
+    (:func:`tvcid.members.calibrate_member_task`; default: one after the other in this
+    process), combined here in the members' order."""
+    from discovery.executors import LocalProcesses
+    from discovery.structure.set_posterior import MemberPosterior, combine, richer_members
+    from discovery.structure.set_weights import uncalibrated_share, weigh_set
+
+    from .members import calibrate_member_task
 
     t0 = time.perf_counter()
     rows = [s for s in summary["structures"]
@@ -504,44 +524,33 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     calibrated = rows[:MAX_MEMBERS] + richer_members(summary["structures"], summary["decided"])
     members, pointwise, simulated, start = [], {}, 0.0, 0.0
     failed = []
-    for row in calibrated:
-        try:
-            post, priors, seconds, chain = _calibrate_member(row, recs, closed, offsets, fixed,
-                                                             seed, quick, max_steps, progress, out)
-        except NoFiniteStartError as exc:
+    executor = executor if executor is not None else LocalProcesses(1)
+    here = isinstance(executor, LocalProcesses) and executor.jobs == 1
+    n = len(calibrated)
+    shared = (recs, closed[:1], offsets, fixed, seed, quick, max_steps,
+              progress and here,  # a worker's bars would garble this terminal
+              out.resolve(), n > 1)
+    runs = executor.map(calibrate_member_task, calibrated, *([x] * n for x in shared))
+    for row, run in zip(calibrated, runs):
+        if run.failed is not None:
             # the rest of the set still has its posterior; the report names this member
-            failed.append({"structure": row["structure"], "reason": str(exc)})
+            failed.append({"structure": row["structure"], "reason": run.failed})
             continue
-        simulated += seconds["start"] + seconds["sampling"]
-        start += seconds["start"]
-        s = post.summary()
-        kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
-                                  "acceptance", "n_over_tau", "at_prior_bound", "laplace_move",
-                                  "interval_drift")}
-        kept["not_pinned"] = not_pinned(post, priors)
-        step = measure_step_error(post, seed=seed, params=row["params"])
-        simulated += step.simulated_seconds
-        kept["step_error"] = step.to_dict()
-        kept["parameters"] = widen_quantiles(kept["parameters"],
-                                             {n: v["error"] for n, v in step.parameters.items()})
-        kept["structure"], kept["chain"] = row["structure"], chain
-        kept["merged_into"] = row["merged_into"]
+        simulated += run.simulated_seconds
+        start += run.start_seconds
         if not members:
-            summary["posterior"] = kept
+            summary["posterior"] = run.kept
             from .figures import write_posterior_figures
 
-            write_posterior_figures(post, out, seed=seed)
-        draws = {n: post.samples[:, j] for j, n in enumerate(post.names)}
+            write_posterior_figures(run.posterior, out, seed=seed)
         margin = row.get("margin")
         ratio = (row["score"] - best_score) / margin if margin else 0.0
         members.append(MemberPosterior(
-            row["structure"], member_quantities(row["params"], draws), kept, float(ratio),
-            log_prob=post.log_prob, prior_quantities=prior_quantities(row["params"], priors, seed=seed),
-            step_error={n: v["error"] for n, v in step.quantities.items()}))
-        if len(calibrated) > 1:
-            before = post.calibration.log_posterior_.simulated_seconds
-            pointwise[row["structure"]] = member_pointwise(post, n_draws=WEIGHT_DRAWS, seed=seed)
-            simulated += post.calibration.log_posterior_.simulated_seconds - before
+            row["structure"], run.quantities, run.kept, float(ratio),
+            log_prob=run.posterior.log_prob, prior_quantities=run.prior_quantities,
+            step_error=run.step_error))
+        if run.pointwise is not None:
+            pointwise[row["structure"]] = run.pointwise
     names = [m.structure for m in members]
     if not members:
         summary["set_posterior"] = {"criterion": "no member calibrated", "quantities": {},

@@ -10,6 +10,8 @@ Stages, one module each:
   local spread;
 * :mod:`.structure_search` -- every structure of :func:`models.structures.structure_space`
   searched and refined in-sample (search sizes, staged searches, nested fits, seeds, repairs);
+* :mod:`.tasks` -- the classes' global searches as self-contained tasks of an executor (this
+  process, or a Dask cluster);
 * :mod:`.ranking` -- the two-fold out-of-sample ranking of the fits (:class:`StructureFit`);
 * :mod:`.indistinguishable` -- the set rule: the structures the recordings cannot tell from the
   best, and the merges;

@@ -124,6 +124,10 @@ class StructureDiscovery:
         Structures (best in-sample first) that always get the out-of-sample ranking; any further
         structure whose in-sample cost is within :func:`.ranking.in_sample_screen` of the best's
         is ranked too, so that the reported set is not cut at a fixed size.
+    executor : discovery.executors.Executor, optional
+        Runs the global searches of the classes' largest structures
+        (:meth:`.structure_search.StructureSearch.search_classes`), e.g. on a Dask cluster;
+        default: one after the other in this process. The result is the same wherever they run.
 
     Attributes
     ----------
@@ -164,7 +168,7 @@ class StructureDiscovery:
     """
 
     def __init__(self, fixed=None, seed=0, search="standard", dt=5e-4, use_sindy=True,
-                 progress=False, max_ranked=8):
+                 progress=False, max_ranked=8, executor=None):
         self.fixed = fixed
         self.seed = seed
         self.search = search
@@ -172,6 +176,7 @@ class StructureDiscovery:
         self.use_sindy = use_sindy
         self.progress = progress
         self.max_ranked = max_ranked
+        self.executor = executor
 
     def fit(self, recordings, previous=None):
         """Screen, search, refine and rank every structure on ``recordings``; returns ``self``.
@@ -222,7 +227,7 @@ class StructureDiscovery:
         timings["sindy"] = time.perf_counter() - t0
 
         spaces = {s: SearchSpace(s, base, _fixed_for(s, fixed), self.dt) for s in kept}
-        search = StructureSearch(objective, self.sizes_, rng, spaces, self.progress)
+        search = StructureSearch(objective, self.sizes_, rng, spaces, self.progress, self.executor)
         simulated = {}
         t0, s0 = time.perf_counter(), objective.simulated_seconds
         if previous:

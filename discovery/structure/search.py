@@ -61,6 +61,15 @@ class Objective:
         self.n_evaluations = 0
         self.simulated_seconds = 0.0
         self._lock = threading.Lock()
+        self._coarse = None
+
+    def coarse(self, targets=None):
+        """The coarse counterparts (:meth:`.targets.CycleTarget.coarse`) of ``targets`` (all by
+        default), each made once: what a differential evolution screens its population on."""
+        with self._lock:
+            if self._coarse is None:
+                self._coarse = {id(t): t.coarse() for t in self.targets}
+        return [self._coarse[id(t)] for t in (targets or self.targets)]
 
     def _sets_for(self, target, param_sets):
         if target.initial_conditions() is None:

@@ -38,6 +38,7 @@ from .search import (
     refine,
     refine_all,
 )
+from .tasks import fit_tops
 
 __all__ = ["StructureSearch", "SearchSizes", "SEARCHES", "TEMPLATE", "best_of_restarts",
            "delay_moved", "transferred"]
@@ -109,11 +110,15 @@ class StructureSearch:
         Every recording's target.
     sizes : SearchSizes
     rng : numpy.random.Generator
-        The global searches' draws, taken in the order the searches run.
+        The global searches' draws, taken in the order the searches run (the searches of
+        :meth:`search_classes` each draw from a generator of their own, seeded from it).
     spaces : dict, optional
         Structure -> :class:`.coordinates.SearchSpace` of every structure to fit.
     progress : bool
         Progress bars (tqdm).
+    executor : discovery.executors.Executor, optional
+        Runs :meth:`search_classes`' searches (:mod:`.tasks`); default: one after the other in
+        this process.
 
     Attributes
     ----------
@@ -123,12 +128,13 @@ class StructureSearch:
         Wall time of the open-loop stages (s).
     """
 
-    def __init__(self, objective, sizes, rng, spaces=None, progress=False):
+    def __init__(self, objective, sizes, rng, spaces=None, progress=False, executor=None):
         self.objective = objective
         self.sizes = sizes
         self.rng = rng
         self.spaces = dict(spaces or {})
         self.progress = progress
+        self.executor = executor
         self.searches = {"open_loop": 0, "global": 0}
         self.open_loop_seconds = 0.0
 
@@ -140,7 +146,10 @@ class StructureSearch:
         loop. Each search is seeded with SINDy's proposals (``sindy``: structure name -> list of
         ActuatorParams) for the structure and for the structures nested in it; a band-pass
         structure also with its class's fit without the loop, the loop switched on small.
-        Returns the fits, structure -> :class:`.ranking.StructureFit`.
+        The searches are independent tasks (:func:`.tasks.fit_top`, through ``executor``), each
+        drawing from a generator seeded from ``rng`` before any runs: those without the loop
+        first, then those with it, which read their class's fit. Returns the fits, structure ->
+        :class:`.ranking.StructureFit`.
         """
         classes = sorted({(s.dead_zone_position, s.delay_position) for s in structures},
                          key=lambda c: (c[0].value, c[1].value))
@@ -151,22 +160,17 @@ class StructureSearch:
                 group = [s for s in members if s.bandpass == bandpass]
                 if group:
                     tops.append(max(group, key=lambda s: len(s.components)))
-        fits = {}
-        for s in progress_bar(tops, "global search", self.progress):
-            seeds = list(sindy.get(s.name, []))
-            for other, plist in sindy.items():  # nested proposals seed their parents too
-                o = Structure.parse(other)
-                if (o.dead_zone_position, o.delay_position) == (s.dead_zone_position, s.delay_position):
-                    seeds += [p for p in plist if p not in seeds]
-            if s.bandpass:
-                parent = fits.get(s.without("bandpass"))
-                if parent is not None:
-                    seeds += [parent.params.replace(bandpass_gain=g, bandpass_saturation=k * parent.params.gain
-                                                    / parent.params.stiffness)
-                              for g, k in ((40.0, 5e-4), (80.0, 3e-4))]
-            fr = self.fit_global(self.spaces[s], _valid(seeds, s))
-            fits[s] = self._record(s, fr, "global search (differential evolution, then least "
-                                   "squares)", sindy.get(s.name, []))
+        child = dict(zip(tops, map(int, self.rng.integers(2**63, size=len(tops)))))
+        found = {}
+        bar = progress_bar(len(tops), "global search", self.progress)
+        for wave in ([s for s in tops if not s.bandpass], [s for s in tops if s.bandpass]):
+            starts = [_valid(_top_seeds(s, sindy, found), s) for s in wave]
+            for s, fr in zip(wave, fit_tops(self, wave, starts, [child[s] for s in wave])):
+                found[s] = self._record(s, fr, "global search (differential evolution, then "
+                                        "least squares)", sindy.get(s.name, []))
+                bar.update()
+        bar.close()
+        fits = {s: found[s] for s in tops}  # the cross-seeding refines in the classes' order
         self.cross_seed(fits)
         return fits
 
@@ -423,10 +427,12 @@ def best_of_restarts(search, n_recordings, min_restarts, max_restarts):
 
 
 def _searched(box, space, objective, rng, starts, pop, gens, nfev, targets=None):
-    """Differential evolution in ``box``, then least squares (in the whole ``space``) from the best
-    member and from the runners-up in other basins (a short search often ends before one basin has
-    won); the best refined fit."""
-    de = global_search(box, objective, rng, seeds=starts, popsize=pop, maxiter=gens, targets=targets)
+    """Differential evolution in ``box`` on the coarse targets (:meth:`.search.Objective.coarse`:
+    a third of the simulated seconds), then least squares on the full targets (in the whole
+    ``space``) from the best member and from the runners-up in other basins (a short search often
+    ends before one basin has won); the best refined fit."""
+    de = global_search(box, objective, rng, seeds=starts, popsize=pop, maxiter=gens,
+                       targets=objective.coarse(targets))
     fits = refine_all(space, objective,
                       distinct_members(de.population, de.population_costs, box, N_STARTS),
                       max_nfev=nfev, targets=targets)
@@ -557,6 +563,23 @@ def _widen(p, s):
     if s.friction and p.friction_offset == 0.0:
         extra["friction_offset"] = -0.1 * p.dead_zone
     return extra
+
+
+def _top_seeds(s, sindy, fits):
+    """The starts of ``s``'s global search: SINDy's proposals for ``s`` and for the structures of
+    its class nested in it; for a band-pass ``s``, also its class's fit without the loop in
+    ``fits``, the loop switched on small."""
+    seeds = list(sindy.get(s.name, []))
+    for other, plist in sindy.items():  # nested proposals seed their parents too
+        o = Structure.parse(other)
+        if (o.dead_zone_position, o.delay_position) == (s.dead_zone_position, s.delay_position):
+            seeds += [p for p in plist if p not in seeds]
+    parent = fits.get(s.without("bandpass")) if s.bandpass else None
+    if parent is not None:
+        p = parent.params
+        seeds += [p.replace(bandpass_gain=g, bandpass_saturation=k * p.gain / p.stiffness)
+                  for g, k in ((40.0, 5e-4), (80.0, 3e-4))]
+    return seeds
 
 
 def _valid(seeds, s):

@@ -25,6 +25,11 @@ Each recording then counts alike, however many samples it holds.
   (its least-squares value is the mean residual); unit: the sensor noise estimated from the record
   (:func:`discovery.calibration.likelihood.estimate_noise`) with a floor of 0.1 % of its rms.
 
+Each target has a coarse counterpart (:meth:`CycleTarget.coarse`, :meth:`OutputTarget.coarse`):
+the same comparison over fewer periods or the record's first part, a fraction of the simulated
+seconds. The structure search's differential evolution screens on it; every refinement and the
+ranking use the full target (:mod:`.structure_search`).
+
 A run that diverges or stops oscillating gets ``PENALTY`` residuals, never an exception.
 """
 from __future__ import annotations
@@ -105,6 +110,11 @@ MAX_EXTRAPOLATED_PERIODS = 2.0
 MIN_HALF_PERIODS = 2
 #: Blocks an open-loop record is cut into for the ranking's folds (even blocks, odd blocks).
 OUTPUT_BLOCKS = 8
+#: A coarse target (:meth:`CycleTarget.coarse`): periods of a cycle's simulated window (a settling
+#: record: of its tail's first periods) ...
+COARSE_PERIODS = 6
+#: ... and the fraction of an open-loop record (its start: a run from rest cannot skip any).
+COARSE_OUTPUT_FRACTION = 0.4
 _COUNT_LOCK = threading.Lock()
 
 
@@ -217,6 +227,33 @@ class CycleTarget(_Target):
         omega = 2 * math.pi * (u.size - 1) / (u[-1] - u[0])
         half._observed = self._features(omega, phase_free_harmonics(t[w], d[w], omega))
         return half
+
+    def coarse(self):
+        """This target over ``COARSE_PERIODS`` periods: a copy with its own, shorter simulator.
+
+        A periodic cycle's features over 6 periods are those over 24 up to the window's wander;
+        a settling record is compared over its tail's first ``COARSE_PERIODS`` periods (its
+        observed features taken over the same periods). The copy's cost is a screening cost:
+        the search's differential evolution ranks its population on it, and least squares
+        refines on this target.
+        """
+        if self.window_periods <= COARSE_PERIODS:
+            return self
+        out = copy.copy(self)
+        out.window_periods = COARSE_PERIODS
+        out.segment = (0, COARSE_PERIODS)
+        if self.settling:
+            t, d, ups = self._tail
+            u = ups[: COARSE_PERIODS + 1]
+            w = (t >= u[0]) & (t < u[-1])
+            omega = 2 * math.pi * COARSE_PERIODS / (u[-1] - u[0])
+            out._observed = self._features(omega, phase_free_harmonics(t[w], d[w], omega))
+            out.t_end = (u[-1] - u[0]) + max(TRANSIENT, SETTLING_LEAD_PERIODS * self.period) + 0.2
+        else:
+            out.t_end = TRANSIENT + COARSE_PERIODS * self.period * 1.3 + 0.2
+        out.simulator = BatchSimulator(self.experiment, out.t_end, self.dt,
+                                       rate=output_rate_for(self.dt, SIMULATED_RATE))
+        return out
 
     def _features(self, omega, harmonics):
         return np.concatenate([[omega], harmonics.real, harmonics.imag])
@@ -426,6 +463,15 @@ class OutputTarget(_Target):
         half.n_residuals = half._mask.size
         half._norm = 1.0 / (self.unit * math.sqrt(half._mask.size))
         return half
+
+    def coarse(self):
+        """This target on the record's first ``COARSE_OUTPUT_FRACTION``: a target of its own on
+        the record cut there (the command's samples cut with it). Its cost is a screening cost,
+        as :meth:`CycleTarget.coarse`'s."""
+        rec = self.recording
+        keep = rec.t <= rec.t[0] + COARSE_OUTPUT_FRACTION * (rec.t[-1] - rec.t[0])
+        cut = dataclasses.replace(rec, columns={k: np.asarray(v)[keep] for k, v in rec.columns.items()})
+        return OutputTarget(cut, self.dt)
 
     def initial_conditions(self, params=None):
         return None  # from rest (OpenLoop.from_rest)

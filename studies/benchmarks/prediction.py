@@ -97,8 +97,9 @@ def draw_prediction_truth(seed):
             return truth
 
 
-def prediction_case(seed, workdir, steps=700):
-    """Calibrate a drawn truth on the two fitted settings; returns ``(fit directory, truth)``."""
+def prediction_case(seed, workdir, steps=700, walkers=16):
+    """Calibrate a drawn truth on the two fitted settings by ``walkers`` walkers, at most
+    ``steps`` steps; returns ``(fit directory, truth)``."""
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     truth = draw_prediction_truth(seed)
@@ -107,7 +108,7 @@ def prediction_case(seed, workdir, steps=700):
             for i, c in enumerate(FIT_SETTINGS)]
     names = [n for n in ("dead_zone", "backlash", "delay") if getattr(truth, n) > 0]
     cal = Calibration(truth, params=tuple(names) + ("sigma",), likelihood="features",
-                      n_walkers=16, max_steps=steps, seed=seed, progress=False,
+                      n_walkers=walkers, max_steps=steps, seed=seed, progress=False,
                       backend=workdir / "fit" / "chain.h5")
     cal.fit(recs)
     return workdir / "fit", truth

@@ -28,6 +28,17 @@ def parse_assignments(pairs):
     return out
 
 
+def dask_address(text):
+    """``--dask``'s value (:func:`discovery.executors.check_dask_address`), refused as it is
+    parsed with one line: a bad address, or Dask not installed (naming the extra)."""
+    from discovery.executors import check_dask_address
+
+    try:
+        return check_dask_address(text)
+    except (ValueError, ImportError) as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
 def add_controller_arguments(parser):
     """``--kp --kd --mu`` (default: paper 002's controller A) and ``--controller-rate``."""
     parser.add_argument("--kp", type=float, default=CONTROLLER_A.kp, help="proportional gain (default 5.84)")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import parse_assignments
+from ._common import dask_address, parse_assignments
 
 
 def register(sub):
@@ -46,6 +46,12 @@ def register(sub):
     p.add_argument("--no-mcmc", action="store_true",
                    help="stop after the ranking (no posterior; the summary shows the best fit)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--dask", metavar="ADDRESS", type=dask_address, default=None,
+                   help="run the global searches and the members' chains on the Dask scheduler "
+                   "at ADDRESS (tcp://HOST:8786), or on a local cluster of N one-thread "
+                   "workers (local:N); the same result as without it; on a cluster, --out on a "
+                   "file system the workers share; needs pip install tvcid[dask] "
+                   "(docs/cluster.md)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.set_defaults(func=run)
 
@@ -60,7 +66,7 @@ def run(args) -> int:
                              "discovery.json (give no FILE.csv)")
         result = add_recordings(args.add, Path(args.out), fixed=fixed, quick=args.quick,
                                 max_steps=args.max_steps, mcmc=not args.no_mcmc,
-                                progress=not args.no_progress)
+                                progress=not args.no_progress, dask=args.dask)
     else:
         if not args.files:
             raise ValueError("no recording given (FILE.csv ..., or --add NEW.csv with an earlier "
@@ -68,7 +74,7 @@ def run(args) -> int:
         result = discover(args.files, Path(args.out), fixed=fixed, seed=args.seed, quick=args.quick,
                           search="thorough" if args.thorough else "standard",
                           max_steps=args.max_steps, mcmc=not args.no_mcmc,
-                          progress=not args.no_progress)
+                          progress=not args.no_progress, dask=args.dask)
     print(console_summary(result, Path(args.out)))
     return 0
 

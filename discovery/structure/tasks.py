@@ -1,0 +1,122 @@
+"""The structure search's independent global searches as self-contained tasks of an executor.
+
+:meth:`.structure_search.StructureSearch.search_classes` searches the largest structure of every
+class; each search (:func:`fit_top`) draws from its own generator, seeded up front, and gets all
+it needs as arguments: the targets, the search sizes, the structure's search space, its starts
+and its seed. So it runs the same in this process (the default) or on a Dask worker
+(:class:`discovery.executors.DaskExecutor`), where its arguments and result travel pickled.
+
+The targets pickle (their simulators hold arrays); an :class:`.search.Objective` does not (it
+holds a lock), so each task builds its own around copies of the targets and hands back what it
+spent (:class:`TopFit`), which :func:`fit_tops` adds to the search's objective and targets.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..threads import one_blas_thread
+from .search import FitResult, Objective
+
+__all__ = ["TopFit", "fit_top", "fit_tops"]
+
+
+@dataclass
+class TopFit:
+    """What one global search found and spent.
+
+    Attributes
+    ----------
+    fit : .search.FitResult
+    evaluations : int
+        Parameter sets simulated.
+    simulated_seconds : float
+        Seconds simulated (:attr:`.search.Objective.simulated_seconds`).
+    second_starts : list of int
+        Runs each target simulated again from its second start (0 for an open-loop target).
+    searches : dict
+        Independent searches run per stage (``open_loop``, ``global``).
+    open_loop_seconds : float
+        Wall time of the open-loop stage (s).
+    """
+
+    fit: FitResult
+    evaluations: int
+    simulated_seconds: float
+    second_starts: list
+    searches: dict
+    open_loop_seconds: float
+
+
+def fit_top(targets, sizes, space, starts, seed):
+    """:meth:`.structure_search.StructureSearch.fit_global` of one structure, alone.
+
+    Parameters
+    ----------
+    targets : list
+        Every recording's target (:mod:`.targets`); copied, so that the caller's counters move
+        only by what :func:`fit_tops` adds.
+    sizes : .structure_search.SearchSizes
+    space : .coordinates.SearchSpace
+        The structure's box.
+    starts : list of ActuatorParams
+        Starts placed in the first population.
+    seed : int
+        Seed of the search's generator.
+
+    Returns
+    -------
+    TopFit
+    """
+    from .structure_search import StructureSearch
+
+    own = [copy.copy(t) for t in targets]
+    for t in own:
+        if hasattr(t, "second_starts"):
+            t.second_starts = 0
+    objective = Objective(own)
+    search = StructureSearch(objective, sizes, np.random.default_rng(seed),
+                             {space.structure: space})
+    with one_blas_thread():  # also on a worker: the kernels own its cores
+        fit = search.fit_global(space, starts)
+    return TopFit(fit=fit, evaluations=objective.n_evaluations,
+                  simulated_seconds=objective.simulated_seconds,
+                  second_starts=[getattr(t, "second_starts", 0) for t in own],
+                  searches=dict(search.searches), open_loop_seconds=search.open_loop_seconds)
+
+
+def fit_tops(search, structures, starts, seeds):
+    """:func:`fit_top` of each of ``structures`` through ``search.executor``; yields each
+    structure's :class:`.search.FitResult` in order, once its spending is added to ``search``
+    (its objective's evaluations and simulated seconds, its targets' second starts, its
+    ``searches`` and ``open_loop_seconds``).
+
+    Parameters
+    ----------
+    search : .structure_search.StructureSearch
+    structures : list of Structure
+    starts : list of list of ActuatorParams
+        Each structure's starts.
+    seeds : list of int
+        Each structure's seed.
+    """
+    from ..executors import LocalProcesses
+
+    executor = search.executor if search.executor is not None else LocalProcesses(1)
+    n = len(structures)
+    targets = search.objective.targets
+    done = executor.map(fit_top, [targets] * n, [search.sizes] * n,
+                        [search.spaces[s] for s in structures], starts, seeds)
+    for result in done:
+        objective = search.objective
+        objective.n_evaluations += result.evaluations
+        objective.simulated_seconds += result.simulated_seconds
+        for t, k in zip(targets, result.second_starts):
+            if k:
+                t.second_starts += k
+        for stage, k in result.searches.items():
+            search.searches[stage] = search.searches.get(stage, 0) + k
+        search.open_loop_seconds += result.open_loop_seconds
+        yield result.fit
