@@ -231,11 +231,12 @@ class CycleTarget(_Target):
     def coarse(self):
         """This target over ``COARSE_PERIODS`` periods: a copy with its own, shorter simulator.
 
-        A periodic cycle's features over 6 periods are those over 24 up to the window's wander;
-        a settling record is compared over its tail's first ``COARSE_PERIODS`` periods (its
-        observed features taken over the same periods). The copy's cost is a screening cost:
-        the search's differential evolution ranks its population on it, and least squares
-        refines on this target.
+        A periodic cycle's features over 6 periods are those over 12-24 up to the window's
+        wander; a settling record is compared over its tail's first ``COARSE_PERIODS`` periods
+        (its observed features taken over the same periods). The copy's cost is a screening
+        cost: the search's differential evolution ranks its population on it, and least squares
+        refines on the full target. A window of ``COARSE_PERIODS`` or fewer is its own coarse
+        target.
         """
         if self.window_periods <= COARSE_PERIODS:
             return self
