@@ -44,6 +44,7 @@ def _digests(directory):
             for p in sorted(Path(directory).rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tmp_path, monkeypatch,
                                                                                capsys):
     """``python -m studies.benchmarks.discovery --quick --draws 1`` on the bundled draw, its search cut

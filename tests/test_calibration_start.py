@@ -44,3 +44,42 @@ def test_a_start_without_a_cycle_reaches_the_cycle_without_the_discrepancy_term(
     assert np.isfinite(lp(lp.internal(best)[0]))
     assert cal.map_start_["dead_zone"] == pytest.approx(truth.dead_zone, rel=0.02)
     assert np.all(np.isfinite(cal.sampler_.get_log_prob()))
+
+
+def test_nelder_mead_stops_at_a_tenth_of_each_axis_sd():
+    """The start's Nelder-Mead (:func:`discovery.calibration.optimum._nelder_mead`) on a Gaussian
+    log posterior whose axes' sds span five decades (a pinned DC gain beside a free resonance),
+    from a point 2 sd off on every axis with a first simplex of one sd per axis: it ends within
+    0.1 nats of the maximum (measured: 0.002) after 95 evaluations, where the same search
+    stopped by one tolerance in internal coordinates (1e-6) takes 405 to gain those 0.002 nats
+    (on a simulated likelihood, whose small-scale roughness a 1e-6 simplex resolves, it runs to
+    its cap)."""
+    from scipy.optimize import minimize
+
+    from discovery.calibration.optimum import _nelder_mead
+
+    sd = np.array([1e-5, 1e-3, 0.1, 1.0, 3.0])
+    rng = np.random.default_rng(8)
+    q, _ = np.linalg.qr(rng.standard_normal((5, 5)))
+    corr = q @ np.diag([0.3, 0.6, 1.0, 1.4, 1.7]) @ q.T
+    d = np.sqrt(np.diag(corr))
+    cov = (corr / np.outer(d, d)) * np.outer(sd, sd)
+    prec = np.linalg.inv(cov)
+    mode = np.array([0.5, -2.0, 1.0, 3.0, 0.0])
+    calls = {"n": 0}
+
+    def lp(z):
+        calls["n"] += 1
+        r = np.asarray(z, dtype=float) - mode
+        return float(-0.5 * r @ prec @ r)
+
+    start = mode + 2.0 * sd
+    simplex = np.vstack([start, start + np.diag(sd)])
+    cap = 150 * len(sd)
+    end = _nelder_mead(lp, simplex, cap)
+    scaled = calls["n"]
+    assert lp(end) > -0.1, lp(end)
+    absolute = minimize(lambda z: -lp(z), start, method="Nelder-Mead",
+                        options={"maxfev": cap, "xatol": 1e-6, "fatol": 0.05,
+                                 "initial_simplex": simplex})
+    assert scaled < cap / 5 and absolute.nfev > 3 * scaled, (scaled, absolute.nfev)

@@ -44,6 +44,7 @@ def _summary(disc):
              tuple(np.round(f.theta, 12))) for f in disc.ranking_]
 
 
+@pytest.mark.slow
 def test_threaded_discovery_is_the_loop_discovery(tmp_path, monkeypatch):
     """A drawn truth (benchmark generator, seed 5) with both positions and the loop fixed: four
     structures, so the nested level, the superset repair and the ranking's folds all run
@@ -97,6 +98,7 @@ def test_threaded_log_posterior_is_the_loop_log_posterior(tmp_path, monkeypatch)
 
 
 
+@pytest.mark.slow
 def test_likelihood_threads_benchmark_records_equal_numbers_and_both_timings(tmp_path):
     """``python -m studies.benchmarks.likelihood_threads --quick``: its record holds both timings
     of one point and of a batch, the bit-for-bit comparison (its goals judge the speed-ups) and

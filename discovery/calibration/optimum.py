@@ -1,8 +1,8 @@
 """The numerical pieces of the start search, as functions of a log posterior ``lp`` in internal
 (sampling) coordinates, vectorised over rows.
 
-* optimisers: Nelder-Mead from a point (:func:`_nelder_mead_from`, its costs :func:`_cost` and
-  first simplex :func:`_simplex`), a differential evolution over the prior box
+* optimisers: Nelder-Mead in its first simplex's units (:func:`_nelder_mead`), from a point
+  (:func:`_nelder_mead_from`, its costs :func:`_cost` and first simplex :func:`_simplex`), a differential evolution over the prior box
   (:func:`_global_start`) and the noise sd's conditional maximum (:func:`_profile_sigma`);
 * curvature: each axis' sd (:func:`_axis_scales`), the Hessian by central differences
   (:func:`_hessian`), the principal axes with ridges spread over the prior
@@ -21,6 +21,11 @@ __all__ = ["laplace_covariance"]
 
 #: Largest principal sd of a usable Laplace approximation, as a fraction of the prior's extent.
 LAPLACE_MAX_FRACTION = 0.25
+#: Nelder-Mead stops once its simplex has shrunk to this fraction of its first edges (each axis'
+#: sd, so the tolerance means the same on a log and a linear axis) ...
+NM_XATOL = 0.1
+#: ... and its vertices' log posteriors agree within this (nats).
+NM_FATOL = 0.05
 
 
 def _global_start(lp, z0, seed, names):
@@ -40,15 +45,34 @@ def _global_start(lp, z0, seed, names):
     return z if lp(z) > lp(z0) else z0
 
 
-def _nelder_mead_from(lp, z):
-    """Nelder-Mead from ``z`` (100 evaluations per coordinate); its end if more probable than ``z``."""
+def _nelder_mead(lp, simplex, maxfev):
+    """The end of Nelder-Mead on ``-lp`` from the first simplex ``simplex`` (``(ndim + 1, ndim)``,
+    its first row the start), run in units of the simplex's edges.
+
+    Nelder-Mead's steps commute with an affine change of coordinates, so the path is the one it
+    takes in internal coordinates; only the stop differs. In the edges' units (each axis' sd)
+    :data:`NM_XATOL` means a tenth of a standard deviation on every axis, where one absolute
+    tolerance in internal coordinates means a different precision on a log and a linear axis,
+    and one far below an axis' sd keeps the search going to its evaluation cap for a few
+    hundredths of a nat (``tests/test_calibration_start.py``).
+    """
     from scipy.optimize import minimize
 
-    ref = minimize(_cost(lp), z, method="Nelder-Mead",
-                   options={"maxfev": 100 * len(z), "xatol": 1e-6, "fatol": 0.05,
-                            "initial_simplex": _simplex(z, lp)})
-    if np.isfinite(lp(ref.x)) and lp(ref.x) > lp(z):
-        return ref.x
+    simplex = np.asarray(simplex, dtype=float)
+    z0, n = simplex[0], simplex.shape[1]
+    edges = (simplex[1:] - z0).T
+    cost = _cost(lp)
+    res = minimize(lambda u: cost(z0 + edges @ u), np.zeros(n), method="Nelder-Mead",
+                   options={"maxfev": maxfev, "xatol": NM_XATOL, "fatol": NM_FATOL,
+                            "initial_simplex": np.vstack([np.zeros(n), np.eye(n)])})
+    return z0 + edges @ res.x
+
+
+def _nelder_mead_from(lp, z):
+    """Nelder-Mead from ``z`` (100 evaluations per coordinate); its end if more probable than ``z``."""
+    end = _nelder_mead(lp, _simplex(z, lp), 100 * len(z))
+    if np.isfinite(lp(end)) and lp(end) > lp(z):
+        return end
     return z
 
 

@@ -19,9 +19,9 @@ import numpy as np
 from .backend import H5_GROUP, CheckpointBackend
 from .optimum import (
     _axis_scales,
-    _cost,
     _global_start,
     _hessian,
+    _nelder_mead,
     _nelder_mead_from,
     _principal_axes,
     _profile_sigma,
@@ -114,15 +114,10 @@ class StartSearch:
     def _maximum(self, lp, z0, rng):
         """The maximum a posteriori from ``z0`` (internal coordinates): Nelder-Mead, then, where
         a recording still shows a misfit, the global search and restarts (:meth:`_polish`)."""
-        from scipy.optimize import minimize
-
         z0 = _profile_sigma(lp, z0, self.names_)
-        res = minimize(_cost(lp), z0,
-                       method="Nelder-Mead",
-                       options={"maxfev": 150 * len(z0), "xatol": 1e-6, "fatol": 0.05,
-                                "initial_simplex": _simplex(z0, lp)})
-        if np.isfinite(lp(res.x)):
-            z0 = _profile_sigma(lp, res.x, self.names_)
+        end = _nelder_mead(lp, _simplex(z0, lp), 150 * len(z0))
+        if np.isfinite(lp(end)):
+            z0 = _profile_sigma(lp, end, self.names_)
         # owed with or without the discrepancy term: the search finds the mode, the term only
         # tempers the likelihood there
         searched = self.global_search and self._suspect_optimum(lp, z0)
@@ -157,8 +152,6 @@ class StartSearch:
         intervals by up to 70 %. A right model at its maximum keeps 1, so a restart is owed
         only while the factor is over 1.
         """
-        from scipy.optimize import minimize
-
         ndim = len(z0)
         factors = self._inflations_at(lp, z0)
         for _ in range(POLISH_RESTARTS):
@@ -166,14 +159,11 @@ class StartSearch:
                 break
             scale = _axis_scales(lp, z0)
             axes = _principal_axes(lp, z0, scale, _hessian(lp, z0, scale))
-            simplex = np.vstack([z0, z0[None, :] + axes.T])
-            res = minimize(_cost(lp), z0, method="Nelder-Mead",
-                           options={"maxfev": 100 * ndim, "xatol": 1e-6, "fatol": 0.05,
-                                    "initial_simplex": simplex})
+            end = _nelder_mead(lp, np.vstack([z0, z0[None, :] + axes.T]), 100 * ndim)
             before = float(np.ravel(lp(z0))[0])
-            if not float(np.ravel(lp(res.x))[0]) > before + POLISH_GAIN:
+            if not float(np.ravel(lp(end))[0]) > before + POLISH_GAIN:
                 break
-            z0 = _profile_sigma(lp, res.x, self.names_)
+            z0 = _profile_sigma(lp, end, self.names_)
             factors = self._inflations_at(lp, z0)
         return z0, factors
 
