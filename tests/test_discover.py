@@ -140,8 +140,8 @@ def test_recovers_a_drawn_truth_with_known_positions(tmp_path, seed):
     the error, delay at the output, backlash; the linear block, thresholds, delay, controller
     settings, open-loop tests, acquisition and sensor drawn), records written with measured-style
     sidecars, made by the numba kernel (the reference path costs 1-3 s per simulated second; the
-    slow test below uses it). These three designs pin log K; draws 0 and 3, each about twice draw
-    1's time, run with the slow tests."""
+    slow test below uses it). These three designs pin log K; draws 0 and 3 run with the slow
+    tests."""
     assert _recover_known_positions(seed, tmp_path, reference_path=False)
 
 
