@@ -2,8 +2,9 @@
 (sampling) coordinates, vectorised over rows.
 
 * optimisers: Nelder-Mead in its first simplex's units (:func:`_nelder_mead`), from a point
-  (:func:`_nelder_mead_from`, its costs :func:`_cost` and first simplex :func:`_simplex`), a differential evolution over the prior box
-  (:func:`_global_start`) and the noise sd's conditional maximum (:func:`_profile_sigma`);
+  (:func:`_nelder_mead_from`, its costs :func:`_cost` and first simplex :func:`_simplex`), a
+  differential evolution over the prior box (:func:`_global_start`) and the noise sd's
+  conditional maximum (:func:`_profile_sigma`);
 * curvature: each axis' sd (:func:`_axis_scales`), the Hessian by central differences
   (:func:`_hessian`), the principal axes with ridges spread over the prior
   (:func:`_principal_axes`), and the Laplace covariance where it can serve as a proposal
