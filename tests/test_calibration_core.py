@@ -1,6 +1,7 @@
 """Calibration core: priors, bad input, the runner on a known Gaussian, resume equality, -inf."""
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -368,12 +369,31 @@ def test_open_loop_command_rebuilt_from_sidecar(tmp_path):
     assert ll_sampled[0] > ll_sampled[1]  # and with the edges rebuilt from the samples
 
 
-def test_default_delay_prior_refuses_a_start_below_the_step():
+def test_default_delay_prior_refuses_a_start_below_two_steps():
     from discovery.calibration import default_prior
 
     assert default_prior("delay", 7e-3, dt=5e-4).low == pytest.approx(3.5e-3)
-    with pytest.raises(ValueError, match="delay starts at 0.00024 s.*declare one"):
-        default_prior("delay", 2.4e-4, dt=5e-4)
+    assert default_prior("delay", 1.5e-3, dt=5e-4).low == pytest.approx(1e-3)
+    for start in (2.4e-4, 8e-4):
+        with pytest.raises(ValueError, match=f"delay starts at {start:.3g} s, below two steps.*declare"):
+            default_prior("delay", start, dt=5e-4)
+
+
+def test_a_short_delay_without_a_declared_prior_sets_the_step():
+    """A delay starting below four default steps (0.8 ms against 4 x 0.5 ms) gets a step of a
+    quarter of it and the default prior [value/2, 2 value]; a declared prior or step is kept."""
+    from models.recording import load_recording
+
+    recs = [load_recording(Path(__file__).resolve().parents[1] / "data" / "m000_closed_A.csv")]
+    short = M002().replace(delay=8e-4)
+    cal = Calibration(short, params=("delay",), likelihood="features").setup(recs)
+    assert cal.dt_ == pytest.approx(2e-4)
+    assert (cal.priors_["delay"].low, cal.priors_["delay"].high) == pytest.approx((4e-4, 1.6e-3))
+    declared = Calibration(short, params=("delay",), likelihood="features",
+                           priors={"delay": Uniform(1e-4, 2e-3)}).setup(recs)
+    assert declared.dt_ == 5e-4
+    assert Calibration(short, params=("delay",), likelihood="features", dt=1e-4).setup(recs).dt_ == 1e-4
+    assert Calibration(M002(), params=("delay",), likelihood="features").setup(recs).dt_ == 5e-4
 
 
 def _correlated_gaussian():

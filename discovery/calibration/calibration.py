@@ -145,8 +145,9 @@ class Calibration(StartSearch, LaplaceAdaptation):
         repeat the uninterrupted one.
     dt : float or None
         RK4 step of the simulations (each output-error record may halve it further,
-        :meth:`.likelihood.solver._WaveformSolverError._refine_step`). Default ``DEFAULT_DT``:
-        5e-4 s.
+        :meth:`.likelihood.solver._WaveformSolverError._refine_step`). Default ``DEFAULT_DT``,
+        5e-4 s, or a quarter of the delay's start where a sampled delay without a declared prior
+        starts below four steps, so that its default prior stays above two steps.
         Learned attribute ``dt_``: the step used.
     n_walkers, max_steps, tau_factor
         Ensemble size, step cap, ``N > tau_factor * tau``.
@@ -239,6 +240,17 @@ class Calibration(StartSearch, LaplaceAdaptation):
         self.global_search = global_search
 
     # -- set-up ---------------------------------------------------------------------------------
+    def _default_dt(self, base, names, priors, start):
+        """``DEFAULT_DT``, or a quarter of the delay's start where a sampled delay without a
+        declared prior starts below four of it: its default prior, ``[value/2, 2 value]``, then
+        stays above two steps (:func:`.priors.default_prior`)."""
+        dt = DEFAULT_DT[self.likelihood]
+        if "delay" in names and "delay" not in priors:
+            delay = float(start.get("delay", getattr(base, "delay")))
+            if 0.0 < delay < 4.0 * dt:
+                return delay / 4.0
+        return dt
+
     def _base(self):
         h = self.hypothesis
         if isinstance(h, ActuatorParams):
@@ -280,10 +292,8 @@ class Calibration(StartSearch, LaplaceAdaptation):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name} must be a positive integer (got {v!r})")
-        dt = DEFAULT_DT[self.likelihood] if self.dt is None else self.dt
-        if not (isinstance(dt, (int, float)) and dt > 0):
-            raise ValueError(f"dt must be > 0 (got {dt!r})")
-        self.dt_ = float(dt)
+        if self.dt is not None and not (isinstance(self.dt, (int, float)) and self.dt > 0):
+            raise ValueError(f"dt must be > 0 (got {self.dt!r})")
         if self.spread not in ("axes", "hessian"):
             raise ValueError(f"spread must be 'axes' or 'hessian' (got {self.spread!r})")
         if self.transient < 0:
@@ -301,6 +311,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
         bad = sorted(set(start) - set(names))
         if bad:
             raise ValueError(f"start values given for parameters that are not sampled: {', '.join(bad)}")
+        self.dt_ = float(self.dt) if self.dt is not None else self._default_dt(base, names, priors, start)
         if 2 * len(names) > self.n_walkers:
             raise ValueError(
                 f"n_walkers ({self.n_walkers}) must be at least twice the number of sampled "

@@ -155,8 +155,9 @@ def default_prior(name, value, dt=None) -> Prior:
     """The prior tvcid uses when none is declared, centred on the starting ``value``.
 
     Widths (:data:`WIDTH_PARAMETERS`) get a log-uniform prior over a factor 5 either side; the
-    delay a uniform prior on ``[max(value/2, 2 dt), 2 value]``; any other parameter a uniform one
-    over a factor 2 either side. A parameter whose starting value is 0 needs a declared prior.
+    delay a uniform prior on ``[max(value/2, 2 dt), 2 value]`` (a start below 2 dt is refused); any
+    other parameter a uniform one over a factor 2 either side. A parameter whose starting value is 0
+    needs a declared prior.
     """
     value = float(value)
     if value == 0.0:
@@ -170,10 +171,11 @@ def default_prior(name, value, dt=None) -> Prior:
         return LogUniform(value / 5.0, value * 5.0)
     if name == "delay":
         low = value / 2.0 if dt is None else max(value / 2.0, 2.0 * dt)
-        if low >= 2.0 * value:
+        if low > value:
             raise ValueError(
-                f"delay starts at {value:.3g} s, too close to the step (2 dt = {2.0 * dt:.3g} s) for a "
-                "default prior; declare one and a start inside it (e.g. --prior delay=0.001:0.01)"
+                f"delay starts at {value:.3g} s, below two steps (2 dt = {2.0 * dt:.3g} s), the "
+                "default prior's floor; declare a prior and a start inside it "
+                "(e.g. --prior delay=0.001:0.01) or a smaller --dt"
             )
         return Uniform(low, 2.0 * value)
     a, b = value / 2.0, value * 2.0

@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AllowedRange", "allowed_range", "ALLOWED_DROP", "ALLOWED_BINS", "MIN_BIN_DRAWS"]
+__all__ = ["AllowedRange", "allowed_range", "in_log_coordinate", "ALLOWED_DROP", "ALLOWED_BINS",
+           "MIN_BIN_DRAWS"]
 
 #: Drop of the log posterior (nats) that bounds the values the recordings allow: a profile
 #: likelihood's 95 % point for one quantity (3.84 / 2).
@@ -170,6 +171,13 @@ def _crossing(centre, profile, count, fitted, level, order, extreme):
     return float(np.clip(c[k] + (level - at_k) / slope, min(inner, outer), max(inner, outer)))
 
 
+def in_log_coordinate(lo, hi) -> bool:
+    """Whether a quantity ranging over ``[lo, hi]`` is judged in log: positive and spanning over a
+    decade (its bins here, its width against its prior's and its nearness to a prior's end in
+    :mod:`discovery.structure.set_posterior`)."""
+    return bool(lo > 0 and hi > 10 * lo)
+
+
 def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS,
                   min_draws=MIN_BIN_DRAWS) -> AllowedRange | None:
     """The values of one quantity the recordings allow, read off a member's draws.
@@ -201,7 +209,7 @@ def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS,
     lo, hi = float(v.min()), float(v.max())
     if hi <= lo:
         return AllowedRange(lo, hi)
-    log = lo > 0 and hi > 10 * lo
+    log = in_log_coordinate(lo, hi)
     x = np.log(v) if log else v
     index = _bins(x, bins, min_draws)
     centre, profile, count = _profile(x, lp, index)

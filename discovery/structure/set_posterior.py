@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from discovery.calibration.profile_range import ALLOWED_DROP, allowed_range
+from discovery.calibration.profile_range import ALLOWED_DROP, allowed_range, in_log_coordinate
 from discovery.calibration.step_error import widen_interval
 
 __all__ = ["MemberPosterior", "SetPosterior", "allowed_range", "calibrate_member", "combine",
@@ -351,13 +351,6 @@ def _quantiles(values) -> dict:
     return {"q05": float(q05), "q50": float(q50), "q95": float(q95)}
 
 
-def _in_log(values) -> bool:
-    """Whether a quantity is judged in log: its values are positive and span over a decade."""
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v)]
-    return bool(v.size and v.min() > 0 and v.max() > 10 * v.min())
-
-
 def width_over_prior(values, prior_values) -> float | None:
     """The 90 % width of a quantity's draws over the 90 % width its prior implies, both in the
     prior draws' coordinate (log where they are positive and span over a decade); ``None``
@@ -369,7 +362,7 @@ def width_over_prior(values, prior_values) -> float | None:
     p, v = p[np.isfinite(p)], v[np.isfinite(v)]
     if p.size < 20 or v.size < 20:
         return None
-    if _in_log(p):
+    if in_log_coordinate(p.min(), p.max()):
         v = v[v > 0]
         if v.size < 20:
             return None
@@ -497,7 +490,7 @@ def _prior_bounds(prior_draws):
 def _near(value, end, bounds) -> bool:
     """Whether ``value`` lies within :data:`PRIOR_END` of the prior's range from its ``end``."""
     lo, hi = bounds
-    if lo > 0 and hi > 10 * lo and value > 0:
+    if in_log_coordinate(lo, hi) and value > 0:
         value, end, lo, hi = (math.log(v) for v in (value, end, lo, hi))
     return abs(value - end) <= PRIOR_END * (hi - lo)
 
