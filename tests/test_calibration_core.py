@@ -380,15 +380,18 @@ def test_default_delay_prior_refuses_a_start_below_two_steps():
 
 
 def test_a_short_delay_without_a_declared_prior_sets_the_step():
-    """A delay starting below four default steps (0.8 ms against 4 x 0.5 ms) gets a step of a
-    quarter of it and the default prior [value/2, 2 value]; a declared prior or step is kept."""
+    """A delay starting below two default steps (0.8 ms against 2 x 0.5 ms) halves the step
+    until two fit under it, and its default prior starts there; a declared prior or step is
+    kept, and a delay above two default steps keeps the default step."""
     from models.recording import load_recording
 
     recs = [load_recording(Path(__file__).resolve().parents[1] / "data" / "m000_closed_A.csv")]
     short = M002().replace(delay=8e-4)
     cal = Calibration(short, params=("delay",), likelihood="features").setup(recs)
-    assert cal.dt_ == pytest.approx(2e-4)
-    assert (cal.priors_["delay"].low, cal.priors_["delay"].high) == pytest.approx((4e-4, 1.6e-3))
+    assert cal.dt_ == 2.5e-4
+    assert (cal.priors_["delay"].low, cal.priors_["delay"].high) == pytest.approx((5e-4, 1.6e-3))
+    assert Calibration(short.replace(delay=1.7e-3), params=("delay",),
+                       likelihood="features").setup(recs).dt_ == 5e-4
     declared = Calibration(short, params=("delay",), likelihood="features",
                            priors={"delay": Uniform(1e-4, 2e-3)}).setup(recs)
     assert declared.dt_ == 5e-4

@@ -146,8 +146,8 @@ class Calibration(StartSearch, LaplaceAdaptation):
     dt : float or None
         RK4 step of the simulations (each output-error record may halve it further,
         :meth:`.likelihood.solver._WaveformSolverError._refine_step`). Default ``DEFAULT_DT``,
-        5e-4 s, or a quarter of the delay's start where a sampled delay without a declared prior
-        starts below four steps, so that its default prior stays above two steps.
+        5e-4 s, halved until two steps fit under the start of a sampled delay without a declared
+        prior (whose default prior starts at two steps).
         Learned attribute ``dt_``: the step used.
     n_walkers, max_steps, tau_factor
         Ensemble size, step cap, ``N > tau_factor * tau``.
@@ -241,14 +241,14 @@ class Calibration(StartSearch, LaplaceAdaptation):
 
     # -- set-up ---------------------------------------------------------------------------------
     def _default_dt(self, base, names, priors, start):
-        """``DEFAULT_DT``, or a quarter of the delay's start where a sampled delay without a
-        declared prior starts below four of it: its default prior, ``[value/2, 2 value]``, then
-        stays above two steps (:func:`.priors.default_prior`)."""
+        """``DEFAULT_DT``, halved until two steps fit under the start of a sampled delay without
+        a declared prior, whose default prior's floor is two steps (:func:`.priors.default_prior`).
+        Halved, not shrunk to fit, so that it still divides the records' sample interval."""
         dt = DEFAULT_DT[self.likelihood]
         if "delay" in names and "delay" not in priors:
             delay = float(start.get("delay", getattr(base, "delay")))
-            if 0.0 < delay < 4.0 * dt:
-                return delay / 4.0
+            while 0.0 < delay < 2.0 * dt:
+                dt /= 2.0
         return dt
 
     def _base(self):
