@@ -57,7 +57,7 @@ class Config:
     compare_global_search: bool = True
 
 
-QUICK = Config(ridge_steps=200, max_steps=300, compare_steps=200, window=5.0)
+QUICK = Config(ridge_steps=100, max_steps=300, compare_steps=200, window=5.0)
 
 
 def _data(config, seed, out):

@@ -23,7 +23,6 @@ FILE_SECONDS = {
     "test_calibration_recovery.py": 50,
     "test_no_orphans.py": 45,
     "test_step_error.py": 40,
-    "test_design.py": 40,
     "test_prediction.py": 35,
     "test_calibration_mismatch.py": 31,
     "test_discrimination.py": 25,

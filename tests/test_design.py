@@ -6,6 +6,8 @@ frequency and first harmonic with sigma fixed at 1e-4. One cycle leaves the dead
 backlash on a ridge; a second controller setting or an open-loop test breaks it, repeating A does
 not. The slow test then runs the top-ranked test on the truth, refits on both records, and checks
 that each width shrank within a factor 2 of the prediction (``pytest -m slow -s`` prints them).
+Both are slow tests; the default suite ranks a menu through the h6 study's quick run
+(``test_studies.py``: the best test is no repeat of a bundled record and beats every repeat).
 """
 import numpy as np
 import pytest
@@ -40,6 +42,7 @@ def cycle_a(tmp_path_factory):
                                     keep_last=10.0)
 
 
+@pytest.mark.slow
 def test_a_ridge_breaking_test_ranks_first_and_a_repeat_barely_helps(cycle_a):
     """On a chain of 350 steps (the ridge explored, not converged): the open-loop sine breaks
     the ridge (measured: gain 4.8 nats, widths to 3-5 %), a second controller setting (B) less so
