@@ -311,7 +311,8 @@ class Calibration(StartSearch, LaplaceAdaptation):
         bad = sorted(set(start) - set(names))
         if bad:
             raise ValueError(f"start values given for parameters that are not sampled: {', '.join(bad)}")
-        self.dt_ = float(self.dt) if self.dt is not None else self._default_dt(base, names, priors, start)
+        self.dt_ = (float(self.dt) if self.dt is not None
+                    else self._default_dt(base, names, priors, start))
         if 2 * len(names) > self.n_walkers:
             raise ValueError(
                 f"n_walkers ({self.n_walkers}) must be at least twice the number of sampled "
