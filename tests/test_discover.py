@@ -296,24 +296,12 @@ def _finished_like_straight(directory, straight_discover):
     assert np.array_equal(a.get_chain(), b.get_chain())
 
 
-def test_killed_discover_resumes_ranking_and_chain(tmp_path, straight_discover, killed_discover):
+def test_killed_then_interrupted_discover_resumes_ranking_and_chain(tmp_path, straight_discover,
+                                                                    killed_discover):
     """``tvcid discover`` killed by SIGKILL during its MCMC has written its ranking; the rerun
-    reuses the ranking (same inputs hash, no new search) and continues the chain; the finished
-    chain equals the uninterrupted run's, step for step."""
-    import shutil
-
-    killed = tmp_path / "killed"
-    shutil.copytree(killed_discover, killed)
-    ranking = json.loads((killed / "discovery.json").read_text())
-    assert "posterior" not in ranking and ranking["structures"]
-    _finished_like_straight(killed, straight_discover)
-
-
-def test_interrupted_discover_stops_in_one_line_and_resumes(tmp_path, straight_discover,
-                                                            killed_discover):
-    """``tvcid discover`` stopped by Ctrl-C (SIGINT) during its MCMC, here while it continues the
-    killed run's chain (the ranking reused, so no search runs again): status 130 and one line,
-    and the rerun finishes the chain equal to the uninterrupted run's, step for step."""
+    reuses the ranking (same inputs hash, no new search) and continues the chain. Stopped by
+    Ctrl-C (SIGINT) while it does: status 130 and one line. The next rerun finishes the chain,
+    which equals the uninterrupted run's, step for step."""
     import shutil
     import signal
 
@@ -322,6 +310,8 @@ def test_interrupted_discover_stops_in_one_line_and_resumes(tmp_path, straight_d
 
     stopped = tmp_path / "stopped"
     shutil.copytree(killed_discover, stopped)
+    ranking = json.loads((stopped / "discovery.json").read_text())
+    assert "posterior" not in ranking and ranking["structures"]
     (chain,) = stopped.glob("chain-*.h5")
     before = emcee.backends.HDFBackend(str(chain), read_only=True).iteration
     saved = kill_once_checkpointed(["discover", *ONE_STRUCTURE_RUN, "--out", str(stopped)],

@@ -17,8 +17,8 @@ from models.reference import simulate_reference
 @pytest.mark.parametrize("name", ["M002", "M001i", "M001f", "M000"])
 def test_kernel_matches_reference_closed_loop(name):
     params = hypothesis(name)
-    fast = simulate(params, CONTROLLER_A, 5.0)
-    slow = simulate_reference(params, CONTROLLER_A, 5.0, rate=1000.0)
+    fast = simulate(params, CONTROLLER_A, 3.0)
+    slow = simulate_reference(params, CONTROLLER_A, 3.0, rate=1000.0)
     # same RK4 grid and element laws, different code and operation order: round-off only (<1e-15)
     assert np.max(np.abs(fast.delta - slow.delta)) < 1e-12
     assert np.ptp(fast.delta[-2000:]) > 1e-3  # the comparison covers a live cycle
@@ -27,8 +27,8 @@ def test_kernel_matches_reference_closed_loop(name):
 def test_kernel_matches_reference_with_noise_and_200hz_sampling():
     params = hypothesis("M000", noise_power=1e-10, noise_seed=3)
     experiment = ClosedLoop(5.84, 0.062, 12.3, sample_rate=200.0)
-    fast = simulate(params, experiment, 5.0)
-    slow = simulate_reference(params, experiment, 5.0, rate=1000.0)
+    fast = simulate(params, experiment, 3.0)
+    slow = simulate_reference(params, experiment, 3.0, rate=1000.0)
     # same seeded noise sequence and 200 Hz hold, separately written integrators: round-off (<1e-16)
     assert np.max(np.abs(fast.delta - slow.delta)) < 1e-12
     assert np.ptp(fast.delta[-1000:]) > 1e-3
@@ -92,8 +92,8 @@ def test_kernel_matches_reference_held_controller_with_delay_before_first_integr
                                                   "dead_zone": 1.2e-3, "friction_offset": 0.0}
                                                  if position == "error" else {}))
     experiment = ClosedLoop(9.8, 0.06, 4.5, sample_rate=200.0)
-    fast = simulate(params, experiment, 4.0)
-    slow = simulate_reference(params, experiment, 4.0, rate=1000.0)
+    fast = simulate(params, experiment, 3.0)
+    slow = simulate_reference(params, experiment, 3.0, rate=1000.0)
     assert np.max(np.abs(fast.delta - slow.delta)) < 1e-12
     assert np.ptp(fast.delta[-1000:]) > 1e-3
 
