@@ -55,9 +55,11 @@ class Config:
     #: maximum found from its hypothesis' values (M001i's on seed 0, ``--quick``: the same
     #: maximum, at a fifth of the cost)
     compare_global_search: bool = True
+    #: a chain is converged once its steps exceed this many autocorrelation times
+    tau_factor: float = 50.0
 
 
-QUICK = Config(ridge_steps=100, max_steps=300, compare_steps=200, window=5.0)
+QUICK = Config(ridge_steps=100, max_steps=300, compare_steps=200, window=5.0, tau_factor=25.0)
 
 
 def _data(config, seed, out):
@@ -90,7 +92,7 @@ def run(config, seed, out_dir):
         t0 = time.perf_counter()
         cal = Calibration("M002", params=PARAMS, likelihood=lik, features=feats,
                           window=config.window, n_walkers=config.walkers, max_steps=steps,
-                          seed=seed).fit([data[k] for k in keys])
+                          tau_factor=config.tau_factor, seed=seed).fit([data[k] for k in keys])
         posteriors[label] = cal.posterior_
         timings[label] = time.perf_counter() - t0
         print(f"{label}: {cal.report_.iterations} steps, tau max {max(cal.report_.tau):.0f}, "

@@ -182,6 +182,18 @@ def test_convergence_is_judged_after_the_walkers_way_in():
     assert not convergence_report(_StoredChain(drift)).converged
 
 
+def test_independent_draws_pass_only_past_tau_factor_steps():
+    """Independent draws (tau 1): emcee's tau estimate on 10 steps falls below one step (0.3-0.6),
+    which must not call 10 steps converged at 12 tau; past ``tau_factor`` steps they are."""
+    from discovery.calibration.runner import convergence_report
+
+    rng = np.random.default_rng(5)
+    short = _StoredChain(rng.standard_normal((10, 16, 2)))
+    assert 10 > 12.0 * max(short.get_autocorr_time())  # the estimate alone would pass
+    assert not convergence_report(short, tau_factor=12.0).converged
+    assert convergence_report(_StoredChain(rng.standard_normal((30, 16, 2))), tau_factor=25.0).converged
+
+
 def test_interval_drift_tells_a_settled_chain_from_a_wandering_one():
     """The 90 % intervals of a kept chain's two halves: a stationary AR(1) chain (tau ~9, 1000
     steps, 16 walkers) gives them within 15 % of the width (measured 0.05); the same chain whose

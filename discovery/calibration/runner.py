@@ -113,7 +113,8 @@ class PooledLogProb:
 
 
 def convergence_report(sampler, tau_factor=50.0, new_steps=0, wall_time=0.0) -> ConvergenceReport:
-    """``N > tau_factor * tau`` on the whole chain, or else on its second half alone.
+    """``N > tau_factor * tau`` on the whole chain, or else on its second half alone, with tau
+    at least one step.
 
     The walkers' way in from their start (a maximum a posteriori a few sd off the bulk, a spread
     along a ridge) is a trend that the autocorrelation estimate reads as slow mixing for the whole
@@ -158,7 +159,10 @@ def _autocorr_time(sampler, discard):
 
 
 def _passes(tau, steps, tau_factor) -> bool:
-    return bool(tau.size and np.all(np.isfinite(tau)) and steps > tau_factor * float(np.max(tau)))
+    # tau is floored at one step: independent draws have tau 1, and a short chain's estimate
+    # below it would call 10 steps converged
+    return bool(tau.size and np.all(np.isfinite(tau))
+                and steps > tau_factor * max(float(np.max(tau)), 1.0))
 
 
 @contextlib.contextmanager
