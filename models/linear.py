@@ -19,9 +19,17 @@ __all__ = ["bandpass_transfer_function", "bandpass_state_space", "second_order_r
 MAX_BANDPASS_STATES = 8
 
 
+@lru_cache(maxsize=64)
 def bandpass_transfer_function(low_hz, high_hz, order=2):
-    """Analog Butterworth band-pass ``(num, den)`` in ``s``; ``2*order`` poles."""
-    return signal.butter(order, [2 * np.pi * low_hz, 2 * np.pi * high_hz], "bandpass", analog=True)
+    """Analog Butterworth band-pass ``(num, den)`` in ``s``; ``2*order`` poles.
+
+    Cached (a harmonic-balance solve evaluates the same filter hundreds of times); the arrays
+    are read-only."""
+    num, den = signal.butter(order, [2 * np.pi * low_hz, 2 * np.pi * high_hz], "bandpass",
+                             analog=True)
+    for x in (num, den):
+        x.setflags(write=False)
+    return num, den
 
 
 @lru_cache(maxsize=64)
