@@ -15,18 +15,22 @@ from models import CONTROLLER_A, hypothesis, simulate  # noqa: E402
 #: Files are handed out longest first, so that no long file starts last and runs alone at the
 #: end; a file missing here is handed out after these, in collection order.
 FILE_SECONDS = {
-    "test_studies.py": 210,
-    "test_discover.py": 120,
-    "test_discover_add.py": 80,
-    "test_discover_dask.py": 60,
-    "test_command_replay.py": 60,
-    "test_calibration_recovery.py": 50,
-    "test_no_orphans.py": 45,
-    "test_step_error.py": 40,
+    "test_studies.py": 200,
+    "test_discover.py": 145,
+    "test_discover_add.py": 75,
+    "test_calibration_recovery.py": 70,
+    "test_discover_dask.py": 58,
+    "test_no_orphans.py": 46,
+    "test_kernel_vs_reference.py": 44,
+    "test_describing_controllers.py": 43,
+    "test_calibration_mismatch.py": 42,
     "test_prediction.py": 35,
-    "test_calibration_mismatch.py": 31,
-    "test_discrimination.py": 25,
-    "test_sindy_m001.py": 20,
+    "test_controllers.py": 31,
+    "test_calibration_core.py": 31,
+    "test_bad_input_cli.py": 30,
+    "test_step_error.py": 28,
+    "test_calibration_start.py": 27,
+    "test_discrimination.py": 27,
 }
 
 
