@@ -121,6 +121,29 @@ def test_a_component_the_truth_lacks_is_covered_only_where_it_is_not_printed_pre
     assert row["goals"]["bandpass_gain"] is False
 
 
+def test_a_component_the_set_leaves_open_is_printed_present_or_absent_whichever_members_calibrated():
+    """Only members with a band-pass loop calibrated (``present`` 1.0), but the set leaves the
+    loop open: printed "present or absent", so M002's absent loop is covered; a friction offset
+    the set leaves open and no calibrated member holds is printed "present or absent" without an
+    interval: covered where the truth lacks it, ``lacking`` where the truth has it."""
+    truth = M002()
+    printed = _printed(truth)
+    printed["bandpass_gain"] = {**_q(0.0, 80.0), "left_open": True}
+    summary = _summary(printed)
+    summary["set_posterior"]["left_open_uncalibrated"] = ["friction_offset"]
+    row = coverage_row(1, truth, Structure.of_params(truth), summary)
+    for name in ("bandpass_gain", "friction_offset"):
+        e = row["quantities"][name]
+        assert (e["rule"], e["covered"], e["printed"]) == ("absent", True, "present or absent")
+    truth = M000()
+    printed = _printed(truth)
+    del printed["friction_offset"]
+    summary = _summary(printed)
+    summary["set_posterior"]["left_open_uncalibrated"] = ["friction_offset"]
+    e = coverage_row(1, truth, Structure.of_params(truth), summary)["quantities"]["friction_offset"]
+    assert (e["rule"], e["covered"], e["printed"]) == ("lacking", False, "present or absent")
+
+
 def test_a_quantity_the_truth_has_and_the_report_prints_absent_is_not_covered():
     """M002's backlash decided absent, and M000's dead zone on the velocity signal where every
     member puts it on the error: rule ``lacking``, not covered; the error place M000 lacks is

@@ -11,6 +11,7 @@ from discovery.structure.set_posterior import (
     MemberPosterior,
     allowed_range,
     combine,
+    left_open_quantities,
     linear_block_dc_gain_and_bandwidth,
     member_quantities,
 )
@@ -198,6 +199,31 @@ def test_a_component_the_set_leaves_open_prints_as_present_or_absent():
     low, high = combine([with_it, without], weights=[0.25, 0.75], seed=1).quantities["backlash"]["allowed"]
     verdict = _verdicts(combine([with_it, without], weights=[0.25, 0.75], seed=1).to_dict())["backlash"][2]
     assert verdict == f"they allow {low:.4g} to {high:.4g}"
+
+
+def test_a_component_the_set_leaves_open_prints_as_present_or_absent_whichever_members_calibrated():
+    """The set leaves the backlash and the friction offset open, and only a member with a
+    backlash calibrated (the others could not start their chains): the backlash, at 100 % of the
+    calibrated weight, still prints "present or absent" with its interval if present, and the
+    friction offset, which no calibrated member holds, prints "present or absent" without an
+    interval instead of vanishing from the table. The backlash the set decides prints as it is."""
+    rng = np.random.default_rng(6)
+    survivor = _member("a", 2e-3, 1e-5, rng)
+    survivor.quantities["backlash"] = 1e-4 + 1e-5 * rng.standard_normal(4000)
+    decided = {"backlash": None, "friction": None, "bandpass": False}
+    assert left_open_quantities(decided) == ("backlash", "friction_offset")
+    combined = combine([survivor], seed=1, left_open=left_open_quantities(decided)).to_dict()
+    q = combined["quantities"]["backlash"]
+    assert q["present"] == 1.0 and q["left_open"]
+    assert combined["left_open_uncalibrated"] == ["friction_offset"]
+    cells = _verdicts(combined, ["a"])
+    assert cells["backlash"][0].startswith("present or absent")
+    assert cells["backlash"][1].startswith("if present, [")
+    assert cells["friction_offset"][0].startswith("present or absent") and cells["friction_offset"][1] == ""
+    closed = combine([survivor], seed=1).to_dict()
+    assert "left_open" not in closed["quantities"]["backlash"]
+    assert _verdicts(closed, ["a"])["backlash"][0] == f"{closed['quantities']['backlash']['q50']:.4g}"
+    assert "friction_offset" not in _verdicts(closed, ["a"])
 
 
 def test_an_interval_narrower_than_the_step_error_is_widened_and_says_so():

@@ -51,8 +51,8 @@ class MemberRun:
     start_seconds: float = 0.0
 
 
-def calibrate_member_task(row, recs, closed, offsets, fixed, seed, quick, max_steps, progress,
-                          out, weigh):
+def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out,
+                          weigh):
     """One member's calibration and what the set needs of it.
 
     Parameters
@@ -60,8 +60,6 @@ def calibrate_member_task(row, recs, closed, offsets, fixed, seed, quick, max_st
     row : dict
         The member's row of the ranking.
     recs : list of models.recording.Recording
-    closed : list
-        The closed-loop targets (the first sets the chain's initial state).
     offsets : dict
         Sensor offset per recording (rad), removed before the calibration.
     fixed : dict or None
@@ -87,7 +85,7 @@ def calibrate_member_task(row, recs, closed, offsets, fixed, seed, quick, max_st
 
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
     try:
-        post, priors, seconds, chain = _calibrate_member(row, recs, closed, offsets, fixed, seed,
+        post, priors, seconds, chain = _calibrate_member(row, recs, offsets, fixed, seed,
                                                          quick, max_steps, progress, out)
     except NoFiniteStartError as exc:
         return MemberRun(row["structure"], failed=str(exc))

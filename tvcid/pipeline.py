@@ -249,7 +249,6 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
 
 def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, executor):
     """:func:`discover` on validated recordings, the independent work through ``executor``."""
-    from discovery.structure.targets import make_target
     from models.structures import shared_choices
 
     inputs = inputs_hash(recs, fixed, seed, search)
@@ -259,12 +258,11 @@ def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, 
         summary["resumed_ranking"] = True
         # the same data under the names given now (a run copied from elsewhere)
         summary["recordings"] = [str(r.path) for r in recs]
-        closed = [make_target(r, 5e-4) for r in recs if r.kind == "closed"][:1]
         offsets = summary["sensor_offset"]
         t_disc = summary["timings"].get("discovery", 0.0)
         summary.setdefault("decided", shared_choices(summary["indistinguishable"]))
     else:
-        summary, closed, offsets, t_disc = _rank_structures(
+        summary, offsets, t_disc = _rank_structures(
             recs, fixed, seed, search, progress, inputs, executor=executor)
         _write(out, summary)  # the ranking survives whatever happens to the chain
     if "next_test" not in summary:
@@ -273,7 +271,7 @@ def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, 
         summary["timings"]["next_test"] = time.perf_counter() - t0
         _write(out, summary)
     if mcmc:
-        summary = _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps,
+        summary = _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps,
                              progress, out, executor)
     summary["timings"]["discovery"] = t_disc
     _write(out, summary)
@@ -358,8 +356,8 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
         if row.get("cost") is not None and math.isfinite(row["cost"]):
             previous[row["structure"]] = params_from_dict("custom", row["params"])
     inputs = inputs_hash(recs, fixed, seed, search)
-    summary, closed, offsets, t_disc = _rank_structures(recs, fixed, seed, search, progress,
-                                                        inputs, previous=previous)
+    summary, offsets, t_disc = _rank_structures(recs, fixed, seed, search, progress,
+                                                inputs, previous=previous)
     summary["added"] = added + new_paths
     summary["earlier_set"] = earlier["indistinguishable"]
     _write(out, summary)  # the ranking survives whatever happens to the chains
@@ -464,11 +462,10 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None,
         "resumed_ranking": False,
     }
     summary["timings"]["discovery"] = t_disc
-    closed = [t for t in disc.targets_ if t.kind == "closed"]
-    return summary, closed, disc.offsets_, t_disc
+    return summary, disc.offsets_, t_disc
 
 
-def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out):
+def _calibrate_member(row, recs, offsets, fixed, seed, quick, max_steps, progress, out):
     """MCMC of one member of the set (:func:`discovery.structure.set_posterior.calibrate_member`)
     on all recordings with their offsets removed, checkpointed in ``out``. Returns
     ``(posterior, priors, simulated seconds of the start and of the sampling, chain file name)``.
@@ -485,8 +482,6 @@ def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps,
     p = params_from_dict("custom", row["params"])
     tag = hashlib.sha256(json.dumps([jsonable(p.to_dict()), "set member", quick, seed],
                                     sort_keys=True, allow_nan=False).encode()).hexdigest()[:10]
-    # start the closed-loop runs on the first record's cycle (at rest the loop stays there)
-    p = p.replace(**closed[0].initial_conditions(p)) if closed else p
     post, priors, simulated = calibrate_member(
         p, Structure.parse(row["structure"]), _corrected(recs, offsets), fixed=fixed, seed=seed,
         max_steps=max_steps or (150 if quick else 2000), backend=out / f"chain-{tag}.h5",
@@ -494,7 +489,7 @@ def _calibrate_member(row, recs, closed, offsets, fixed, seed, quick, max_steps,
     return post, priors, simulated, f"chain-{tag}.h5"
 
 
-def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, progress, out,
+def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, out,
                executor=None):
     """The posterior over the set: every distinct member calibrated (:func:`_calibrate_member`,
     at most :data:`MAX_MEMBERS`, best score first), and the richer structure of each component
@@ -512,7 +507,12 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     (:func:`tvcid.members.calibrate_member_task`; default: one after the other in this
     process), combined here in the members' order."""
     from discovery.executors import LocalProcesses
-    from discovery.structure.set_posterior import MemberPosterior, combine, richer_members
+    from discovery.structure.set_posterior import (
+        MemberPosterior,
+        combine,
+        left_open_quantities,
+        richer_members,
+    )
     from discovery.structure.set_weights import uncalibrated_share, weigh_set
 
     from .members import calibrate_member_task
@@ -527,7 +527,7 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
     executor = executor if executor is not None else LocalProcesses(1)
     here = isinstance(executor, LocalProcesses) and executor.jobs == 1
     n = len(calibrated)
-    shared = (recs, closed[:1], offsets, fixed, seed, quick, max_steps,
+    shared = (recs, offsets, fixed, seed, quick, max_steps,
               progress and here,  # a worker's bars would garble this terminal
               out.resolve(), n > 1)
     runs = executor.map(calibrate_member_task, calibrated, *([x] * n for x in shared))
@@ -560,13 +560,15 @@ def _calibrate(summary, recs, closed, offsets, fixed, seed, quick, max_steps, pr
         summary.setdefault("simulated_seconds", {})["mcmc"] = simulated
         summary["simulated_seconds"]["mcmc_start"] = start
         return summary
+    left_open = left_open_quantities(summary["decided"])
     if len(members) > 1:
         weighting = weigh_set(pointwise, rows=calibrated, seed=seed)
         combined = combine(members, weights=weighting.of(names), seed=seed,
-                           criterion=weighting.rule).to_dict()
+                           criterion=weighting.rule, left_open=left_open).to_dict()
         combined["weighting"] = weighting.to_dict()
     else:
-        combined = combine(members, seed=seed, criterion="one structure").to_dict()
+        combined = combine(members, seed=seed, criterion="one structure",
+                           left_open=left_open).to_dict()
     dropped = uncalibrated_share(rows + [r for r in calibrated if r not in rows], names, seed=seed)
     combined["not_calibrated"] = dropped.names
     combined["not_calibrated_share"] = dropped.share if dropped.names else None

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+from discovery.structure.set_posterior import QUANTITY_UNITS
 from models.hypotheses import parameter_unit
 
 __all__ = ["discovery_report", "summary_lines"]
@@ -122,6 +123,9 @@ def _quantity_row(name, q) -> str:
     if q.get("present", 1.0) < 1.0 - 1e-9:
         return (f"| {name} | present or absent ({100 * q['present']:.0f} % of the weight present) | "
                 f"if present, {interval} | {q['unit']} | {_verdict(q)} |")
+    if q.get("left_open"):  # the members without it could not be calibrated
+        return (f"| {name} | present or absent (the set leaves it open; only members with it "
+                f"calibrated) | if present, {interval} | {q['unit']} | {_verdict(q)} |")
     return f"| {name} | {_num(q['q50'])} | {interval} | {q['unit']} | {_verdict(q)} |"
 
 
@@ -172,6 +176,9 @@ def summary_lines(summary) -> list:
                        if n > 1 else "The calibrated structure's posterior:"), "",
                   "| quantity | median | 90 % interval | unit | |", "|---|---|---|---|---|"]
         lines += [_quantity_row(name, q) for name, q in combined.items()]
+        lines += [f"| {name} | present or absent (the set leaves it open; no member with it "
+                  f"calibrated) | | {QUANTITY_UNITS.get(name, '')} | |"
+                  for name in sp.get("left_open_uncalibrated") or ()]
         if any(q.get("pinned") is False for q in combined.values()):
             lines += ["", "Not pinned: the 90 % interval spans more than half the one the priors "
                       "imply, so it follows where the prior puts its mass; the range the "

@@ -289,12 +289,16 @@ class SetPosterior:
         How the members are weighted, stated for the report.
     weights : ndarray
         Each member's weight (summing to 1).
+    left_open : tuple of str
+        Component quantities the set leaves open that no calibrated member holds: printed
+        "present or absent" without an interval.
     """
 
     members: list
     quantities: dict
     criterion: str
     weights: np.ndarray = None
+    left_open: tuple = ()
 
     def interval(self, name, level=0.90):
         """The combined 90 % interval ``(q05, q95)`` of quantity ``name`` (widened to the step
@@ -309,6 +313,7 @@ class SetPosterior:
         return {
             "criterion": self.criterion,
             "quantities": self.quantities,
+            "left_open_uncalibrated": list(self.left_open),
             "members": [{"structure": m.structure, "weight": float(wi),
                          "equal_weight": 1.0 / len(self.members),
                          "score_over_margin": m.score_over_margin, "converged": m.converged,
@@ -377,7 +382,16 @@ def width_over_prior(values, prior_values) -> float | None:
 NEGLIGIBLE_WEIGHT = 0.01
 
 
-def combine(members, weights=None, n_draws=4000, seed=0, criterion=None) -> SetPosterior:
+def left_open_quantities(decided) -> tuple:
+    """The component quantities (:data:`COMPONENT_QUANTITIES`) whose component the set's decisions
+    leave open (``decided[component] is None``), in :data:`QUANTITY_UNITS`' order."""
+    names = {COMPONENT_QUANTITIES[c] for c, v in decided.items()
+             if v is None and c in COMPONENT_QUANTITIES}
+    return tuple(n for n in QUANTITY_UNITS if n in names)
+
+
+def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
+            left_open=()) -> SetPosterior:
     """Mix the members' draws, each with its weight, into one posterior per shared quantity.
 
     Parameters
@@ -390,6 +404,11 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None) -> SetP
         with a seeded ``numpy.random.Generator``).
     criterion : str, optional
         How the weights were made, for the report.
+    left_open : iterable of str, optional
+        Component quantities whose component the set leaves open
+        (:func:`left_open_quantities`): whatever the calibrated members hold, they print
+        "present or absent" (``left_open`` true), since a member without the component may be
+        the one that could not be calibrated.
 
     Returns
     -------
@@ -467,9 +486,13 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None) -> SetP
                             "allowed_at_prior": allowed_prior,
                             "step_error": step or None, "widened": widened,
                             "equal_weights": _quantiles(equal)}
+    for name in left_open:
+        if name in quantities:
+            quantities[name]["left_open"] = True
     if criterion is None:
         criterion = ("equal weights" if weights is None else "weights given")
-    return SetPosterior(list(members), quantities, criterion, w)
+    return SetPosterior(list(members), quantities, criterion, w,
+                        left_open=tuple(n for n in left_open if n not in quantities))
 
 
 #: An open end of the allowed range within this fraction of the prior's range (in the

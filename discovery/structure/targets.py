@@ -45,7 +45,7 @@ from discovery.calibration.likelihood import estimate_noise
 from models.batch import BatchSimulator, output_rate_for
 from models.edge_timing import edge_timing_for
 from models.features import cycle_crossings
-from models.hypotheses import DeadZonePosition
+from models.cycle_state import RecordedCycleState
 
 from .cycle_tail import (
     N_HARMONICS,
@@ -169,10 +169,10 @@ class CycleTarget(_Target):
         self.multiple = crossing_multiple(t, d, np.asarray(ups))
         self.dt = float(dt)
         start_omega = 2 * math.pi * (len(start) - 1) / (start[-1] - start[0])
-        self.initial = self._cycle_state(recording, t, d, start, start_omega)
-        exp = recording.experiment()
-        self.experiment = dataclasses.replace(exp, theta0=self.initial["theta0"],
-                                              thetad0=self.initial["thetad0"])
+        #: the loop's state on the record's cycle, where every run starts
+        self.initial = RecordedCycleState.from_cycle(recording, t, d, start, start_omega,
+                                                     N_HARMONICS)
+        self.experiment = self.initial.experiment(recording.experiment())
         #: periods of the simulated window: as many as the record's tail holds, within
         #: WINDOW_PERIODS .. MAX_WINDOW_PERIODS (a settling record: all of its tail's)
         if self.settling:
@@ -277,44 +277,13 @@ class CycleTarget(_Target):
             rows.append(self._features(omega, phase_free_harmonics(t[sel], d[sel], omega)))
         return np.std(np.asarray(rows), axis=0, ddof=1)
 
-    def _cycle_state(self, recording, t, d, ups, omega):
-        """The loop's state at an upward mean crossing of the recorded cycle.
-
-        From the cycle's Fourier series ``delta = mean + sum Re(a_k e^{i k w t})`` (whole periods
-        of the tail): ``x = delta``, ``y = delta'`` (the integrator's input), and the vehicle's
-        ``theta' = mu * integral(delta)`` and ``theta = -u/Kp - Kd theta'`` (the controller's
-        law, with the recorded command's mean). Started there, a simulation of a model close to
-        the data is close to its cycle: the slow growth of the cycle from a bare kick (over 10 s
-        at controller B) is skipped.
-        """
-        exp = recording.experiment()
-        w = (t >= ups[0]) & (t < ups[-1])
-        k = np.arange(1, N_HARMONICS + 1)
-        basis = np.exp(-1j * np.outer(k, omega * (t[w] - ups[0])))
-        a = 2.0 / w.sum() * (basis @ (d[w] - np.mean(d[w])))  # complex amplitudes at phase 0
-        kw = k * omega
-        x = float(np.sum(a.real))
-        y = float(np.sum((1j * kw * a).real))
-        thetad = float(exp.mu * np.sum((a / (1j * kw)).real))
-        u = recording.u[recording.t - recording.t[0] >= t[0]]
-        theta = float(-np.mean(u) / exp.kp - exp.kd * thetad) if exp.kp != 0 else 0.0
-        return {"theta0": theta, "thetad0": thetad, "x0": x, "y0": y}
-
     def initial_conditions(self, params=None):
-        """Actuator initial conditions (fields of ActuatorParams) of a simulation of ``params``.
-
-        ``x' = FRIC(DZ(y + p))`` (docs/models.md#m001f): while the actuator moves, the velocity signal ``y``
-        exceeds the recorded rate ``x'`` by the threshold ``z - off`` (dead zone on the velocity
-        signal) or ``-off`` (on the error), in the direction of motion. Started with ``y = x'``
-        instead, inside the dead zone, a model with coexisting cycles (docs/models.md#what-a-recording-pins: "initial
-        conditions select the limit cycle") can settle on one the record does not show
-        (benchmark draw 1005: cost 89 at the truth; 0.17 with this start).
+        """Actuator initial conditions (fields of ActuatorParams) of a simulation of ``params``:
+        the record's cycle state's (:meth:`models.cycle_state.RecordedCycleState.initial_conditions`;
+        with the record's rate ``y = x'`` alone, a model with coexisting cycles settled on one the
+        record does not show on benchmark draw 1005: cost 89 at the truth, 0.17 with this start).
         """
-        y = self.initial["y0"]
-        if params is not None and y != 0.0:
-            z = params.dead_zone if params.dead_zone_position is DeadZonePosition.VELOCITY else 0.0
-            y += math.copysign(max(z - params.friction_offset, 0.0), y)
-        return {"x0": self.initial["x0"], "y0": y, "yd0": 0.0}
+        return self.initial.initial_conditions(params)
 
     def residuals(self, param_sets):
         """Residuals of each set from :meth:`initial_conditions`' start, or from the record's
@@ -332,9 +301,9 @@ class CycleTarget(_Target):
         res = self.residuals_of_runs(delta, ok)
         cost = np.sum(res * res, axis=1)
         redo = [i for i, p in enumerate(param_sets)
-                if p is not None and cost[i] > SECOND_START_COST and p.y0 != self.initial["y0"]]
+                if p is not None and cost[i] > SECOND_START_COST and p.y0 != self.initial.y]
         if redo:
-            d2, ok2 = self.simulator.run([param_sets[i].replace(y0=self.initial["y0"]) for i in redo])
+            d2, ok2 = self.simulator.run([param_sets[i].replace(y0=self.initial.y) for i in redo])
             r2 = self.residuals_of_runs(d2, ok2)
             better = np.sum(r2 * r2, axis=1) < cost[redo]
             rows = np.asarray(redo)[better]

@@ -20,16 +20,17 @@ each by one rule, named in the row:
 * ``interval``: the truth has the quantity, the report prints it, and it is pinned (``pinned``
   true, or ``None`` where no prior judges it): covered when the truth lies inside the printed 90 %
   interval (widened to the step error where ``discover`` widens it). A component the set leaves
-  open (``present`` under 1, printed "present or absent; if present, ...") is judged on its
-  interval if present.
+  open (``present`` under 1, or ``left_open``: printed "present or absent; if present, ...",
+  whichever members calibrated) is judged on its interval if present.
 * ``allowed``: as above, but not pinned: covered when the truth lies inside the range the
   recordings allow; an open end (the prior's floor or ceiling) bounds nothing on its side. A
   not-pinned quantity without an allowed range is judged on its interval and flagged
   ``allowed_missing``.
 * ``absent``: the truth lacks the component (backlash, friction offset, band-pass loop): covered
   when the report prints it absent or "present or absent"; not when it prints it present.
-* ``lacking``: the truth has the quantity and the report does not print it (a component decided
-  absent, the dead zone at a place no member puts it): not covered.
+* ``lacking``: the truth has the quantity and the report prints no interval for it (a component
+  decided absent, one left open that no calibrated member has, the dead zone at a place no member
+  puts it): not covered.
 
 A dead-zone place, or the threshold, that the truth does not have is printed but not judged
 (``rule`` ``None``): the truth's own place is. Beside the verdict, each printed quantity records
@@ -87,12 +88,13 @@ def truth_quantities(truth) -> dict:
     return {k: float(v[0]) for k, v in member_quantities(truth.to_dict(), {}).items()}
 
 
-def printed_as(q) -> str:
-    """How the report prints combined quantity ``q`` (``None``: the set lacks it): ``absent``,
-    ``present or absent`` (``present`` under 1) or ``present``."""
-    if q is None:
-        return "absent"
-    return "present or absent" if q.get("present", 1.0) < PRESENT_BELOW else "present"
+def printed_as(q, left_open=False) -> str:
+    """How the report prints combined quantity ``q`` (``None``: no calibrated member has it):
+    ``present or absent`` (``present`` under 1, or a component the set leaves open:
+    ``left_open``, or ``q``'s own ``left_open``), ``absent`` or ``present``."""
+    if left_open or (q is not None and (q.get("left_open") or q.get("present", 1.0) < PRESENT_BELOW)):
+        return "present or absent"
+    return "absent" if q is None else "present"
 
 
 def inside_interval(value, q) -> bool:
@@ -107,14 +109,14 @@ def inside_allowed(value, allowed, allowed_open=None) -> bool:
     return bool((low_open or value >= allowed[0]) and (high_open or value <= allowed[1]))
 
 
-def judge(name, value, q) -> tuple:
+def judge(name, value, q, left_open=False) -> tuple:
     """``(rule, covered, allowed_missing)`` for quantity ``name`` with truth ``value`` (``None``:
     the truth lacks it) against the combined summary ``q`` (``None``: the set lacks it); the rule
     ``None`` where the quantity is not judged."""
     component = name in COMPONENT_QUANTITIES.values()
     if value is None or not math.isfinite(value):
         if component and value is None:
-            return "absent", printed_as(q) != "present", False
+            return "absent", printed_as(q, left_open) != "present", False
         return None, None, False
     if q is None:
         return "lacking", False, False
@@ -134,10 +136,10 @@ def narrower_than_step(q):
     return bool(q["q95"] - q["q05"] < 2 * step * (1 - STEP_SLACK))
 
 
-def quantity_entry(name, value, q) -> dict:
+def quantity_entry(name, value, q, left_open=False) -> dict:
     """One quantity of a row: what is printed, the truth, the rule and the verdict, the step
     error's check and, for an interval the rule judges, its relative width."""
-    rule, covered, allowed_missing = judge(name, value, q)
+    rule, covered, allowed_missing = judge(name, value, q, left_open)
     q = q or {}
     q05, q50, q95 = q.get("q05"), q.get("q50"), q.get("q95")
     allowed = q.get("allowed")
@@ -146,7 +148,7 @@ def quantity_entry(name, value, q) -> dict:
     if rule == "interval" and None not in (q05, q50, q95) and q50 != 0:
         width = (q95 - q05) / abs(q50)
     return {
-        "truth": value, "printed": printed_as(q or None), "present": q.get("present", 0.0),
+        "truth": value, "printed": printed_as(q or None, left_open), "present": q.get("present", 0.0),
         "q05": q05, "q50": q50, "q95": q95, "pinned": q.get("pinned"),
         "allowed": allowed, "allowed_open": q.get("allowed_open"),
         "rule": rule, "covered": covered, "allowed_missing": allowed_missing,
@@ -170,7 +172,8 @@ def coverage_row(seed, truth, structure, summary) -> dict:
     # every component is judged, present in the truth or not
     seen = set(values) | set(combined) | set(COMPONENT_QUANTITIES.values())
     names = [n for n in QUANTITY_UNITS if n in seen] + sorted(seen - set(QUANTITY_UNITS))
-    quantities = {n: quantity_entry(n, values.get(n), combined.get(n)) for n in names}
+    open_ = set(sp.get("left_open_uncalibrated") or ())
+    quantities = {n: quantity_entry(n, values.get(n), combined.get(n), n in open_) for n in names}
     members = sp["members"]
     return {
         "seed": seed,

@@ -16,6 +16,7 @@ from models.batch import (
     output_rate_for,
     warm_start_state,
 )
+from models.cycle_state import RecordedCycleState
 from models.features import cycle_crossings
 
 from .base import LikelihoodTerm, estimate_noise
@@ -38,15 +39,24 @@ def _crossings(t, x, level):
 
 
 def _data_window(recording, window):
+    """Times from the window's start, the window's samples, and the window's start (s from the
+    record's first sample)."""
     t, d = recording.t, recording.delta
     if window is not None:
         sel = t >= t[-1] - window
         t, d = t[sel], d[sel]
-    return t - t[0], d
+    return t - t[0], d, float(t[0] - recording.t[0])
 
 
 class _ClosedLoopTerm(LikelihoodTerm):
-    """Shared set-up of a closed-loop recording: window, data phase, simulator."""
+    """Shared set-up of a closed-loop recording: window, data phase, simulator.
+
+    Every run starts on the record's cycle: the warm start's reference run, and every run where
+    that reference run does not oscillate, start from the loop's state on the recorded cycle
+    (:class:`models.cycle_state.RecordedCycleState`, the vehicle included), as the structure
+    search's do. From the vehicle at rest, a model whose cycle coexists with a stable rest
+    settles at rest and its likelihood is -inf however well its cycle fits.
+    """
 
     def __init__(self, recording, window, transient, dt, name=None):
         if recording.kind != "closed":
@@ -56,11 +66,10 @@ class _ClosedLoopTerm(LikelihoodTerm):
         self.source = str(recording.path) if recording.path else self.name  # for error messages
         #: model-discrepancy factor, the likelihood tempered by it (set at the MAP by Calibration)
         self.inflation = 1.0
-        self.experiment = recording.experiment()
         self.window = window
         self.transient = float(transient)
         self.dt = float(dt)
-        self.tau, self.data = _data_window(recording, window)
+        self.tau, self.data, start = _data_window(recording, window)
         span = self.tau[-1]
         if self.tau.size < 10:
             raise ValueError(f"{self.source}: the window holds {self.tau.size} samples")
@@ -77,6 +86,10 @@ class _ClosedLoopTerm(LikelihoodTerm):
         slope, intercept = np.polyfit(k, ups, 1)
         self.period = float(slope)
         self.phase0 = float(intercept % slope)  # first crossing time in the window
+        #: the loop's state on the recorded cycle, where runs start
+        self.cycle_state = RecordedCycleState.from_cycle(
+            recording, self.tau + start, self.data, ups + start, 2 * math.pi / self.period)
+        self.experiment = self.cycle_state.experiment(recording.experiment())
         self.data_rate = float(recording.sample_rate)
         self.n = self.tau.size
         self.sim_t_end = self.transient + span + 2.5 * self.period + 0.2
@@ -95,13 +108,22 @@ class _ClosedLoopTerm(LikelihoodTerm):
         """The size (rad) warm starts are scaled to: the recorded cycle's."""
         return self.cycle_rms
 
+    def on_cycle(self, params):
+        """``params`` with the actuator's initial conditions on the recorded cycle."""
+        return params.replace(**self.cycle_state.initial_conditions(params))
+
+    def warm_start_of(self, params, dt, t_ref=20.0, rms_target=None):
+        """:func:`models.batch.warm_start_state` of ``params`` from the recorded cycle's state,
+        scaled to ``rms_target`` (default: the recorded cycle's size)."""
+        return warm_start_state(self.on_cycle(params), self.experiment, dt, t_ref=t_ref,
+                                rms_target=self.start_rms if rms_target is None else rms_target)
+
     def setup(self, start_params, warm_start=True):
         self._build_simulator(start_params, warm_start, self.dt)
         return self
 
     def _build_simulator(self, start_params, warm_start, dt):
-        ws = (warm_start_state(start_params, self.experiment, dt, rms_target=self.start_rms)
-              if warm_start else None)
+        ws = self.warm_start_of(start_params, dt) if warm_start else None
         self.warm_start = ws
         self.simulator = BatchSimulator(
             self.experiment, self.sim_t_end, dt,
@@ -127,6 +149,8 @@ class _ClosedLoopTerm(LikelihoodTerm):
         return self
 
     def simulate(self, param_sets):
+        if self.simulator.warm_start is None:  # no reference cycle: each run from the record's
+            param_sets = [p if p is None else self.on_cycle(p) for p in param_sets]
         if self.continuation is None:
             return self.simulator.run(param_sets)
         starts = [self.continuation.nearest(p) for p in param_sets]
@@ -138,8 +162,7 @@ class _ClosedLoopTerm(LikelihoodTerm):
     def _halved_simulator(self, params, warm_start):
         """The simulator at half the step (ValueError when it does not fit the output grid)."""
         half = self.simulator.dt / 2
-        ws = (warm_start_state(params, self.experiment, half, rms_target=self.start_rms)
-              if warm_start else None)
+        ws = self.warm_start_of(params, half) if warm_start else None
         return BatchSimulator(self.experiment, self.sim_t_end, half,
                               rate=output_rate_for(half, self.data_rate), warm_start=ws)
 

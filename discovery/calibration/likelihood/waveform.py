@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 
-from models.batch import BatchSimulator, warm_start_state
+from models.batch import BatchSimulator
 
 from .base import waveform_inflation
 from .closed_loop import MIN_AMPLITUDE_RATIO, _ClosedLoopTerm, _crossings
@@ -103,11 +103,11 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
         second (noise 2.6e-5); compared as a waveform, its truth lies 75 nats under a point whose
         dead zone and delay lie outside their 90 % intervals.
         """
-        ws = warm_start_state(params, self.experiment, self.simulator.dt, t_ref=SETTLING_REFERENCE,
-                              rms_target=(1.0 + perturbation) * self.cycle_rms)
+        ws = self.warm_start_of(params, self.simulator.dt, t_ref=SETTLING_REFERENCE,
+                                rms_target=(1.0 + perturbation) * self.cycle_rms)
         sim = BatchSimulator(self.experiment, self._settling_run(long),
                              self.simulator.dt, rate=self.simulator.rate, warm_start=ws)
-        delta, ok = sim.run([params])
+        delta, ok = sim.run([params if ws is not None else self.on_cycle(params)])
         if not ok[0]:
             return float("nan")
         models = [self.align(delta[0], t=sim.t, transient=seconds) for seconds in (short, long)]
