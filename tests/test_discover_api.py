@@ -71,17 +71,21 @@ def test_the_set_posterior_and_its_intervals_are_read_by_name(summary, tmp_path)
     ("unknown", r"^unknown quantity 'dead_zone'; the set's posterior has dead_zone\[velocity\], "),
     ("no set", r"^no set posterior: the run stopped after the ranking"),
     ("level", r"^interval level 0\.5: the summary stores the 90 % interval \(q05, q95\) only$"),
+    ("left open", r"^backlash: the set leaves its component open and no member with it could be "),
 ])
 def test_a_bad_interval_request_is_a_one_line_error(summary, case, message):
     """An unknown quantity names those there are; a run without MCMC has no set posterior
-    (``set_posterior`` is ``None``); only the 90 % interval is stored."""
+    (``set_posterior`` is ``None``); a component left open that no calibrated member holds has
+    no interval; only the 90 % interval is stored."""
     result = DiscoveryResult(summary)
     if case == "no set":
         result = DiscoveryResult({k: v for k, v in summary.items()
                                   if k not in ("posterior", "set_posterior")})
         assert result.set_posterior is None
+    if case == "left open":
+        result.set_posterior["left_open_uncalibrated"] = ["backlash"]
     with pytest.raises(ValueError, match=message) as err:
-        result.interval("dead_zone" if case == "unknown" else "delay",
+        result.interval({"unknown": "dead_zone", "left open": "backlash"}.get(case, "delay"),
                         level=0.5 if case == "level" else 0.90)
     assert "\n" not in str(err.value)
     if case == "unknown":

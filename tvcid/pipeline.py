@@ -138,6 +138,9 @@ class DiscoveryResult:
         if not quantities:
             raise ValueError("no set posterior: the run stopped after the ranking (run discover "
                              "with its MCMC to calibrate the set)")
+        if name in (self.set_posterior.get("left_open_uncalibrated") or ()):
+            raise ValueError(f"{name}: the set leaves its component open and no member with it "
+                             "could be calibrated, so no interval is printed")
         if name not in quantities:
             raise ValueError(f"unknown quantity {name!r}; the set's posterior has "
                              f"{', '.join(quantities)}")
