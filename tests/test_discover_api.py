@@ -82,8 +82,9 @@ def test_a_bad_interval_request_is_a_one_line_error(summary, case, message):
         result = DiscoveryResult({k: v for k, v in summary.items()
                                   if k not in ("posterior", "set_posterior")})
         assert result.set_posterior is None
-    if case == "left open":
-        result.set_posterior["left_open_uncalibrated"] = ["backlash"]
+    if case == "left open":  # a copy: the summary is the module's
+        result = DiscoveryResult({**summary, "set_posterior": {
+            **summary["set_posterior"], "left_open_uncalibrated": ["backlash"]}})
     with pytest.raises(ValueError, match=message) as err:
         result.interval({"unknown": "dead_zone", "left open": "backlash"}.get(case, "delay"),
                         level=0.5 if case == "level" else 0.90)
