@@ -345,7 +345,8 @@ CLAIMS = (
           "every printed quantity over >= 30 draws, no printed interval narrower than twice its "
           "step error)",
           set_coverage, lambda r: r["bench_set_coverage"]["rows"],
-          "python -m studies.benchmarks.set_coverage --jobs 2", "bench_set_coverage",
+          "python -m studies.benchmarks.set_coverage --seed 3000 --draws 10 --jobs 2",
+          "bench_set_coverage",
           "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
           "_under_thirty"),
     Claim("`tvcid discover` on four M000 recordings (two 40 s limit cycles, two 10 s open-loop "
