@@ -206,7 +206,8 @@ def test_a_component_the_set_leaves_open_prints_as_present_or_absent_whichever_m
     backlash calibrated (the others could not start their chains): the backlash, at 100 % of the
     calibrated weight, still prints "present or absent" with its interval if present, and the
     friction offset, which no calibrated member holds, prints "present or absent" without an
-    interval instead of vanishing from the table. The backlash the set decides prints as it is."""
+    interval instead of vanishing from the table; the backlash shows the range its member allows,
+    pinned or not. The backlash the set decides prints as it is."""
     rng = np.random.default_rng(6)
     survivor = _member("a", 2e-3, 1e-5, rng)
     survivor.quantities["backlash"] = 1e-4 + 1e-5 * rng.standard_normal(4000)
@@ -220,8 +221,13 @@ def test_a_component_the_set_leaves_open_prints_as_present_or_absent_whichever_m
     assert cells["backlash"][0].startswith("present or absent")
     assert cells["backlash"][1].startswith("if present, [")
     assert cells["friction_offset"][0].startswith("present or absent") and cells["friction_offset"][1] == ""
+    survivor.log_prob = -0.5 * ((survivor.quantities["backlash"] - 1e-4) / 1e-5) ** 2
+    combined = combine([survivor], seed=1, left_open=left_open_quantities(decided)).to_dict()
+    low, high = combined["quantities"]["backlash"]["allowed"]
+    assert _verdicts(combined, ["a"])["backlash"][2].endswith(f"they allow {low:.4g} to {high:.4g}")
     closed = combine([survivor], seed=1).to_dict()
     assert "left_open" not in closed["quantities"]["backlash"]
+    assert "they allow" not in _verdicts(closed, ["a"])["backlash"][2]
     assert _verdicts(closed, ["a"])["backlash"][0] == f"{closed['quantities']['backlash']['q50']:.4g}"
     assert "friction_offset" not in _verdicts(closed, ["a"])
 

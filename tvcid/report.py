@@ -95,7 +95,8 @@ def _verdict(q) -> str:
     elif q["members"] > 1 and not q["depends_on_structure"] and q.get("pinned"):
         parts.append("decided regardless of the structure")
     # a component left open always shows the range its richer members allow
-    if q.get("allowed") and (q.get("pinned") is False or q.get("present", 1.0) < 1.0 - 1e-9):
+    left_open = q.get("left_open") or q.get("present", 1.0) < 1.0 - 1e-9
+    if q.get("allowed") and (q.get("pinned") is False or left_open):
         parts.append(_allowed_text(q))
     if q.get("widened"):
         parts.append(f"widened to the step error, +-{_num(q['step_error'], 2)}")

@@ -289,7 +289,7 @@ class SetPosterior:
         How the members are weighted, stated for the report.
     weights : ndarray
         Each member's weight (summing to 1).
-    left_open : tuple of str
+    left_open_uncalibrated : tuple of str
         Component quantities the set leaves open that no calibrated member holds: printed
         "present or absent" without an interval.
     """
@@ -298,7 +298,7 @@ class SetPosterior:
     quantities: dict
     criterion: str
     weights: np.ndarray = None
-    left_open: tuple = ()
+    left_open_uncalibrated: tuple = ()
 
     def interval(self, name, level=0.90):
         """The combined 90 % interval ``(q05, q95)`` of quantity ``name`` (widened to the step
@@ -313,7 +313,7 @@ class SetPosterior:
         return {
             "criterion": self.criterion,
             "quantities": self.quantities,
-            "left_open_uncalibrated": list(self.left_open),
+            "left_open_uncalibrated": list(self.left_open_uncalibrated),
             "members": [{"structure": m.structure, "weight": float(wi),
                          "equal_weight": 1.0 / len(self.members),
                          "score_over_margin": m.score_over_margin, "converged": m.converged,
@@ -492,7 +492,7 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
     if criterion is None:
         criterion = ("equal weights" if weights is None else "weights given")
     return SetPosterior(list(members), quantities, criterion, w,
-                        left_open=tuple(n for n in left_open if n not in quantities))
+                        left_open_uncalibrated=tuple(n for n in left_open if n not in quantities))
 
 
 #: An open end of the allowed range within this fraction of the prior's range (in the
