@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from discovery.structure.set_posterior import QUANTITY_UNITS
+from discovery.structure.set_posterior import QUANTITY_UNITS, printed_present_or_absent
 from models.hypotheses import parameter_unit
 
 __all__ = ["discovery_report", "summary_lines"]
@@ -95,8 +95,7 @@ def _verdict(q) -> str:
     elif q["members"] > 1 and not q["depends_on_structure"] and q.get("pinned"):
         parts.append("decided regardless of the structure")
     # a component left open always shows the range its richer members allow
-    left_open = q.get("left_open") or q.get("present", 1.0) < 1.0 - 1e-9
-    if q.get("allowed") and (q.get("pinned") is False or left_open):
+    if q.get("allowed") and (q.get("pinned") is False or printed_present_or_absent(q)):
         parts.append(_allowed_text(q))
     if q.get("widened"):
         parts.append(f"widened to the step error, +-{_num(q['step_error'], 2)}")

@@ -57,7 +57,8 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.structure.set_posterior import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
+from discovery.structure.set_posterior import (COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities,
+                                               printed_present_or_absent)
 from models.strict_json import write_json
 
 from ..common import code_commit
@@ -75,8 +76,6 @@ GOAL_QUANTITIES = tuple(QUANTITY_UNITS)
 MIN_DRAWS = 30
 #: The rules a judged quantity is judged by (the module docstring).
 RULES = ("interval", "allowed", "absent", "lacking")
-#: ``present`` under this prints "present or absent" (the report's own tolerance).
-PRESENT_BELOW = 1.0 - 1e-9
 #: A width within this relative slack of twice the step error is not narrower: the widening's
 #: own rounding.
 STEP_SLACK = 1e-9
@@ -92,7 +91,7 @@ def printed_as(q, left_open=False) -> str:
     """How the report prints combined quantity ``q`` (``None``: no calibrated member has it):
     ``present or absent`` (``present`` under 1, or a component the set leaves open:
     ``left_open``, or ``q``'s own ``left_open``), ``absent`` or ``present``."""
-    if left_open or (q is not None and (q.get("left_open") or q.get("present", 1.0) < PRESENT_BELOW)):
+    if left_open or (q is not None and printed_present_or_absent(q)):
         return "present or absent"
     return "absent" if q is None else "present"
 
