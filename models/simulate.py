@@ -22,6 +22,7 @@ __all__ = [
     "BatchResult",
     "simulate",
     "simulate_batch",
+    "step_for_rate",
 ]
 
 #: Default RK4 step (s). ``studies/benchmarks/simulator.py`` shows the cycle amplitude within 0.1 % of
@@ -149,6 +150,22 @@ class BatchResult:
     def signal(self, name) -> np.ndarray:
         """One signal for every set, shape (n_sets, n_out)."""
         return self.signals[:, K.SIGNALS.index(name), :]
+
+
+def step_for_rate(rate, dt=DEFAULT_DT) -> float:
+    """The longest step (s) not above ``dt`` whose step rate the output rate ``rate`` (Hz)
+    divides: ``dt`` itself where it does (a rate read off timestamps within 1e-6), else
+    ``1 / (rate k)`` with the smallest whole ``k`` that makes it shorter. A recording at 2 kHz
+    is simulated at 1/6000 s instead of the default 2e-4 s, whose 5 kHz it does not divide."""
+    if rate is None:
+        return dt
+    if not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"rate must be a finite number > 0 (got {rate!r})")
+    ratio = 1.0 / (rate * dt)
+    k = round(ratio)
+    if k >= 1 and abs(ratio - k) <= 1e-6 * max(1.0, ratio):  # _check_grid's tolerance
+        return dt
+    return 1.0 / (rate * math.ceil(ratio))
 
 
 def _check_grid(t_end, dt, rate):

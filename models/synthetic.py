@@ -15,6 +15,7 @@ import numpy as np
 
 from models import simulate
 from models.recording import load_recording, recording_from_trajectory, save_recording
+from models.simulate import step_for_rate
 
 __all__ = ["Acquisition", "synthetic_recording"]
 
@@ -55,10 +56,13 @@ def synthetic_recording(params, experiment, t_end, noise, seed, path, keep_last=
         ``NAME.csv``; the sidecar ``NAME.json`` is written beside it.
     keep_last : float or None
         Keep only the last ``keep_last`` seconds (a limit-cycle record without its transient).
+    dt : float or None
+        Simulation step (s); ``None``: :func:`models.simulate.step_for_rate` of ``rate``.
+    rate : float
+        Acquisition rate (Hz).
     """
-    kwargs = {} if dt is None else {"dt": dt}
     truth = params.replace(noise_power=0.0)
-    tr = simulate(truth, experiment, t_end, rate=rate, **kwargs)
+    tr = simulate(truth, experiment, t_end, rate=rate, dt=step_for_rate(rate) if dt is None else dt)
     columns, meta = recording_from_trajectory(
         tr, seed=seed, extra={"sensor_noise_sd": float(noise), "noise_kind": "sensor, white"}
     )

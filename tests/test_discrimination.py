@@ -194,3 +194,29 @@ def test_a_pair_is_decided_in_fact_by_the_members_the_second_set_keeps_merged_on
     assert pairs_decided_in_fact(first, ["a+bandpass"]) == [("a", "b"), ("a", "c")]
     assert pairs_decided_in_fact(first, ["b", "x+friction"]) == [("a", "b"), ("b", "c")]
     assert pairs_decided_in_fact(first, ["c", "a", "b"]) == []
+
+
+@pytest.mark.parametrize("rate", [2000.0000000046612, *np.round(np.random.default_rng(65).uniform(200.0, 2000.0, 2), 3)])
+def test_the_menu_runs_at_any_acquisition_rate(rate):
+    """The menu acquired at a recording's rate, one the simulation's default step does not divide
+    (2 kHz as read off a record's timestamps, rates drawn over 200 Hz-2 kHz): every candidate is
+    simulated and the pair is decided, as at 1 kHz."""
+    menu = [Candidate(c.name, c.experiment, c.duration, rate) for c in MENU]
+    r = discriminating_tests([M002(), M001i()], menu, noise_sd=2e-5, seed=1)
+    assert all("skipped" not in t for t in r.tests), r.tests
+    assert r.best is not None and r.best["pairs_decided"] == 1
+
+
+def test_the_report_gives_the_reason_no_candidate_ran():
+    """Where the best structure could run no candidate of the menu, the first screen says why
+    (the reasons the candidates were skipped), not a guess."""
+    from tvcid.report import _next_test_headline
+
+    skipped = {"best": None, "n_pairs": 1, "tests": [
+        {"name": "square", "skipped": "the best structure: no cycle"},
+        {"name": "sine", "skipped": "the best structure: it diverged"},
+        {"name": "A", "skipped": "the best structure: no cycle"}]}
+    assert _next_test_headline(skipped, 2) == ("Next test: no candidate of the menu could be "
+                                               "simulated (the best structure: it diverged; the "
+                                               "best structure: no cycle).")
+    assert _next_test_headline(None, 1) == "Next test: none needed (one structure left)."

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from models import CONTROLLER_B, ActuatorParams, hypothesis, params_from_dict, simulate
+from models import CONTROLLER_B, M002, ActuatorParams, OpenLoop, hypothesis, params_from_dict, simulate
 from models.recording import (
     RecordingError,
     load_recording,
@@ -123,3 +123,22 @@ def test_bad_compensator_or_bending_in_the_sidecar_is_one_line_naming_the_key(tm
         save_recording(tmp_path / "again.csv",
                        {"t": np.arange(3) * 1e-3, "u": np.zeros(3), "delta": np.zeros(3)},
                        {**meta})
+
+
+@pytest.mark.parametrize("rate", [2000.0000000046612, *np.round(np.random.default_rng(64).uniform(200.0, 2000.0, 3), 3)])
+def test_a_synthetic_record_at_any_rate_is_simulated_at_a_step_that_rate_divides(tmp_path, rate):
+    """Acquisition rates the default 2e-4 s step does not divide (2 kHz read off timestamps,
+    rates drawn over 200 Hz-2 kHz) are recorded at the longest step under it that they divide;
+    rates that divide it keep it."""
+    from models.simulate import DEFAULT_DT, step_for_rate
+    from models.synthetic import synthetic_recording
+
+    dt = step_for_rate(rate)
+    assert dt <= DEFAULT_DT and step_for_rate(rate, dt) == dt
+    k = round(1.0 / (rate * dt))  # steps per sample: whole, and one fewer would exceed 2e-4 s
+    assert abs(1.0 / (rate * dt) - k) < 1e-6 and (k == 1 or 1.0 / (rate * (k - 1)) > DEFAULT_DT)
+    assert step_for_rate(1000.0) == step_for_rate(200.0) == DEFAULT_DT
+    rec = synthetic_recording(M002(), OpenLoop.sine(5e-3, 2.0), 2.0, 1e-5, 0, tmp_path / "r.csv",
+                              rate=rate)
+    assert rec.sample_rate == pytest.approx(rate, rel=1e-6)
+    assert rec.t[-1] == pytest.approx(2.0, abs=1.5 / rate)

@@ -208,19 +208,22 @@ def summary_lines(summary) -> list:
                              "fit of the best structure |")
         if (summary.get("set_posterior") or {}).get("failed"):
             lines += _members_lines(summary["set_posterior"])
-    nt = summary.get("next_test")
-    lines.append("")
+    return lines + ["", _next_test_headline(summary.get("next_test"), len(distinct)), ""]
+
+
+def _next_test_headline(nt, n_distinct) -> str:
+    """The summary's line on the next test (``nt``: the summary's ``next_test``); where no
+    candidate ran, the reasons the best structure gave."""
     if not nt:
-        lines.append("Next test: none needed (one structure left)." if len(distinct) <= 1
-                     else "Next test: not computed.")
-    elif nt.get("best") is None:
-        lines.append("Next test: no candidate ran (no cycle at the candidate settings).")
-    elif nt["best"]["pairs_decided"] == 0:
-        lines.append("Next test: no candidate of the menu decides any pair (see below).")
-    else:
-        lines.append(f"Next test: **{nt['best']['name']}**, deciding {nt['best']['pairs_decided']} "
-                     f"of {nt['n_pairs']} pairs.")
-    return lines + [""]
+        return ("Next test: none needed (one structure left)." if n_distinct <= 1
+                else "Next test: not computed.")
+    if nt.get("best") is None:
+        reasons = sorted({t["skipped"] for t in nt["tests"] if "skipped" in t})
+        return f"Next test: no candidate of the menu could be simulated ({'; '.join(reasons)})."
+    if nt["best"]["pairs_decided"] == 0:
+        return "Next test: no candidate of the menu decides any pair (see below)."
+    return (f"Next test: **{nt['best']['name']}**, deciding {nt['best']['pairs_decided']} "
+            f"of {nt['n_pairs']} pairs.")
 
 
 CHOICE_LABELS = {"dead_zone_position": "dead zone on", "delay_position": "delay position",
