@@ -152,20 +152,44 @@ class BatchResult:
         return self.signals[:, K.SIGNALS.index(name), :]
 
 
-def step_for_rate(rate, dt=DEFAULT_DT) -> float:
-    """The longest step (s) not above ``dt`` whose step rate the output rate ``rate`` (Hz)
-    divides: ``dt`` itself where it does (a rate read off timestamps within 1e-6), else
-    ``1 / (rate k)`` with the smallest whole ``k`` that makes it shorter. A recording at 2 kHz
-    is simulated at 1/6000 s instead of the default 2e-4 s, whose 5 kHz it does not divide."""
-    if rate is None:
-        return dt
-    if not (math.isfinite(rate) and rate > 0):
-        raise ValueError(f"rate must be a finite number > 0 (got {rate!r})")
+def _divides(rate, dt) -> bool:
+    """Whether ``rate`` (Hz) divides the step rate ``1/dt`` (within a rate read off timestamps)."""
     ratio = 1.0 / (rate * dt)
     k = round(ratio)
-    if k >= 1 and abs(ratio - k) <= 1e-6 * max(1.0, ratio):  # _check_grid's tolerance
+    return k >= 1 and abs(ratio - k) <= 1e-6 * max(1.0, ratio)
+
+
+#: :func:`step_for_rate` looks this many steps per sample past the first that fits under ``dt``.
+SHARED_STEP_SEARCH = 64
+
+
+def step_for_rate(rate, dt=DEFAULT_DT, controller_rate=None) -> float:
+    """The longest step (s) not above ``dt`` whose step rate the output rate ``rate`` (Hz) and a
+    held controller's ``controller_rate`` (Hz) both divide: ``dt`` itself where they do, else
+    ``1 / (rate k)`` with the smallest whole ``k`` that fits. A recording at 2 kHz is simulated
+    at 1/6000 s instead of the default 2e-4 s, whose 5 kHz it does not divide.
+
+    Raises
+    ------
+    ValueError
+        A rate that is not a finite number > 0, or two rates that share no step within
+        :data:`SHARED_STEP_SEARCH` steps per sample of the first under ``dt``.
+    """
+    rates = [r for r in (rate, controller_rate) if r is not None]
+    for r in rates:
+        if not (isinstance(r, (int, float, np.floating)) and math.isfinite(r) and r > 0):
+            raise ValueError(f"rate must be a finite number > 0 (got {r!r})")
+    if all(_divides(r, dt) for r in rates):
         return dt
-    return 1.0 / (rate * math.ceil(ratio))
+    base = rates[0]
+    first = math.ceil(1.0 / (base * dt))
+    for k in range(first, first + SHARED_STEP_SEARCH):
+        step = 1.0 / (base * k)
+        if all(_divides(r, step) for r in rates):
+            return step
+    raise ValueError(f"the output rate {rate} Hz and the controller's {controller_rate} Hz share "
+                     f"no simulation step between {1.0 / (base * (first + SHARED_STEP_SEARCH)):.3g} "
+                     f"and {dt:g} s")
 
 
 def _check_grid(t_end, dt, rate):

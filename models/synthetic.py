@@ -57,12 +57,14 @@ def synthetic_recording(params, experiment, t_end, noise, seed, path, keep_last=
     keep_last : float or None
         Keep only the last ``keep_last`` seconds (a limit-cycle record without its transient).
     dt : float or None
-        Simulation step (s); ``None``: :func:`models.simulate.step_for_rate` of ``rate``.
+        Simulation step (s); ``None``: :func:`models.simulate.step_for_rate` of ``rate`` and a held
+        controller's rate.
     rate : float
         Acquisition rate (Hz).
     """
     truth = params.replace(noise_power=0.0)
-    tr = simulate(truth, experiment, t_end, rate=rate, dt=step_for_rate(rate) if dt is None else dt)
+    tr = simulate(truth, experiment, t_end, rate=rate, dt=dt if dt is not None else
+                  step_for_rate(rate, controller_rate=getattr(experiment, "sample_rate", None)))
     columns, meta = recording_from_trajectory(
         tr, seed=seed, extra={"sensor_noise_sd": float(noise), "noise_kind": "sensor, white"}
     )

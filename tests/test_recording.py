@@ -142,3 +142,21 @@ def test_a_synthetic_record_at_any_rate_is_simulated_at_a_step_that_rate_divides
                               rate=rate)
     assert rec.sample_rate == pytest.approx(rate, rel=1e-6)
     assert rec.t[-1] == pytest.approx(2.0, abs=1.5 / rate)
+
+
+@pytest.mark.parametrize("rate", [2000.0000000046612, 300.0, 1500.0])
+def test_a_record_of_a_held_controller_is_simulated_at_a_step_both_rates_divide(tmp_path, rate):
+    """A controller held at 200 Hz and an acquisition rate the default step does not divide: the
+    step is one both rates divide; two rates that share none within reach are one line."""
+    from models import ClosedLoop
+    from models.simulate import step_for_rate
+    from models.synthetic import synthetic_recording
+
+    held = ClosedLoop(CONTROLLER_B.kp, CONTROLLER_B.kd, CONTROLLER_B.mu, sample_rate=200.0)
+    rec = synthetic_recording(M002(), held, 3.0, 1e-5, 0, tmp_path / "r.csv", rate=rate)
+    assert rec.sample_rate == pytest.approx(rate, rel=1e-6)
+    hold = 1.0 / (200.0 * step_for_rate(rate, controller_rate=200.0))
+    assert abs(hold - round(hold)) < 1e-6
+    with pytest.raises(ValueError, match=r"^the output rate 318.28 Hz and the controller's 200.0 Hz "
+                                         r"share no simulation step between [^\n]*$"):
+        step_for_rate(318.28, controller_rate=200.0)
