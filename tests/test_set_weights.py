@@ -11,15 +11,13 @@ import numpy as np
 import pytest
 from scipy import integrate, signal, stats
 
+from discovery.structure.ranking_shares import RANKING_RULE, ranking_shares, uncalibrated_share
 from discovery.structure.set_weights import (
     EQUAL_RULE,
-    RANKING_RULE,
     MemberPointwise,
     _chain_rule_offsets,
     align_pointwise,
     member_weights,
-    ranking_shares,
-    uncalibrated_share,
     weigh_set,
 )
 

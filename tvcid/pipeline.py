@@ -516,7 +516,8 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
         left_open_quantities,
         richer_members,
     )
-    from discovery.structure.set_weights import uncalibrated_share, weigh_set
+    from discovery.structure.ranking_shares import uncalibrated_share
+    from discovery.structure.set_weights import weigh_set
 
     from .members import calibrate_member_task
 

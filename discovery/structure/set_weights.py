@@ -3,8 +3,7 @@
 The set (:mod:`discovery.structure.indistinguishable`) holds the structures whose held-out scores
 the two folds cannot separate from the best; each member is calibrated on its own
 (:func:`discovery.structure.set_posterior.calibrate_member`). This module weighs the calibrated
-members by their out-of-sample predictive densities, and the members the cap leaves uncalibrated
-by their held-out scores:
+members by their out-of-sample predictive densities:
 
 * :func:`member_pointwise` -- a member's pointwise log-likelihood draws over every recording
   (:meth:`discovery.calibration.Posterior.pointwise_log_likelihood`, without the discrepancy
@@ -14,9 +13,8 @@ by their held-out scores:
 * :func:`member_weights` -- the weights (pseudo-BMA+ on PSIS-LOO), their diagnostics, stacking's
   weights and the equal-weight alternative beside them;
 * :func:`weigh_set` -- the two above as ``tvcid discover`` uses them, with the held-out scores'
-  weights where PSIS-LOO cannot weigh the members;
-* :func:`ranking_shares`, :func:`uncalibrated_share` -- the share of each member, calibrated or
-  not, read off the ranking's held-out scores.
+  weights (:mod:`.ranking_shares`, which also weighs the members the cap leaves uncalibrated)
+  where PSIS-LOO cannot weigh the members.
 
 **The weights: pseudo-BMA+, not stacking.** Each member's leave-one-unit-out predictive density
 is estimated by Pareto-smoothed importance sampling (PSIS-LOO, :func:`arviz.loo`); the weights
@@ -65,20 +63,9 @@ exceeds ``min(1 - 1/log10(S), 0.7)`` for ``S`` draws (arviz's ``good_k``: 0.57 a
 diagnostics give each member's largest k and how many units exceed it, and the notes say so. A
 unit whose removal moves the posterior far is common here: a few features pin several
 parameters, so each is influential. Where any unit of any member is unreliable, or fewer than two
-units remain, :func:`weigh_set` uses the held-out scores' weights (:func:`ranking_shares`),
-computed from refits on held-out halves of every recording: a cross-validation that needs no
-importance sampling.
-
-**Weights from the ranking.** A structure's ``score`` is its two-fold held-out cost: the sum over
-recordings of each recording's mean squared residual in units of what it resolves (about 1 per
-recording for the generating model), not a log density, so ``exp(-score / 2)`` would count a
-recording's hundreds of residuals as one, and ``exp(-n score / 2)`` would count their correlated
-stretches as independent. The ranking's own yardstick is its margin, twice the standard error
-of a score's difference from the best (:func:`.indistinguishable.indistinguishable_margin`). A
-member's share is its probability of having the lowest expected held-out score, its difference
-from the best normal with that standard error: what pseudo-BMA+ tends to where the elpd
-differences span many nats. The members the cap leaves uncalibrated get their share this way
-(:func:`uncalibrated_share`), so the report can say what part of the weight was not calibrated.
+units remain, :func:`weigh_set` uses the held-out scores' weights
+(:func:`.ranking_shares.ranking_shares`), computed from refits on held-out halves of every
+recording: a cross-validation that needs no importance sampling.
 """
 from __future__ import annotations
 
@@ -88,9 +75,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["MemberPointwise", "Alignment", "SetWeights", "UncalibratedShare", "member_pointwise",
-           "align_pointwise", "member_weights", "weigh_set", "ranking_shares",
-           "uncalibrated_share", "EQUAL_RULE", "RANKING_RULE", "BLOCK_TAU", "MIN_BLOCKS"]
+from .ranking_shares import RANKING_RULE, ranking_shares
+
+__all__ = ["MemberPointwise", "Alignment", "SetWeights", "member_pointwise", "align_pointwise",
+           "member_weights", "weigh_set", "EQUAL_RULE", "BLOCK_TAU", "MIN_BLOCKS"]
 
 #: Blocks of an open-loop record are at least this many integrated autocorrelation times long.
 BLOCK_TAU = 2.0
@@ -99,8 +87,6 @@ BLOCK_TAU = 2.0
 MIN_BLOCKS = 5
 #: Bayesian-bootstrap draws of pseudo-BMA+.
 B_SAMPLES = 1000
-#: Draws of the ranking-based share (:func:`ranking_shares`).
-RANKING_DRAWS = 20000
 #: The equal-weight alternative's rule.
 EQUAL_RULE = ("equal weights: 1/n for each of the n calibrated members, by count, since every "
               "member's held-out score is within the margin of the best")
@@ -108,10 +94,6 @@ EQUAL_RULE = ("equal weights: 1/n for each of the n calibrated members, by count
 PSEUDO_BMA_RULE = ("pseudo-BMA+ (Yao et al. 2018): exp(elpd_loo) of each member's PSIS "
                    "leave-one-out predictive density, averaged over a Bayesian bootstrap of the "
                    "units ({units})")
-#: The ranking-based share's rule (:func:`ranking_shares`).
-RANKING_RULE = ("probability of the lowest expected two-fold held-out score, each member's "
-                "difference from the best normal with half its margin as standard error "
-                "(differences drawn independently)")
 
 
 # -- the members' pointwise log-likelihoods ------------------------------------------------------
@@ -486,7 +468,8 @@ def weigh_set(members, rows=None, seed=0) -> SetWeights:
     cannot weigh the members -- fewer than two units, or PSIS unreliable on any unit of any
     member (Pareto k above arviz's threshold: leaving that unit out moves the posterior beyond
     what importance sampling can follow, and its elpd is not an estimate) -- the weights are
-    the held-out scores' (:func:`ranking_shares` over the calibrated members' ``rows``): those
+    the held-out scores' (:func:`.ranking_shares.ranking_shares` over the calibrated members'
+    ``rows``): those
     come from refits on held-out halves, an exact cross-validation, and need no importance
     sampling. Without ``rows``, equal weights. The pseudo-BMA+ and stacking weights stay in the
     result as alternatives, and ``notes`` say which rule was used and why.
@@ -527,101 +510,3 @@ def weigh_set(members, rows=None, seed=0) -> SetWeights:
         w.weights, w.method, w.rule = dict(w.equal), "equal", EQUAL_RULE
         w.notes.append(f"equal weights, since {why} and no held-out score is given")
     return w
-
-
-# -- members beyond the cap -----------------------------------------------------------------------
-def ranking_shares(rows, seed=0, n_draws=RANKING_DRAWS) -> dict:
-    """Approximate weights of the set's members from the ranking alone (no calibration).
-
-    Each member's share is the probability that its expected two-fold held-out score is the
-    lowest: its difference from the best score is drawn normal, with mean the observed
-    difference and standard error half its ``margin`` (the set rule's margin is twice that
-    error, :func:`.indistinguishable.indistinguishable_margin`); the best's own row (no margin)
-    is exact; the differences are drawn independently with a seeded
-    ``numpy.random.Generator``, which ignores that they share the best's error (the shares then
-    lean slightly towards equal). A score is not a log density (the module docstring), so it is
-    not put through ``exp(-score / 2)``.
-
-    Parameters
-    ----------
-    rows : list of dict
-        The members' rows of ``discovery.json``'s ``structures``: ``structure``, ``score`` and
-        ``margin`` (``None`` for the best).
-    seed : int
-    n_draws : int
-
-    Returns
-    -------
-    dict
-        Structure -> share, summing to 1 (0 for a row without a finite score).
-    """
-    names = [r["structure"] for r in rows]
-    if not names:
-        return {}
-    score = np.array([_number(r.get("score")) for r in rows])
-    se = np.array([0.0 if r.get("margin") is None else _number(r["margin"]) / 2.0 for r in rows])
-    ok = np.isfinite(score) & np.isfinite(se)
-    if not ok.any():
-        return {n: 1.0 / len(names) for n in names}
-    rng = np.random.default_rng(seed)
-    draws = score[ok] + se[ok] * rng.standard_normal((int(n_draws), int(ok.sum())))
-    wins = np.bincount(np.argmin(draws, axis=1), minlength=int(ok.sum())) / float(n_draws)
-    shares = np.zeros(len(names))
-    shares[ok] = wins
-    return {n: float(s) for n, s in zip(names, shares)}
-
-
-@dataclass
-class UncalibratedShare:
-    """The members the cap leaves uncalibrated, and their share of the weight by the ranking
-    (:func:`uncalibrated_share`).
-
-    Attributes
-    ----------
-    names : list of str
-        The uncalibrated members, best score first.
-    share : float
-        Their share of the weight by the ranking (:func:`ranking_shares`).
-    shares : dict
-        Every member's share by the ranking.
-    rule : str
-    """
-
-    names: list
-    share: float
-    shares: dict
-    rule: str = RANKING_RULE
-
-    def sentence(self) -> str:
-        """``"dropped: X, Y (about Z % of the weight by their held-out scores)"``, or ``""``."""
-        if not self.names:
-            return ""
-        return (f"dropped: {', '.join(self.names)} (about {100 * self.share:.0f} % of the weight "
-                "by their held-out scores)")
-
-    def to_dict(self) -> dict:
-        return {"names": list(self.names), "share": self.share, "shares": dict(self.shares),
-                "rule": self.rule}
-
-
-def uncalibrated_share(rows, calibrated, seed=0) -> UncalibratedShare:
-    """The members of ``rows`` not in ``calibrated``, and their share of the weight by the
-    ranking (:func:`ranking_shares` over all of ``rows``).
-
-    Parameters
-    ----------
-    rows : list of dict
-        Every member's row (``structure``, ``score``, ``margin``), calibrated or not.
-    calibrated : iterable of str
-        The structures that were calibrated.
-    seed : int
-    """
-    calibrated = set(calibrated)
-    shares = ranking_shares(rows, seed=seed)
-    names = [r["structure"] for r in rows if r["structure"] not in calibrated]
-    return UncalibratedShare(names, float(sum(shares[n] for n in names)), shares)
-
-
-def _number(v) -> float:
-    """A JSON number, ``None`` (an infinite value written as ``null``) as infinity."""
-    return math.inf if v is None else float(v)
