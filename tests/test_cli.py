@@ -19,6 +19,17 @@ def test_simulate_then_features_json(tmp_path, capsys):
     assert feats["frequency"] == pytest.approx(8.57, rel=0.01)
 
 
+def test_simulate_at_a_rate_the_default_step_does_not_divide(tmp_path):
+    """``--rate 2000`` with a controller held at 200 Hz: simulated at a step both divide."""
+    from models.recording import load_recording
+
+    out = tmp_path / "fast.csv"
+    assert main(["simulate", "M002", "--rate", "2000", "--controller-rate", "200", "--t-end", "1",
+                 "--out", str(out)]) == 0
+    rec = load_recording(out)
+    assert rec.sample_rate == pytest.approx(2000.0) and rec.t.size == 2001
+
+
 def test_simulate_open_loop_with_overrides(tmp_path):
     out = tmp_path / "sq.csv"
     args = ["simulate", "M001f", "--open-loop", "square", "--amplitude", "0.01", "--frequency", "2",

@@ -6,7 +6,7 @@ import numpy as np
 from models.experiments import OpenLoop
 from models.hypotheses import HYPOTHESES, hypothesis
 from models.recording import MAX_ANGLE, recording_from_trajectory, save_recording
-from models.simulate import DEFAULT_DT, DEFAULT_RATE, simulate
+from models.simulate import DEFAULT_DT, DEFAULT_RATE, simulate, step_for_rate
 
 from ._common import add_controller_options, closed_loop_from_args, parse_assignments
 
@@ -25,7 +25,9 @@ def register(sub):
     p.add_argument("--frequency", type=float, default=1.0, help="open-loop square/sine frequency, Hz")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[], help="override a parameter (repeatable)")
     p.add_argument("--t-end", type=float, default=20.0, help="duration, s")
-    p.add_argument("--dt", type=float, default=DEFAULT_DT, help="RK4 step, s")
+    p.add_argument("--dt", type=float, default=None,
+                   help=f"RK4 step, s (default: the longest up to {DEFAULT_DT:g} s that --rate and a "
+                   "held controller's rate divide)")
     p.add_argument("--rate", type=float, default=DEFAULT_RATE, help="output sample rate, Hz")
     p.add_argument("--seed", type=int, default=None, help="seed of the output noise (sets noise_seed)")
     p.add_argument("--out", required=True, metavar="FILE.csv", help="output recording")
@@ -48,7 +50,9 @@ def run(args) -> int:
         experiment = OpenLoop.square(args.amplitude, args.frequency)
     elif args.open_loop == "sine":
         experiment = OpenLoop.sine(args.amplitude, args.frequency)
-    trajectory = simulate(params, experiment, args.t_end, dt=args.dt, rate=args.rate)
+    dt = args.dt if args.dt is not None else step_for_rate(
+        args.rate, controller_rate=getattr(experiment, "sample_rate", None))
+    trajectory = simulate(params, experiment, args.t_end, dt=dt, rate=args.rate)
     peak = float(np.max(np.abs(trajectory.delta)))
     if peak > MAX_ANGLE:  # a recording tvcid would refuse to read back (degrees suspected)
         raise ValueError(f"{params.name}: the output reaches {peak:.3g} rad, beyond the {MAX_ANGLE} rad "
