@@ -346,7 +346,7 @@ def simulate(
     params: ActuatorParams,
     experiment,
     t_end: float,
-    dt: float = DEFAULT_DT,
+    dt: float | None = None,
     rate: float | None = DEFAULT_RATE,
     bound: float = DEFAULT_BOUND,
 ) -> Trajectory:
@@ -359,8 +359,9 @@ def simulate(
     experiment : ClosedLoop or OpenLoop
     t_end : float
         Duration (s).
-    dt : float
-        RK4 step (s).
+    dt : float or None
+        RK4 step (s); ``None``: :func:`step_for_rate` of ``rate`` and a held controller's rate
+        (:data:`DEFAULT_DT` where they divide it).
     rate : float or None
         Output rate (Hz); must divide ``1/dt``. ``None`` keeps every step.
     bound : float
@@ -371,6 +372,8 @@ def simulate(
     SimulationDiverged
         When the run becomes non-finite or exceeds ``bound``.
     """
+    if dt is None:
+        dt = step_for_rate(rate, controller_rate=getattr(experiment, "sample_rate", None))
     n_steps, decimation = _check_grid(t_end, dt, rate)
     p, bp_a, bp_b, bp_c = _pack_params(params, dt)
     ctrl, u_cmd = _pack_experiment(experiment, dt, n_steps, bound)

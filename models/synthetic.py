@@ -15,7 +15,6 @@ import numpy as np
 
 from models import simulate
 from models.recording import load_recording, recording_from_trajectory, save_recording
-from models.simulate import step_for_rate
 
 __all__ = ["Acquisition", "synthetic_recording"]
 
@@ -63,8 +62,7 @@ def synthetic_recording(params, experiment, t_end, noise, seed, path, keep_last=
         Acquisition rate (Hz).
     """
     truth = params.replace(noise_power=0.0)
-    tr = simulate(truth, experiment, t_end, rate=rate, dt=dt if dt is not None else
-                  step_for_rate(rate, controller_rate=getattr(experiment, "sample_rate", None)))
+    tr = simulate(truth, experiment, t_end, rate=rate, dt=dt)
     columns, meta = recording_from_trajectory(
         tr, seed=seed, extra={"sensor_noise_sd": float(noise), "noise_kind": "sensor, white"}
     )

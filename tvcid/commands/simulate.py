@@ -6,7 +6,7 @@ import numpy as np
 from models.experiments import OpenLoop
 from models.hypotheses import HYPOTHESES, hypothesis
 from models.recording import MAX_ANGLE, recording_from_trajectory, save_recording
-from models.simulate import DEFAULT_DT, DEFAULT_RATE, simulate, step_for_rate
+from models.simulate import DEFAULT_DT, DEFAULT_RATE, simulate
 
 from ._common import add_controller_options, closed_loop_from_args, parse_assignments
 
@@ -50,9 +50,7 @@ def run(args) -> int:
         experiment = OpenLoop.square(args.amplitude, args.frequency)
     elif args.open_loop == "sine":
         experiment = OpenLoop.sine(args.amplitude, args.frequency)
-    dt = args.dt if args.dt is not None else step_for_rate(
-        args.rate, controller_rate=getattr(experiment, "sample_rate", None))
-    trajectory = simulate(params, experiment, args.t_end, dt=dt, rate=args.rate)
+    trajectory = simulate(params, experiment, args.t_end, dt=args.dt, rate=args.rate)
     peak = float(np.max(np.abs(trajectory.delta)))
     if peak > MAX_ANGLE:  # a recording tvcid would refuse to read back (degrees suspected)
         raise ValueError(f"{params.name}: the output reaches {peak:.3g} rad, beyond the {MAX_ANGLE} rad "
