@@ -38,6 +38,7 @@ from models.simulate import (
     DEFAULT_BOUND,
     SimulationDiverged,
     _check_grid,
+    _divides,
     _initial_conditions,
     _pack_experiment,
     _pack_params,
@@ -360,11 +361,7 @@ class Continuation:
 
 def output_rate_for(dt, data_rate):
     """The data rate when it divides ``1/dt``, else ``None`` (keep every step)."""
-    ratio = 1.0 / (data_rate * dt)
-    dec = int(round(ratio))
-    if dec >= 1 and abs(ratio - dec) <= 1e-6 * max(1.0, ratio):
-        return float(data_rate)
-    return None
+    return float(data_rate) if _divides(data_rate, dt) else None
 
 
 def is_open_loop(experiment) -> bool:

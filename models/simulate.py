@@ -156,7 +156,7 @@ def _divides(rate, dt) -> bool:
     """Whether ``rate`` (Hz) divides the step rate ``1/dt`` (within a rate read off timestamps)."""
     ratio = 1.0 / (rate * dt)
     k = round(ratio)
-    return k >= 1 and abs(ratio - k) <= 1e-6 * max(1.0, ratio)
+    return k >= 1 and abs(ratio - k) <= 1e-6 * max(1.0, ratio)  # a rate's float rounding
 
 
 #: :func:`step_for_rate` looks this many steps per sample past the first that fits under ``dt``.
@@ -204,12 +204,11 @@ def _check_grid(t_end, dt, rate):
     else:
         if not (math.isfinite(rate) and rate > 0):
             raise ValueError(f"rate must be a finite number > 0 (got {rate!r})")
-        ratio = 1.0 / (rate * dt)
-        decimation = int(round(ratio))
-        if decimation < 1 or abs(ratio - decimation) > 1e-6 * max(1.0, ratio):
+        if not _divides(rate, dt):
             raise ValueError(
                 f"output rate {rate} Hz must divide the step rate 1/dt = {1 / dt:g} Hz"
             )
+        decimation = int(round(1.0 / (rate * dt)))
     return n_steps, decimation
 
 
@@ -282,14 +281,12 @@ def _pack_experiment(experiment, dt, n_steps, bound):
         ctrl[K.C_KP], ctrl[K.C_KD], ctrl[K.C_MU] = experiment.kp, experiment.kd, experiment.mu
         ctrl[K.C_THETA0], ctrl[K.C_THETAD0] = experiment.theta0, experiment.thetad0
         if experiment.sample_rate is not None:
-            ratio = 1.0 / (experiment.sample_rate * dt)
-            hold = int(round(ratio))
-            if hold < 1 or abs(ratio - hold) > 1e-6 * max(1.0, ratio):
+            if not _divides(experiment.sample_rate, dt):
                 raise ValueError(
                     f"controller sample_rate {experiment.sample_rate} Hz must divide the step "
                     f"rate 1/dt = {1 / dt:g} Hz"
                 )
-            ctrl[K.C_HOLD_STEPS] = hold
+            ctrl[K.C_HOLD_STEPS] = int(round(1.0 / (experiment.sample_rate * dt)))
         if experiment.bending is not None:
             bend = experiment.bending
             ctrl[K.C_BEND_W], ctrl[K.C_BEND_ZETA] = bend.frequency, bend.damping
