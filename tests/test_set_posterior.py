@@ -339,3 +339,14 @@ def test_the_summary_marks_a_chain_stopped_at_its_cap_and_names_prior_bounds_and
             "bounds on the width; its intervals move by up to 30 % of their width") in text
     assert "`b`: backlash." in text and "At a prior bound" in text
     assert "`c`, `d`, about 12 % of the weight by their held-out scores" in text
+
+
+def test_the_report_lists_pruned_structures_once_per_reason():
+    """A reason that prunes several structures is written once, with the structures it prunes."""
+    from tvcid.report import _pruned_line
+
+    line = _pruned_line({"a+friction": "friction needs the velocity dead zone",
+                         "b+friction": "friction needs the velocity dead zone",
+                         "c": "another reason"})
+    assert line == ("Pruned structures: `a+friction`, `b+friction`: friction needs the velocity "
+                    "dead zone; `c`: another reason")

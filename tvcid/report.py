@@ -274,6 +274,16 @@ def _next_test_lines(nt):
     return lines + ["", "![next test](next_test.png)", ""]
 
 
+def _pruned_line(pruned) -> str:
+    """The structures pruned before the search, grouped by their reason (one reason usually
+    prunes a dozen)."""
+    by_reason = {}
+    for name, reason in pruned.items():
+        by_reason.setdefault(reason, []).append(f"`{name}`")
+    return "Pruned structures: " + "; ".join(f"{', '.join(names)}: {reason}"
+                                            for reason, names in by_reason.items())
+
+
 def discovery_report(summary) -> str:
     """``report.md``: a one-screen summary, then the ranking table, what the recordings decide,
     the next test, the best structure's parameters, what was fixed or estimated, the posterior
@@ -318,7 +328,7 @@ def discovery_report(summary) -> str:
     lines += ["", f"Estimated: {summary['estimated']['sensor_offset']}; noise: "
               f"{summary['estimated']['sensor_noise']}.", ""]
     if summary.get("pruned"):
-        lines += ["Pruned structures: " + "; ".join(f"`{k}`: {v}" for k, v in summary["pruned"].items()), ""]
+        lines += [_pruned_line(summary["pruned"]), ""]
     post = summary.get("posterior")
     if post:
         lines += ["## MCMC calibration of the best structure", "",
