@@ -196,7 +196,11 @@ def test_a_pair_is_decided_in_fact_by_the_members_the_second_set_keeps_merged_on
     assert pairs_decided_in_fact(first, ["c", "a", "b"]) == []
 
 
-@pytest.mark.parametrize("rate", [2000.0000000046612, *np.round(np.random.default_rng(65).uniform(200.0, 2000.0, 2), 3)])
+#: 2 kHz as read off a record's timestamps, and rates drawn over 200 Hz-2 kHz.
+DRAWN_RATES = (2000.0000000046612, *np.round(np.random.default_rng(65).uniform(200.0, 2000.0, 2), 3))
+
+
+@pytest.mark.parametrize("rate", DRAWN_RATES)
 def test_the_menu_runs_at_any_acquisition_rate(rate):
     """The menu acquired at a recording's rate, one the simulation's default step does not divide
     (2 kHz as read off a record's timestamps, rates drawn over 200 Hz-2 kHz): every candidate is

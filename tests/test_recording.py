@@ -125,7 +125,11 @@ def test_bad_compensator_or_bending_in_the_sidecar_is_one_line_naming_the_key(tm
                        {**meta})
 
 
-@pytest.mark.parametrize("rate", [2000.0000000046612, *np.round(np.random.default_rng(64).uniform(200.0, 2000.0, 3), 3)])
+#: 2 kHz as read off a record's timestamps, and rates drawn over 200 Hz-2 kHz.
+DRAWN_RATES = (2000.0000000046612, *np.round(np.random.default_rng(64).uniform(200.0, 2000.0, 3), 3))
+
+
+@pytest.mark.parametrize("rate", DRAWN_RATES)
 def test_a_synthetic_record_at_any_rate_is_simulated_at_a_step_that_rate_divides(tmp_path, rate):
     """Acquisition rates the default 2e-4 s step does not divide (2 kHz read off timestamps,
     rates drawn over 200 Hz-2 kHz) are recorded at the longest step under it that they divide;
