@@ -49,10 +49,13 @@ def test_unknown_parameter_and_enum_value_are_named():
 def test_delay_shorter_than_step_and_rate_not_dividing():
     with pytest.raises(ValueError, match="delay .* shorter than the step"):
         simulate(hypothesis("M001f", delay=5e-5), CONTROLLER_A, 1.0, dt=1e-4)
+    # a step given explicitly is checked against the rates; without one, a step is chosen that
+    # they divide (tests/test_recording.py)
     with pytest.raises(ValueError, match="output rate 300"):
-        simulate(hypothesis("M002"), CONTROLLER_A, 1.0, rate=300.0)
+        simulate(hypothesis("M002"), CONTROLLER_A, 1.0, dt=2e-4, rate=300.0)
     with pytest.raises(ValueError, match="sample_rate 300"):
-        simulate(hypothesis("M002"), ClosedLoop(5.84, 0.062, 12.3, sample_rate=300.0), 1.0)
+        simulate(hypothesis("M002"), ClosedLoop(5.84, 0.062, 12.3, sample_rate=300.0), 1.0,
+                 dt=2e-4)
 
 
 def test_unknown_waveform_and_bad_experiment():
