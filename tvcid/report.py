@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import math
 
-from discovery.structure.set_posterior import QUANTITY_UNITS, printed_present_or_absent
+from discovery.structure.set_posterior import (QUANTITY_UNITS, partly_present,
+                                               printed_present_or_absent)
 from models.hypotheses import parameter_unit
 
 __all__ = ["discovery_report", "summary_lines"]
@@ -120,7 +121,7 @@ def _quantity_row(name, q) -> str:
     """One row of the summary's table; a component the set leaves open reads "present or
     absent" with its interval if present."""
     interval = f"[{_num(q['q05'])}, {_num(q['q95'])}]"
-    if q.get("present", 1.0) < 1.0 - 1e-9:
+    if partly_present(q):
         return (f"| {name} | present or absent ({100 * q['present']:.0f} % of the weight present) | "
                 f"if present, {interval} | {q['unit']} | {_verdict(q)} |")
     if q.get("left_open"):  # the members without it could not be calibrated

@@ -382,11 +382,17 @@ def width_over_prior(values, prior_values) -> float | None:
 NEGLIGIBLE_WEIGHT = 0.01
 
 
+def partly_present(q) -> bool:
+    """Whether members without combined quantity ``q``'s component hold some of the weight
+    (``present`` under 1, to rounding)."""
+    return q.get("present", 1.0) < 1.0 - 1e-9
+
+
 def printed_present_or_absent(q) -> bool:
     """Whether combined quantity ``q`` (a :func:`combine` entry) is a component the report prints
     "present or absent": members without it hold some of the weight (``present`` under 1), or the
     set leaves the component open (``left_open``)."""
-    return bool(q.get("left_open")) or q.get("present", 1.0) < 1.0 - 1e-9
+    return bool(q.get("left_open")) or partly_present(q)
 
 
 def left_open_quantities(decided) -> tuple:
