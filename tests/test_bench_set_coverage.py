@@ -9,7 +9,8 @@ import pytest
 from models import M000, M002
 from models.structures import Structure
 from studies.benchmarks.set_coverage import (GOAL_QUANTITIES, coverage_goals, coverage_row,
-                                             drop_old_layout, summarise, truth_quantities)
+                                             drop_old_layout, narrower_than_step, summarise,
+                                             truth_quantities)
 
 
 def _q(lo, hi, mid=None, pinned=True, present=1.0, allowed=None, allowed_open=None, step=None,
@@ -206,6 +207,11 @@ def test_an_interval_narrower_than_twice_its_step_error_is_counted_and_fails_its
     assert row["quantities"]["delay"]["narrower_than_step"] is False
     assert row["quantities"]["delay"]["widened"] is True
     assert row["quantities"]["backlash"]["narrower_than_step"] is None
+    # a delay widened to its prior's floor (the support cuts the median - the step error) is not
+    # narrower; the same interval without the support it stops at is
+    cut = {**_q(6e-4, 6e-3, mid=2e-3, step=4e-3, widened=True), "support": [6e-4, 0.05]}
+    assert narrower_than_step(cut) is False
+    assert narrower_than_step({**cut, "support": None}) is True
     table = summarise([row])
     # dead zone and bandwidth carry _printed's step error of 1e-3 of their value: wide enough
     assert table["step"] == {"intervals": 4, "narrower": 1, "widened": 1, "without_step_error": 1}

@@ -247,6 +247,45 @@ def test_an_interval_narrower_than_the_step_error_is_widened_and_says_so():
     assert "widened to the step error, +-5e-05" in _verdicts(combined, ["a"])["dc_gain"][2]
 
 
+def test_each_member_is_widened_by_its_own_step_error_within_the_quantity_s_support():
+    """Six members the step resolves (step errors 2e-5 s on delays about 1e-3 s wide) and one
+    it does not (8e-3 s), holding 15 % of the weight: the combined delay interval is not the
+    seventh member's median +- 8e-3, as widening the mixture by the largest error would make
+    it, but the mixture of each member widened by its own; the seventh's own interval is
+    widened, to its prior's floor and not below 0; the report names it as not resolved by the
+    step and says the members were widened."""
+    rng = np.random.default_rng(7)
+    members = []
+    for k in range(7):
+        m = _member(f"m{k}", 5e-3 + 3e-4 * k, 6e-4 if k < 6 else 7e-4, rng)
+        m.prior_quantities = {"delay": rng.uniform(6e-4, 0.05, 4000)}
+        m.step_error = {"delay": 2e-5 if k < 6 else 8e-3}
+        m.summary["step_error"] = {"resolved": k < 6, "residual_sd": 0.1 if k < 6 else 15.7,
+                                   "log_prob_sd": 2.0}
+        members.append(m)
+    weights = [0.85 / 6] * 6 + [0.15]
+    combined = combine(members, weights=weights, seed=3).to_dict()
+    delay = combined["quantities"]["delay"]
+    unwidened = combine(members[:6], seed=3).to_dict()["quantities"]["delay"]
+    assert delay["widened"] and delay["step_error_widened"] == 8e-3
+    assert delay["step_error"] == pytest.approx(0.85 * 2e-5 + 0.15 * 8e-3)
+    assert delay["q05"] > 0 and delay["q95"] < members[6].quantities["delay"].mean() + 8e-3
+    width = delay["q95"] - delay["q05"]
+    assert unwidened["q95"] - unwidened["q05"] < width < 0.5 * (2 * 8e-3)
+    own = combined["members"][6]["quantities"]["delay"]
+    assert own["widened"] and own["q05"] == pytest.approx(6e-4, rel=0.05)
+    assert "widened" not in combined["members"][0]["quantities"]["delay"]
+    verdict = _verdicts(combined, [m.structure for m in members])["delay"][2]
+    assert "members widened to their step errors (up to +-0.008)" in verdict
+    from tvcid.report import summary_lines
+
+    rows = [{"structure": m.structure, "indistinguishable_from_best": True, "merged_into": None}
+            for m in members]
+    text = "\n".join(summary_lines({"structures": rows, "decided": {}, "set_posterior": combined}))
+    assert "Not resolved by the integration step: `m6` (halving the step changes its log " \
+           "posterior by 15.7 nats rms" in text and "`m5`" not in text.split("Not resolved")[1]
+
+
 def test_the_richer_structure_of_a_component_left_open_is_calibrated_too():
     """The set's distinct members lack a backlash the set leaves open: the best structure with
     one, merged into a member, joins the calibration; a decided component adds none; one richer

@@ -13,10 +13,11 @@ from discovery.calibration import Calibration
 from discovery.calibration.likelihood.solver import SOLVER_ERROR_FACTOR
 from discovery.calibration.runner import ConvergenceWarning
 from discovery.calibration.step_error import (
-    combined_step_error,
     halved_log_posterior,
     measure_step_error,
     tilt_shift,
+    StepError,
+    widen_draws,
     widen_interval,
     widen_quantiles,
 )
@@ -58,9 +59,40 @@ def test_a_table_of_quantities_is_widened_entry_by_entry_and_keeps_the_sampled_e
     assert not out["delay"]["widened"] and out["delay"]["q05"] == 1.6e-3
     assert "widened" not in out["backlash"] and out["backlash"] == table["backlash"]
     assert table["dc_gain"]["q05"] == 0.93480  # the input is left as it is
-    # a mixture of members moves by the largest of its members' errors
-    assert combined_step_error([{"delay": 1e-6, "dc_gain": 2e-5}, {"delay": 3e-6},
-                                {"delay": math.nan}]) == {"delay": 3e-6, "dc_gain": 2e-5}
+    # a delay's widened interval stops at its prior's floor
+    floored = widen_quantiles(table, {"delay": 5e-3}, {"delay": (6e-4, 0.05)})["delay"]
+    assert floored["widened"] and floored["q05"] == 6e-4 and floored["q95"] == pytest.approx(6.7e-3)
+
+
+def test_a_widened_interval_stops_at_the_quantity_s_support_never_inside_its_sampled_ends():
+    """A dead zone of 2e-3 with a step error of 1e-2 widens to [0, 1.2e-2], not to a negative
+    dead zone; a ceiling stops the upper end; a bound inside the sampled interval (draws a little
+    beyond a prior draw's range) leaves the sampled end where it is."""
+    assert widen_interval(1e-3, 2e-3, 3e-3, 1e-2, (0.0, None)) == (0.0, pytest.approx(1.2e-2), True)
+    low, high, widened = widen_interval(1e-3, 2e-3, 3e-3, 1e-2, (0.0, 5e-3))
+    assert widened and (low, high) == (0.0, 5e-3)
+    assert widen_interval(1e-3, 2e-3, 3e-3, 1e-2, (1.5e-3, 2.5e-3)) == (1e-3, 3e-3, False)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_widened_draws_have_the_widened_interval_s_ends_and_stay_in_the_support(seed):
+    """Skewed draws (lognormal, drawn by a seeded generator) narrower than twice a step error:
+    after :func:`widen_draws` their 5 % and 95 % quantiles are :func:`widen_interval`'s ends,
+    the median stays (to the interpolation between the two middle draws), and no draw leaves the support; draws wide enough come back as
+    they were; draws without spread are spread over the widened interval."""
+    rng = np.random.default_rng(seed)
+    values = 0.02 * np.exp(0.05 * rng.standard_normal(5000))
+    q05, q50, q95 = np.quantile(values, (0.05, 0.5, 0.95))
+    error = float(rng.uniform(0.003, 0.03))  # up to beyond the median itself
+    out, widened = widen_draws(values, error, (0.0, None))
+    low, high, _ = widen_interval(q05, q50, q95, error, (0.0, None))
+    assert widened
+    assert np.quantile(out, (0.05, 0.95)) == pytest.approx([low, high], rel=1e-6, abs=1e-12)
+    assert np.median(out) == pytest.approx(q50, rel=1e-3) and out.min() >= 0.0
+    same, again = widen_draws(values, 0.1 * (q95 - q05))
+    assert not again and np.array_equal(same, values)
+    flat, spread = widen_draws(np.full(1000, 0.5), 0.01)
+    assert spread and np.quantile(flat, (0.05, 0.95)) == pytest.approx([0.49, 0.51], abs=2e-4)
 
 
 # -- the tilt ------------------------------------------------------------------------------------
@@ -170,6 +202,8 @@ def test_a_gain_pinned_tighter_than_the_step_resolves_is_widened_to_its_step_err
     assert [t.simulator.dt for t in cal.terms_] == steps
     assert error.steps == {"square": [steps[0], steps[0] / 2]}
     assert error.n_points == 32 and error.n_failed == 0
+    # the half step moves this posterior; it does not reorder its draws
+    assert error.resolved and error.residual_sd < error.log_prob_sd
 
     k = post.names.index("feedback_gain")
     fb = error.parameters["feedback_gain"]

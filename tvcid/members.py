@@ -99,7 +99,8 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     simulated += step.simulated_seconds
     kept["step_error"] = step.to_dict()
     kept["parameters"] = widen_quantiles(kept["parameters"],
-                                         {n: v["error"] for n, v in step.parameters.items()})
+                                         {n: v["error"] for n, v in step.parameters.items()},
+                                         {n: (p.low, p.high) for n, p in priors.items()})
     kept["structure"], kept["chain"] = row["structure"], chain
     kept["merged_into"] = row["merged_into"]
     draws = {n: post.samples[:, j] for j, n in enumerate(post.names)}

@@ -99,7 +99,9 @@ def _verdict(q) -> str:
     if q.get("allowed") and (q.get("pinned") is False or printed_present_or_absent(q)):
         parts.append(_allowed_text(q))
     if q.get("widened"):
-        parts.append(f"widened to the step error, +-{_num(q['step_error'], 2)}")
+        error = _num(q.get("step_error_widened") or q["step_error"], 2)
+        parts.append(f"widened to the step error, +-{error}" if q["members"] == 1 else
+                     f"members widened to their step errors (up to +-{error})")
     return "; ".join(parts)
 
 
@@ -145,6 +147,15 @@ def _members_lines(sp) -> list:
         lines += ["", "Could not be calibrated, and left out of the combined posterior: " + "; ".join(
             f"`{f['structure']}` ({f['reason']}: about its fit some recording's run fails or "
             "shows no cycle the likelihood can compare)" for f in failed) + "."]
+    unresolved = [m for m in sp["members"]
+                  if (m["posterior"].get("step_error") or {}).get("resolved") is False]
+    if unresolved:
+        lines += ["", "Not resolved by the integration step: " + "; ".join(
+            f"`{m['structure']}` (halving the step changes its log posterior by "
+            f"{m['posterior']['step_error']['residual_sd']:.3g} nats rms beyond a shift, more than "
+            f"its draws' own spread, {m['posterior']['step_error']['log_prob_sd']:.3g})"
+            for m in unresolved) + ": its posterior is the step's, and its step errors, which "
+            "widen its own intervals only, are the measurement's noise."]
     bounds = [(m["structure"], m["posterior"].get("at_prior_bound") or [])
               for m in sp["members"]]
     bounds = [(s, b) for s, b in bounds if b]

@@ -74,8 +74,8 @@ __all__ = [
     "measure_step_error",
     "tilt_shift",
     "widen_interval",
+    "widen_draws",
     "widen_quantiles",
-    "combined_step_error",
     "STEP_ERROR_POINTS_PER_PARAMETER",
     "STEP_ERROR_MIN_POINTS",
 ]
@@ -266,6 +266,10 @@ class StepError:
         Effective sample size of the importance weights ``exp(D)`` over the points, as a fraction
         of them: near 1 the move is well under the posterior's width; near ``1 / n_points`` it is
         beyond it (the tilt still measures it).
+    log_prob_sd : float
+        The sd of the chain's log posterior over its draws (nats): how much the posterior's own
+        draws differ in density. Where ``residual_sd`` exceeds it, halving the step reorders the
+        draws by more than they differ (:attr:`resolved`).
     simulated_seconds, simulated_steps : float
         The measurement's cost (set-up and evaluations); a halved step costs twice the RK4 steps
         per simulated second.
@@ -278,8 +282,20 @@ class StepError:
     n_failed: int = 0
     residual_sd: float = math.nan
     ess: float = math.nan
+    log_prob_sd: float = math.nan
     simulated_seconds: float = 0.0
     simulated_steps: float = 0.0
+
+    @property
+    def resolved(self) -> bool:
+        """Whether the step resolves the member: the half step's change of the log posterior,
+        beyond a tilt, is smaller than the spread of the posterior's own log density. Where it
+        is not, the half-step posterior is not this one moved, and the errors are the
+        regression's noise, large because the likelihood is rough at the step's scale (a
+        friction offset beyond the dead band switching at every zero crossing of the velocity)."""
+        if not (math.isfinite(self.residual_sd) and math.isfinite(self.log_prob_sd)):
+            return True
+        return self.residual_sd <= self.log_prob_sd
 
     def error(self, name) -> float:
         """The step error of a combined quantity or, failing that, of a sampled parameter."""
@@ -297,8 +313,8 @@ class StepError:
     def to_dict(self) -> dict:
         return {"parameters": self.parameters, "quantities": self.quantities,
                 "steps": self.steps, "n_points": self.n_points, "n_failed": self.n_failed,
-                "residual_sd": self.residual_sd,
-                "ess": self.ess, "simulated_seconds": self.simulated_seconds,
+                "residual_sd": self.residual_sd, "log_prob_sd": self.log_prob_sd,
+                "resolved": self.resolved, "ess": self.ess, "simulated_seconds": self.simulated_seconds,
                 "simulated_steps": self.simulated_steps,
                 "rule": f"step error = {SOLVER_ERROR_FACTOR:g} x (the median's move when the step "
                         "is halved + its standard error)"}
@@ -320,6 +336,12 @@ def _median_shifts(values_at, z, shift, cov, rng):
         for n in base:
             samples[n].append(float(np.nanmedian(v[n]) - centre[n]))
     return {n: (out[n], float(np.std(samples[n], ddof=1))) for n in base}
+
+
+def _finite_sd(values) -> float:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.std(v)) if v.size > 1 else math.nan
 
 
 def _entry(shift, se):
@@ -414,17 +436,19 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
         steps={t.name: [float(t0.simulator.dt), float(t.simulator.dt)]
                for t0, t in zip(lp0.terms, lp.terms)},
         n_points=int(ok.sum()), n_failed=int(m - ok.sum()), residual_sd=residual_sd, ess=ess,
+        log_prob_sd=_finite_sd(posterior.log_prob),
         simulated_seconds=lp.simulated_seconds + own.simulated_seconds,
         simulated_steps=lp.simulated_steps + own.simulated_steps)
 
 
 # -- what the report prints ----------------------------------------------------------------------
-def widen_interval(q05, q50, q95, error):
+def widen_interval(q05, q50, q95, error, bounds=None):
     """A 90 % interval widened to what the simulation step resolves.
 
     Rule: where the interval is narrower than ``2 error`` (``q95 - q05 < 2 error``), it becomes
     ``[min(q05, q50 - error), max(q95, q50 + error)]``: at least the median plus or minus the
-    step error; an interval at least that wide is kept as it is.
+    step error; an interval at least that wide is kept as it is. A widened end stops at the
+    quantity's ``bounds`` (a dead zone, a delay: not below 0), never inside the sampled end.
 
     Parameters
     ----------
@@ -432,6 +456,8 @@ def widen_interval(q05, q50, q95, error):
     error : float or None
         The quantity's step error (:attr:`StepError.errors`); ``None`` or NaN: not measured,
         nothing changes.
+    bounds : (float, float), optional
+        Where the quantity can lie (the prior's support); ``None`` for either end: unbounded.
 
     Returns
     -------
@@ -446,38 +472,77 @@ def widen_interval(q05, q50, q95, error):
     if not q95 - q05 < 2.0 * e:
         return q05, q95, False
     low, high = min(q05, q50 - e), max(q95, q50 + e)
+    floor, ceiling = bounds if bounds is not None else (None, None)
+    if floor is not None:
+        low = min(q05, max(low, float(floor)))
+    if ceiling is not None:
+        high = max(q95, min(high, float(ceiling)))
     return low, high, bool(low < q05 or high > q95)
 
 
-def widen_quantiles(quantiles: dict, errors: dict) -> dict:
+def widen_draws(values, error, bounds=None):
+    """A member's draws of one quantity widened as :func:`widen_interval` widens its interval.
+
+    Each side of the median is stretched about it, linearly, so that the draws' 5 % and 95 %
+    quantiles become the widened interval's ends; draws already wide enough are returned as they
+    are. The stretched draws are clipped to ``bounds``. Mixing members' draws widened each by
+    its own step error (:func:`discovery.structure.set_posterior.combine`) carries each
+    member's error at its weight, where widening the mixture by the largest error would let one
+    member that the step does not resolve widen every other member's answer.
+
+    Parameters
+    ----------
+    values : array_like
+    error : float or None
+    bounds : (float, float), optional
+
+    Returns
+    -------
+    draws : ndarray
+    widened : bool
+    """
+    v = np.asarray(values, dtype=float)
+    ok = np.isfinite(v)
+    if error is None or not math.isfinite(float(error)) or not ok.any():
+        return v, False
+    q05, q50, q95 = np.quantile(v[ok], (0.05, 0.5, 0.95))
+    low, high, widened = widen_interval(q05, q50, q95, error, bounds)
+    if not widened:
+        return v, False
+    out = v.copy()
+    if q95 == q05:  # no spread at all: the draws spread evenly, by rank, so that 90 % span the ends
+        u = (np.argsort(np.argsort(v[ok], kind="stable"), kind="stable") + 0.5) / ok.sum()
+        out[ok] = low + (high - low) * (u - 0.05) / 0.9
+    else:  # a side without spread (q05 or q95 at the median) is left as it is
+        for side, end, q in ((ok & (v < q50), low, q05), (ok & (v > q50), high, q95)):
+            if end != q and q != q50:
+                out[side] = q50 + (v[side] - q50) * (end - q50) / (q - q50)
+    if bounds is not None:
+        floor, ceiling = bounds
+        out[ok] = np.clip(out[ok], -np.inf if floor is None else floor,
+                          np.inf if ceiling is None else ceiling)
+    return out, True
+
+
+def widen_quantiles(quantiles: dict, errors: dict, bounds: dict | None = None) -> dict:
     """:func:`widen_interval` over a table of quantities.
 
     ``quantiles``: name -> a dict with ``q05``, ``q50`` and ``q95`` (a posterior summary's
-    ``parameters``, a set posterior's ``quantities``); ``errors``: name -> step error. Returns a
-    copy in which every entry with an error also has ``step_error`` and ``widened``, and, where
-    widened, its ``q05``/``q95`` replaced and the original ones kept as ``q05_sampled`` and
+    ``parameters``, a set posterior's ``quantities``); ``errors``: name -> step error;
+    ``bounds``: name -> where it can lie (the priors' supports). Returns a copy in which every
+    entry with an error also has ``step_error`` and ``widened``, and, where widened, its
+    ``q05``/``q95`` replaced and the original ones kept as ``q05_sampled`` and
     ``q95_sampled``."""
     out = {}
     for name, q in quantiles.items():
         q = dict(q)
         e = errors.get(name)
         if e is not None and None not in (q.get("q05"), q.get("q50"), q.get("q95")):
-            low, high, widened = widen_interval(q["q05"], q["q50"], q["q95"], e)
+            low, high, widened = widen_interval(q["q05"], q["q50"], q["q95"], e,
+                                                (bounds or {}).get(name))
             q["step_error"], q["widened"] = float(e), widened
             if widened:
                 q["q05_sampled"], q["q95_sampled"] = q["q05"], q["q95"]
                 q["q05"], q["q95"] = float(low), float(high)
         out[name] = q
-    return out
-
-
-def combined_step_error(errors) -> dict:
-    """The step error of a mixture of members: per quantity, the largest of the members' that
-    have it (each member's answer moves by its own). ``errors``: one name -> step error dict
-    per member."""
-    out = {}
-    for e in errors:
-        for name, value in e.items():
-            if value is not None and math.isfinite(value):
-                out[name] = max(out.get(name, 0.0), float(value))
     return out

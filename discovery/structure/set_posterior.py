@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from discovery.calibration.profile_range import ALLOWED_DROP, allowed_range, in_log_coordinate
-from discovery.calibration.step_error import widen_interval
+from discovery.calibration.step_error import widen_draws
 
 __all__ = ["MemberPosterior", "SetPosterior", "allowed_range", "calibrate_member", "combine",
            "linear_block_dc_gain_and_bandwidth", "member_priors", "member_quantities",
@@ -292,6 +292,9 @@ class SetPosterior:
     left_open_uncalibrated : tuple of str
         Component quantities the set leaves open that no calibrated member holds: printed
         "present or absent" without an interval.
+    member_intervals : list of dict, optional
+        Per member, quantity -> its ``q05``, ``q50``, ``q95`` as mixed: widened to the member's
+        step error where it is narrower (``widened`` true).
     """
 
     members: list
@@ -299,6 +302,7 @@ class SetPosterior:
     criterion: str
     weights: np.ndarray = None
     left_open_uncalibrated: tuple = ()
+    member_intervals: list | None = None
 
     def interval(self, name, level=0.90):
         """The combined 90 % interval ``(q05, q95)`` of quantity ``name`` (widened to the step
@@ -317,10 +321,16 @@ class SetPosterior:
             "members": [{"structure": m.structure, "weight": float(wi),
                          "equal_weight": 1.0 / len(self.members),
                          "score_over_margin": m.score_over_margin, "converged": m.converged,
-                         "quantities": {k: _quantiles(v) for k, v in m.quantities.items()},
+                         "quantities": intervals,
                          "step_error": m.step_error,
-                         "posterior": m.summary} for m, wi in zip(self.members, w)],
+                         "posterior": m.summary}
+                        for m, wi, intervals in zip(self.members, w, self._member_intervals())],
         }
+
+    def _member_intervals(self):
+        if self.member_intervals is not None:
+            return self.member_intervals
+        return [{k: _quantiles(v) for k, v in m.quantities.items()} for m in self.members]
 
     def plot(self, ax=None, names=("backlash", "delay", "threshold")):
         """Each member's 90 % interval and median (lines, thicker for more weight) beside the
@@ -333,8 +343,9 @@ class SetPosterior:
             ax = plt.subplots(1, len(names), figsize=(3.2 * len(names), 2.8), squeeze=False)[1][0]
         w = self.weights if self.weights is not None else np.full(len(self.members), 1 / len(self.members))
         for a, name in zip(np.atleast_1d(ax), names):
-            rows = [(m.structure, _quantiles(m.quantities[name]), wi)
-                    for m, wi in zip(self.members, w) if name in m.quantities]
+            rows = [(m.structure, own[name], wi)
+                    for m, wi, own in zip(self.members, w, self._member_intervals())
+                    if name in m.quantities]
             for i, (_, q, wi) in enumerate(rows):
                 a.plot([q["q05"], q["q95"]], [i, i], color="C0", lw=0.8 + 3 * wi)
                 a.plot(q["q50"], i, "o", color="C0", ms=3)
@@ -435,8 +446,14 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
         :func:`allowed_range` joined, or ``None``) with ``allowed_open`` (``[low end, high
         end]``: the profile has not fallen by the drop where the draws end) and
         ``allowed_at_prior`` (that open end is the prior's: the prior stops the draws there;
-        an open end short of it is where a chain's draws end), ``step_error`` with ``widened`` (the interval widened to at
-        least the median +- the step error, :mod:`discovery.calibration.step_error`), and
+        an open end short of it is where a chain's draws end), ``step_error`` (the
+        members' step errors averaged by their weights: a draw's expected error), ``widened``
+        (some member's draws were widened to its own step error before the mixing,
+        :func:`discovery.calibration.step_error.widen_draws`: a member's interval narrower than
+        twice its error becomes at least its median +- the error, within the quantity's
+        support, ``support``: ``[floor, ceiling]``, ``None`` for an open end) with
+        ``step_error_widened`` (the largest error that widened one) and the
+        mixture's ends before the widening (``q05_sampled``, ``q95_sampled``), and
         ``equal_weights`` (the equal-weight mixture's ``q05``, ``q50``, ``q95``).
     """
     if not members:
@@ -450,16 +467,19 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
     present = {n for m in members for n in m.quantities}
     names = [n for n in QUANTITY_UNITS if n in present] + sorted(present - set(QUANTITY_UNITS))
     quantities = {}
+    # each member's draws widened to its own step error (:func:`widen_draws`), within the support
+    widened_draws = [{n: widen_draws(v, (m.step_error or {}).get(n), _support(n, m))
+                      for n, v in m.quantities.items()} for m in members]
     for name in names:
         having = [i for i, m in enumerate(members) if name in m.quantities]
         share = float(w[having].sum())
         inner = w[having] / share if share > 0 else np.full(len(having), 1 / len(having))
-        mixed = _mix([members[i].quantities[name] for i in having], inner, n_draws, rng)
-        equal = _mix([members[i].quantities[name] for i in having],
-                     np.full(len(having), 1 / len(having)), n_draws, rng)
+        draws = [widened_draws[i][name][0] for i in having]
+        mixed = _mix(draws, inner, n_draws, rng)
+        equal = _mix(draws, np.full(len(having), 1 / len(having)), n_draws, rng)
         q = _quantiles(mixed)
         counted = [i for i, wi in zip(having, inner) if wi >= NEGLIGIBLE_WEIGHT] or having
-        own = [_quantiles(members[i].quantities[name]) for i in counted]
+        own = [_quantiles(widened_draws[i][name][0]) for i in counted]
         medians = [o["q50"] for o in own if o["q50"] is not None]
         widths = [o["q95"] - o["q05"] for o in own if o["q50"] is not None]
         spread = (max(medians) - min(medians)) if medians else 0.0
@@ -483,12 +503,15 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
         over = [width_over_prior(members[i].quantities[name],
                                  (members[i].prior_quantities or {}).get(name)) for i in counted]
         over = [o for o in over if o is not None]
-        errors = [float((members[i].step_error or {}).get(name) or 0.0) for i in counted]
-        step = max(errors) if errors else 0.0
-        widened = False
-        if q["q50"] is not None and step > 0:
-            low, high, widened = widen_interval(q["q05"], q["q50"], q["q95"], step)
-            q = {"q05": low, "q50": q["q50"], "q95": high}
+        errors = np.array([_finite_or_zero((members[i].step_error or {}).get(name))
+                           for i in having])
+        step = float(inner @ errors)  # a draw's expected error: each member's at its weight
+        widened_by = [i for i in counted if widened_draws[i][name][1]]
+        widened = bool(widened_by)
+        if widened:  # what the members' draws give before their widening, for the record
+            sampled = _quantiles(_mix([members[i].quantities[name] for i in having], inner,
+                                      n_draws, np.random.default_rng(seed)))
+            q = {**q, "q05_sampled": sampled["q05"], "q95_sampled": sampled["q95"]}
         quantities[name] = {**q, "unit": QUANTITY_UNITS.get(name, ""), "members": len(having),
                             "present": share,
                             "spread_over_width": ratio,
@@ -498,14 +521,21 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
                             "allowed": allowed, "allowed_open": allowed_open,
                             "allowed_at_prior": allowed_prior,
                             "step_error": step or None, "widened": widened,
+                            "step_error_widened": (max(float(errors[having.index(i)])
+                                                       for i in widened_by) if widened else None),
+                            "support": _joined_support([_support(name, members[i])
+                                                        for i in counted]),
                             "equal_weights": _quantiles(equal)}
     for name in left_open:
         if name in quantities:
             quantities[name]["left_open"] = True
     if criterion is None:
         criterion = ("equal weights" if weights is None else "weights given")
+    intervals = [{n: {**_quantiles(v), **({"widened": True} if was else {})}
+                  for n, (v, was) in d.items()} for d in widened_draws]
     return SetPosterior(list(members), quantities, criterion, w,
-                        left_open_uncalibrated=tuple(n for n in left_open if n not in quantities))
+                        left_open_uncalibrated=tuple(n for n in left_open if n not in quantities),
+                        member_intervals=intervals)
 
 
 #: An open end of the allowed range within this fraction of the prior's range (in the
@@ -531,11 +561,52 @@ def _near(value, end, bounds) -> bool:
     return abs(value - end) <= PRIOR_END * (hi - lo)
 
 
+#: Combined quantities that cannot be negative: a widened interval stops at 0.
+NON_NEGATIVE = frozenset({"dead_zone[error]", "dead_zone[velocity]", "backlash", "bandpass_gain",
+                          "delay", "dc_gain", "bandwidth"})
+
+
+def _finite_or_zero(value) -> float:
+    return float(value) if value is not None and math.isfinite(float(value)) else 0.0
+
+
+def _support(name, member):
+    """Where combined quantity ``name`` of ``member`` can lie: not below 0 where it cannot be
+    negative, and within its prior draws' range (stretched to hold the member's own draws);
+    ``None`` where nothing bounds it."""
+    floor = 0.0 if name in NON_NEGATIVE else None
+    ceiling = None
+    prior = _prior_bounds([(member.prior_quantities or {}).get(name)])
+    if prior is not None:
+        v = np.asarray(member.quantities[name], dtype=float)
+        v = v[np.isfinite(v)]
+        low, high = (min(prior[0], v.min()), max(prior[1], v.max())) if v.size else prior
+        floor = low if floor is None else max(floor, low)
+        ceiling = high
+    return None if floor is None and ceiling is None else (floor, ceiling)
+
+
+def _joined_support(supports):
+    """The members' supports of one quantity joined: ``[floor, ceiling]``, ``None`` for an end
+    one member leaves open."""
+    if not supports or any(b is None for b in supports):
+        return [None, None] if supports else None
+    floors, ceilings = [b[0] for b in supports], [b[1] for b in supports]
+    return [None if None in floors else float(min(floors)),
+            None if None in ceilings else float(max(ceilings))]
+
+
 def _mix(draws, weights, n_draws, rng):
     """``n_draws`` draws of the mixture of ``draws`` (one array a member) by ``weights``: each
-    member resampled for its share, rounded, at least one draw for a positive weight."""
+    member's share (rounded, at least one draw for a positive weight) taken systematically over
+    its sorted draws (one seeded offset, evenly spaced ranks), so that a member's quantiles
+    pass into the mixture without resampling noise."""
     counts = np.maximum(np.round(np.asarray(weights) * n_draws).astype(int),
                         (np.asarray(weights) > 0).astype(int))
-    parts = [rng.choice(np.asarray(d, dtype=float), size=k, replace=True)
-             for d, k in zip(draws, counts) if k > 0]
+    parts = []
+    for d, k in zip(draws, counts):
+        v = np.sort(np.asarray(d, dtype=float))
+        if k > 0 and v.size:
+            parts.append(v[np.minimum(((np.arange(k) + rng.uniform()) * v.size / k).astype(int),
+                                      v.size - 1)])
     return np.concatenate(parts) if parts else np.array([])
