@@ -389,3 +389,28 @@ def test_the_report_lists_pruned_structures_once_per_reason():
                          "c": "another reason"})
     assert line == ("Pruned structures: `a+friction`, `b+friction`: friction needs the velocity "
                     "dead zone; `c`: another reason")
+
+
+def test_a_component_the_shared_choices_rule_out_is_said_to_be_decided_by_the_structure():
+    """A set whose members all put the dead zone on the error has no friction offset because the
+    structure forbids it there (:func:`models.structures.prune_reason`), not because the data
+    rule it out: the summary says so. A friction offset all members have, and a backlash all
+    lack beside a velocity dead zone, are decided plainly."""
+    from tvcid.report import summary_lines
+
+    def decided(best, choices):
+        rows = [{"structure": best, "indistinguishable_from_best": True, "merged_into": None}]
+        lines = summary_lines({"structures": rows, "decided": choices,
+                               "set_posterior": combine([_member("a", 2e-3, 1e-4, rng)]).to_dict()})
+        return [li for li in lines if li.startswith("Decided:")][0]
+
+    rng = np.random.default_rng(2)
+
+    error = decided("dz_error+delay_output", {"dead_zone_position": "error", "friction": False,
+                                              "backlash": False, "delay_position": None})
+    assert ("friction offset off (not by the data: friction offset needs the dead zone on the "
+            "velocity signal)") in error
+    assert "backlash off," in error or "backlash off." in error
+    velocity = decided("dz_velocity+delay_output+friction",
+                       {"dead_zone_position": "velocity", "friction": True, "backlash": False})
+    assert "friction offset on" in velocity and "not by the data" not in velocity

@@ -7,11 +7,13 @@ posterior and its figures. Numbers are printed to 4 significant digits.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from discovery.structure.set_posterior import (QUANTITY_UNITS, partly_present,
                                                printed_present_or_absent)
 from models.hypotheses import parameter_unit
+from models.structures import Structure, prune_reason
 
 __all__ = ["discovery_report", "summary_lines"]
 
@@ -176,7 +178,8 @@ def summary_lines(summary) -> list:
     else:
         lines.append(f"The recordings leave {len(distinct)} structures open; best `{best['structure']}`, "
                      "also " + ", ".join(f"`{s['structure']}`" for s in distinct[1:]) + ".")
-    decided = [f"{CHOICE_LABELS[c]} {_shown(v)}" for c, v in summary["decided"].items() if v is not None]
+    decided = [f"{CHOICE_LABELS[c]} {_shown(v)}{_structural(best['structure'], c, v)}"
+               for c, v in summary["decided"].items() if v is not None]
     open_ = [CHOICE_LABELS[c] for c, v in summary["decided"].items() if v is None]
     lines.append("Decided: " + (", ".join(decided) or "no structural choice") + ". Not decided: "
                  + (", ".join(open_) or "nothing") + ".")
@@ -240,6 +243,15 @@ def _next_test_headline(nt, n_distinct) -> str:
 
 CHOICE_LABELS = {"dead_zone_position": "dead zone on", "delay_position": "delay position",
                  "friction": "friction offset", "backlash": "backlash", "bandpass": "band-pass loop"}
+
+
+def _structural(structure, choice, value) -> str:
+    """Where a component decided off could not be on with the choices the set shares (a friction
+    offset beside a dead zone on the error), the rule that decides it, not the data."""
+    if value is not False or choice not in ("friction", "backlash", "bandpass"):
+        return ""
+    reason = prune_reason(dataclasses.replace(Structure.parse(structure), **{choice: True}))
+    return "" if reason is None else f" (not by the data: {reason.split(':')[0]})"
 
 
 def _shown(value):
