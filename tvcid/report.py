@@ -156,8 +156,8 @@ def _members_lines(sp) -> list:
             f"`{m['structure']}` (halving the step changes its log posterior by "
             f"{m['posterior']['step_error']['residual_sd']:.3g} nats rms beyond a shift, more than "
             f"its draws' own spread, {m['posterior']['step_error']['log_prob_sd']:.3g})"
-            for m in unresolved) + ": its posterior is the step's, and its step errors, which "
-            "widen its own intervals only, are the measurement's noise."]
+            for m in unresolved) + ": the half step reorders its draws rather than moving them, "
+            "and its step errors, which widen its own intervals only, hold that noise."]
     bounds = [(m["structure"], m["posterior"].get("at_prior_bound") or [])
               for m in sp["members"]]
     bounds = [(s, b) for s, b in bounds if b]
