@@ -4,13 +4,15 @@ component the truth lacks on whether it is printed absent or "present or absent"
 counts the verdicts per rule, the widths and the intervals narrower than the step error."""
 import json
 
+import numpy as np
 import pytest
 
 from models import M000, M002
 from models.structures import Structure
-from studies.benchmarks.set_coverage import (GOAL_QUANTITIES, coverage_goals, coverage_row,
-                                             drop_old_layout, narrower_than_step, summarise,
-                                             truth_quantities)
+from studies.benchmarks.set_coverage import (GAUSSIAN_MEDIAN_POSITION, GOAL_QUANTITIES,
+                                             coverage_goals, coverage_row, drop_old_layout,
+                                             narrower_than_step, quantity_entry, summarise,
+                                             truth_position, truth_quantities)
 
 
 def _q(lo, hi, mid=None, pinned=True, present=1.0, allowed=None, allowed_open=None, step=None,
@@ -310,3 +312,31 @@ def test_a_rerun_drops_the_rows_of_the_earlier_layout_so_their_draws_run_again(t
     assert drop_old_layout(path) == 1
     assert [r["seed"] for r in json.loads(path.read_text())["rows"]] == [1000, 1002]
     assert drop_old_layout(path) == 0 and drop_old_layout(tmp_path / "none.json") == 0
+
+
+def test_the_truths_position_tells_calibrated_intervals_from_too_wide_ones():
+    """Truths drawn (seeded) from a Gaussian around each printed median: with the Gaussian's own
+    90 % half-width (1.645 sd) the median |position| comes out near 0.41, its calibrated value;
+    with intervals twice as wide, near half that; a truth at an end sits at +-1, one outside
+    beyond it, and an entry judged on another rule has no position."""
+    rng = np.random.default_rng(11)
+
+    def median_position(scale):
+        entries = []
+        for _ in range(400):
+            truth = rng.standard_normal()
+            half = 1.6449 * scale
+            entries.append(quantity_entry("delay", truth, _q(-half, half, mid=0.0)))
+        rows = [{"seed": 1, "quantities": {f"q{i}": e for i, e in enumerate(entries)},
+                 "members": ["a"], "converged": True, "truth_in_set": True}]
+        return summarise(rows)["position"]
+
+    calibrated, wide = median_position(1.0), median_position(2.0)
+    assert calibrated["intervals"] == 400
+    assert calibrated["median_abs"] == pytest.approx(GAUSSIAN_MEDIAN_POSITION, abs=0.06)
+    assert wide["median_abs"] == pytest.approx(GAUSSIAN_MEDIAN_POSITION / 2, abs=0.04)
+    assert wide["within_half"] > calibrated["within_half"] + 0.2
+    entry = {"rule": "interval", "truth": 1.3, "q05": 1.0, "q50": 1.1, "q95": 1.3}
+    assert truth_position(entry) == pytest.approx(1.0)
+    assert truth_position({**entry, "truth": 0.8}) == pytest.approx(-3.0)
+    assert truth_position({**entry, "rule": "allowed"}) is None

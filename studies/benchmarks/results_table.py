@@ -231,6 +231,11 @@ def set_coverage(records):
     if widths:
         split += "; median relative width of the intervals judged: " + ", ".join(
             f"{q} {w:.2g}" for q, w in widths.items())
+    p = table["position"]
+    if p["intervals"]:
+        split += (f"; truth's median distance from the median in half-widths of its interval "
+                  f"{p['median_abs']:.2f} over {p['intervals']} intervals "
+                  f"({p['gaussian_median_abs']:.2f} for calibrated Gaussian intervals)")
     old = (f", {table['old_layout']} of an earlier layout, judged on the interval alone, not counted"
            if table["old_layout"] else "")
     return (f"{table['draws']} of {MIN_DRAWS} draws finished (seeds {seeds[0]}-{seeds[-1]}, "

@@ -36,10 +36,13 @@ A dead-zone place, or the threshold, that the truth does not have is printed but
 (``rule`` ``None``): the truth's own place is. Beside the verdict, each printed quantity records
 its step error (the members' errors averaged by their weights), whether ``discover`` widened
 it (each member's draws to at least its median +- its own error), and whether its printed
-interval is narrower than twice the step error. An
-interval judged on its interval rule also records its width relative to its median,
-``(q95 - q05) / |q50|`` (in linear units, ``None`` for a median of 0): the summary's median of it
-shows whether coverage is bought by width.
+interval is narrower than twice the step error. An interval judged on its interval rule also
+records its width relative to its median, ``(q95 - q05) / |q50|`` (in linear units, ``None`` for
+a median of 0): the summary's median of it shows whether coverage is bought by width. The
+summary also places each truth in its interval (:func:`truth_position`, -1 and 1 at the ends):
+coverage counts only the truths outside, and over ten draws a 90 % interval's misses are one or
+two, while the median distance of every truth from its median, against the 0.41 of calibrated
+Gaussian intervals, says at any count whether the intervals are too wide or too narrow.
 
 Goals, over at least 30 finished draws: for each printed quantity, the truth covered in 80-97 %
 of the draws that judge it; no printed interval narrower than twice its step error. The chains'
@@ -241,6 +244,25 @@ def of_this_layout(row) -> bool:
     return bool(quantities) and all("rule" in e for e in quantities.values())
 
 
+#: The median of ``|truth_position|`` for a calibrated Gaussian posterior's 90 % interval:
+#: ``z_0.75 / z_0.95``. Below it the truths sit closer to the median than the intervals claim
+#: (intervals too wide); above it, farther.
+GAUSSIAN_MEDIAN_POSITION = 0.6745 / 1.6449
+
+
+def truth_position(entry):
+    """Where the truth lies in its printed 90 % interval: ``(truth - q50)`` over the half-width on
+    the truth's side (``q50 - q05`` or ``q95 - q50``), so that -1 and 1 are the interval's ends;
+    ``None`` where the entry is not judged on its interval or a half-width is 0."""
+    if entry.get("rule") != "interval" or entry.get("truth") is None:
+        return None
+    t, q05, q50, q95 = entry["truth"], entry["q05"], entry["q50"], entry["q95"]
+    if None in (q05, q50, q95) or not math.isfinite(t):
+        return None
+    half = q50 - q05 if t < q50 else q95 - q50
+    return (t - q50) / half if half > 0 else None
+
+
 def _tally(rows, names) -> dict:
     """Per quantity, the draws covering it over the draws judging it."""
     out = {}
@@ -265,7 +287,11 @@ def summarise(rows) -> dict:
         each ``draws`` and per quantity ``covered`` of ``draws``; ``allowed``: per quantity the
         truths ``inside`` the range the recordings allow over the ``draws`` that print one;
         ``step``: printed ``intervals`` with a step error, those ``narrower`` than twice it,
-        those ``widened``, and those ``without_step_error``; ``converged``, ``truth_in_set``,
+        those ``widened``, and those ``without_step_error``; ``position``: over the
+        ``intervals`` judged on the interval rule, the ``median_abs`` of
+        :func:`truth_position` and the share ``within_half`` (``|position| < 0.5``), beside
+        ``gaussian_median_abs`` (:data:`GAUSSIAN_MEDIAN_POSITION`; the quantities of one draw
+        share its fit, so the intervals are not independent); ``converged``, ``truth_in_set``,
         ``cycles_only`` (``draws`` and their ``converged``).
     """
     finished = [r for r in rows if "error" not in r]
@@ -301,10 +327,16 @@ def summarise(rows) -> dict:
             "narrower": sum(bool(e["narrower_than_step"]) for e in printed),
             "widened": sum(e["widened"] for e in printed),
             "without_step_error": sum(e["narrower_than_step"] is None for e in printed)}
+    positions = [truth_position(e) for r in done for e in r["quantities"].values()]
+    positions = np.abs([p for p in positions if p is not None])
+    position = {"intervals": int(positions.size),
+                "median_abs": float(np.median(positions)) if positions.size else None,
+                "within_half": float(np.mean(positions < 0.5)) if positions.size else None,
+                "gaussian_median_abs": GAUSSIAN_MEDIAN_POSITION}
     only = [r for r in done if cycles_only(r)]
     return {"draws": len(done), "failed": len(rows) - len(finished),
             "old_layout": len(finished) - len(done), "quantities": quantities,
-            "by_chains": by_chains, "allowed": allowed, "step": step,
+            "by_chains": by_chains, "allowed": allowed, "step": step, "position": position,
             "converged": sum(r["converged"] for r in done),
             "truth_in_set": sum(r["truth_in_set"] for r in done),
             "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)}}
@@ -375,6 +407,11 @@ def main(argv=None) -> int:
               f"median relative width {'-' if width is None else f'{width:.2g}'}")
     for label, part in table["by_chains"].items():
         print(f"  {label}: {part['draws']} draws")
+    p = table["position"]
+    if p["intervals"]:
+        print(f"  truth's position in its interval (|truth - median| over the half-width on its "
+              f"side): median {p['median_abs']:.2f} over {p['intervals']} intervals "
+              f"({p['gaussian_median_abs']:.2f} for calibrated Gaussian intervals)")
     s = table["step"]
     print(f"  printed intervals narrower than twice the step error: {s['narrower']} of "
           f"{s['intervals']} ({s['widened']} widened, {s['without_step_error']} without a step error)")
