@@ -8,7 +8,7 @@ import pytest
 from discovery.structure import StructureDiscovery
 from discovery.structure.indistinguishable import TOL_ABS
 from discovery.structure.search import Objective
-from discovery.structure.set_posterior import member_walkers
+from discovery.structure.member_calibration import member_walkers
 from models.recording import save_recording
 from models.structures import Structure, shared_choices
 from studies.benchmarks.discovery import coordinate_errors

@@ -140,7 +140,7 @@ def test_a_member_whose_chain_cannot_start_is_left_out_and_named(tmp_path, recor
     set-coverage draw's member whose runs do not sustain the recorded cycle): the run goes on,
     the set's posterior is the first member's, and the report names the member left out."""
     from discovery.calibration.start import NoFiniteStartError
-    from discovery.structure import set_posterior
+    from discovery.structure import member_calibration
 
     import discovery.structure
 
@@ -148,14 +148,14 @@ def test_a_member_whose_chain_cannot_start_is_left_out_and_named(tmp_path, recor
 
     monkeypatch.setattr(discovery.structure, "StructureDiscovery", _Ranking)
     monkeypatch.setattr(tvcid.pipeline, "next_test", lambda *a: None)
-    calibrate = set_posterior.calibrate_member
+    calibrate = member_calibration.calibrate_member
 
     def second_fails(params, structure, *args, **kwargs):
         if structure.delay_position.value == "before_integrator":
             raise NoFiniteStartError("could not place the walkers where the posterior is finite")
         return calibrate(params, structure, *args, **kwargs)
 
-    monkeypatch.setattr(set_posterior, "calibrate_member", second_fails)
+    monkeypatch.setattr(member_calibration, "calibrate_member", second_fails)
     out = tmp_path / "run"
     fixes = [a for k, v in FIXED.items() for a in ("--fix", f"{k}={v}")]
     assert main(["discover", recording, *fixes, "--quick", "--seed", "1", "--max-steps",

@@ -469,8 +469,8 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None,
 
 
 def _calibrate_member(row, recs, offsets, fixed, seed, quick, max_steps, progress, out):
-    """MCMC of one member of the set (:func:`discovery.structure.set_posterior.calibrate_member`)
-    on all recordings with their offsets removed, checkpointed in ``out``. Returns
+    """MCMC of one member of the set
+    (:func:`discovery.structure.member_calibration.calibrate_member`) on all recordings with their offsets removed, checkpointed in ``out``. Returns
     ``(posterior, priors, simulated seconds of the start and of the sampling, chain file name)``.
 
     The chain's file is named by a hash of the member's parameters as strict JSON
@@ -478,7 +478,7 @@ def _calibrate_member(row, recs, offsets, fixed, seed, quick, max_steps, progres
     ranking of a fresh run holds an open saturation as infinity, the same ranking read back from
     ``discovery.json`` as ``null``, and both must name the same chain for a rerun to resume it.
     """
-    from discovery.structure.set_posterior import calibrate_member
+    from discovery.structure.member_calibration import calibrate_member
     from models import params_from_dict
     from models.structures import Structure
 

@@ -17,7 +17,10 @@ Stages, one module each:
   best, and the merges;
 * :mod:`.estimator` -- :class:`StructureDiscovery`, which runs them in turn, and
   :func:`validate_recordings`;
-* :mod:`.discrimination` -- which further test would tell the set's members apart.
+* :mod:`.discrimination` -- which further test would tell the set's members apart;
+* :mod:`.member_calibration`, :mod:`.set_weights` (with :mod:`.ranking_shares`) and
+  :mod:`.set_posterior` -- the set's members calibrated, weighted and mixed into the posterior
+  the report prints.
 """
 from .coordinates import SearchSpace, UnknownParameterError
 from .cycle_tail import NoCycleError

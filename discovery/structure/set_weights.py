@@ -2,8 +2,8 @@
 
 The set (:mod:`discovery.structure.indistinguishable`) holds the structures whose held-out scores
 the two folds cannot separate from the best; each member is calibrated on its own
-(:func:`discovery.structure.set_posterior.calibrate_member`). This module weighs the calibrated
-members by their out-of-sample predictive densities:
+(:func:`discovery.structure.member_calibration.calibrate_member`). This module weighs the
+calibrated members by their out-of-sample predictive densities:
 
 * :func:`member_pointwise` -- a member's pointwise log-likelihood draws over every recording
   (:meth:`discovery.calibration.Posterior.pointwise_log_likelihood`, without the discrepancy
