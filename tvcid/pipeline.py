@@ -470,8 +470,9 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None,
 
 def _calibrate_member(row, recs, offsets, fixed, seed, quick, max_steps, progress, out):
     """MCMC of one member of the set
-    (:func:`discovery.structure.member_calibration.calibrate_member`) on all recordings with their offsets removed, checkpointed in ``out``. Returns
-    ``(posterior, priors, simulated seconds of the start and of the sampling, chain file name)``.
+    (:func:`discovery.structure.member_calibration.calibrate_member`) on all recordings with
+    their offsets removed, checkpointed in ``out``. Returns ``(posterior, priors, simulated
+    seconds of the start and of the sampling, chain file name)``.
 
     The chain's file is named by a hash of the member's parameters as strict JSON
     (:func:`models.strict_json.jsonable` of the rebuilt :class:`models.ActuatorParams`): the
