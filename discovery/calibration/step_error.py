@@ -291,8 +291,9 @@ class StepError:
         """Whether the step resolves the member: the half step's change of the log posterior,
         beyond a tilt, is smaller than the spread of the posterior's own log density. Where it
         is not, the half-step posterior is not this one moved, and the errors are the
-        regression's noise, large because the likelihood is rough at the step's scale (a
-        friction offset beyond the dead band switching at every zero crossing of the velocity)."""
+        regression's noise: the step resolves some draws and not others (a limit cycle whose
+        fundamental's amplitude moves by many of its sd at half the step in part of the
+        posterior, where the solver error measured at one point did not see it)."""
         if not (math.isfinite(self.residual_sd) and math.isfinite(self.log_prob_sd)):
             return True
         return self.residual_sd <= self.log_prob_sd
@@ -314,8 +315,8 @@ class StepError:
         return {"parameters": self.parameters, "quantities": self.quantities,
                 "steps": self.steps, "n_points": self.n_points, "n_failed": self.n_failed,
                 "residual_sd": self.residual_sd, "log_prob_sd": self.log_prob_sd,
-                "resolved": self.resolved, "ess": self.ess, "simulated_seconds": self.simulated_seconds,
-                "simulated_steps": self.simulated_steps,
+                "resolved": self.resolved, "ess": self.ess,
+                "simulated_seconds": self.simulated_seconds, "simulated_steps": self.simulated_steps,
                 "rule": f"step error = {SOLVER_ERROR_FACTOR:g} x (the median's move when the step "
                         "is halved + its standard error)"}
 

@@ -2,8 +2,9 @@
 
 Each distinct member of the indistinguishable set (:mod:`discovery.structure.indistinguishable`)
 is calibrated on its own (:mod:`discovery.structure.member_calibration`), every parameter the
-recordings inform sampled, the linear block included; where the set leaves a component open (backlash, friction offset, band-pass loop) and
-no distinct member has it, the richer structure merged into one is calibrated too.
+recordings inform sampled, the linear block included; where the set leaves a component open
+(backlash, friction offset, band-pass loop) and no distinct member has it, the richer structure
+merged into one is calibrated too.
 :func:`combine` then mixes the members' draws, each with its weight, into one posterior of the
 physical quantities they share:
 
