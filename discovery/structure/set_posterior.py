@@ -231,8 +231,8 @@ class SetPosterior:
     member_intervals: list | None = None
 
     def interval(self, name, level=0.90):
-        """The combined 90 % interval ``(q05, q95)`` of quantity ``name`` (widened to the step
-        error where it is narrower)."""
+        """The combined 90 % interval ``(q05, q95)`` of quantity ``name`` (each member's draws
+        widened to its step error where narrower, within the quantity's support)."""
         if level != 0.90:
             raise ValueError(f"interval: only the 90 % interval is stored (got level {level})")
         q = self.quantities[name]
