@@ -284,6 +284,10 @@ def test_each_member_is_widened_by_its_own_step_error_within_the_quantity_s_supp
     text = "\n".join(summary_lines({"structures": rows, "decided": {}, "set_posterior": combined}))
     assert "Not resolved by the integration step: `m6` (halving the step changes its log " \
            "posterior by 15.7 nats rms" in text and "`m5`" not in text.split("Not resolved")[1]
+    from tvcid.report import member_table_lines
+
+    table = {li.split("|")[1].strip(): li for li in member_table_lines(combined) if "`m" in li}
+    assert table["`m6`"].count("(w)") == 1 and "(w)" not in table["`m0`"]
 
 
 def test_the_richer_structure_of_a_component_left_open_is_calibrated_too():

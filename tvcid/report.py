@@ -308,6 +308,28 @@ def _pruned_line(pruned) -> str:
                                             for reason, names in by_reason.items())
 
 
+def member_table_lines(sp) -> list:
+    """The report's table of each calibrated structure's quantities (median and 90 % interval),
+    an interval its own step error widened marked ``(w)``."""
+    names = list(sp["quantities"])
+    lines = ["## Each calibrated structure", "",
+             "Median and 90 % interval of each quantity, per structure of the set; the "
+             "summary's combined intervals mix them by their weights. An interval marked "
+             "(w) is widened to that structure's own step error.", "",
+             "| structure | weight | converged | " + " | ".join(names) + " |",
+             "|---|---|---|" + "---|" * len(names)]
+    for m in sp["members"]:
+        cells = []
+        for n in names:
+            q = m["quantities"].get(n)
+            cells.append("" if q is None or q["q50"] is None else
+                         f"{_num(q['q50'])} [{_num(q['q05'])}, {_num(q['q95'])}]"
+                         + (" (w)" if q.get("widened") else ""))
+        lines.append(f"| `{m['structure']}` | {m.get('weight', 1 / len(sp['members'])):.2f} | "
+                     f"{m['converged']} | " + " | ".join(cells) + " |")
+    return lines + [""]
+
+
 def discovery_report(summary) -> str:
     """``report.md``: a one-screen summary, then the ranking table, what the recordings decide,
     the next test, the best structure's parameters, what was fixed or estimated, the posterior
@@ -367,21 +389,7 @@ def discovery_report(summary) -> str:
                   "![traces](traces.png)", ""]
     sp = summary.get("set_posterior")
     if sp and len(sp["members"]) > 1:
-        names = list(sp["quantities"])
-        lines += ["## Each calibrated structure", "",
-                  "Median and 90 % interval of each quantity, per structure of the set; the "
-                  "summary's combined intervals mix them by their weights.", "",
-                  "| structure | weight | converged | " + " | ".join(names) + " |",
-                  "|---|---|---|" + "---|" * len(names)]
-        for m in sp["members"]:
-            cells = []
-            for n in names:
-                q = m["quantities"].get(n)
-                cells.append("" if q is None or q["q50"] is None else
-                             f"{_num(q['q50'])} [{_num(q['q05'])}, {_num(q['q95'])}]")
-            lines.append(f"| `{m['structure']}` | {m.get('weight', 1 / len(sp['members'])):.2f} | "
-                         f"{m['converged']} | " + " | ".join(cells) + " |")
-        lines.append("")
+        lines += member_table_lines(sp)
     lines += ["## Time", "", f"Search sizes: {summary.get('search', 'standard')}.", "",
               ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()
                         if isinstance(v, (int, float))), ""]
