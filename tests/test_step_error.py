@@ -95,6 +95,18 @@ def test_widened_draws_have_the_widened_interval_s_ends_and_stay_in_the_support(
     assert spread and np.quantile(flat, (0.05, 0.95)) == pytest.approx([0.49, 0.51], abs=2e-4)
 
 
+def test_a_member_is_not_resolved_only_where_the_residual_exceeds_its_spread_beyond_noise():
+    """64 points, 8 parameters (55 residual degrees of freedom, the residual sd known to 10 %):
+    a residual 10 % above the posterior's own log-density spread is within that noise and the
+    member is resolved; 8 times above (a closed-loop cycle the step resolves at some draws and
+    not at others) is not; unmeasured is resolved."""
+    params = {f"p{i}": {"shift": 0.0, "se": 0.0, "error": 0.0} for i in range(8)}
+    at = lambda r: StepError(params, n_points=64, residual_sd=r, log_prob_sd=2.0)  # noqa: E731
+    assert at(2.2).resolved and at(1.0).resolved
+    assert not at(2.0 * 1.25).resolved and not at(15.7).resolved
+    assert StepError(params).resolved and at(15.7).to_dict()["resolved"] is False
+
+
 # -- the tilt ------------------------------------------------------------------------------------
 def test_a_linear_tilt_moves_a_gaussian_by_covariance_times_slope_even_beyond_its_width():
     """A correlated 3-d Gaussian, its log density changed by ``g . z`` plus 0.3 nats of

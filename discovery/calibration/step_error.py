@@ -268,8 +268,8 @@ class StepError:
         beyond it (the tilt still measures it).
     log_prob_sd : float
         The sd of the chain's log posterior over its draws (nats): how much the posterior's own
-        draws differ in density. Where ``residual_sd`` exceeds it, halving the step reorders the
-        draws by more than they differ (:attr:`resolved`).
+        draws differ in density. Where ``residual_sd`` exceeds it beyond its own noise, halving
+        the step reorders the draws by more than they differ (:attr:`resolved`).
     simulated_seconds, simulated_steps : float
         The measurement's cost (set-up and evaluations); a halved step costs twice the RK4 steps
         per simulated second.
@@ -289,14 +289,17 @@ class StepError:
     @property
     def resolved(self) -> bool:
         """Whether the step resolves the member: the half step's change of the log posterior,
-        beyond a tilt, is smaller than the spread of the posterior's own log density. Where it
-        is not, the half-step posterior is not this one moved, and the errors are the
-        regression's noise: the step resolves some draws and not others (a limit cycle whose
-        fundamental's amplitude moves by many of its sd at half the step in part of the
-        posterior, where the solver error measured at one point did not see it)."""
+        beyond a tilt, is not larger than the spread of the posterior's own log density by
+        more than twice the residual sd's own relative error, ``1 / sqrt(2 dof)`` with ``dof``
+        the regression's residual degrees of freedom. Where it is larger, the half-step
+        posterior is not this one moved, and the errors are the regression's noise: the step
+        resolves some draws and not others (a limit cycle whose fundamental's amplitude moves
+        by many of its sd at half the step in part of the posterior, where the solver error
+        measured at one point did not see it)."""
         if not (math.isfinite(self.residual_sd) and math.isfinite(self.log_prob_sd)):
             return True
-        return self.residual_sd <= self.log_prob_sd
+        dof = max(self.n_points - len(self.parameters) - 1, 1)
+        return self.residual_sd <= self.log_prob_sd * (1.0 + 2.0 / math.sqrt(2.0 * dof))
 
     def error(self, name) -> float:
         """The step error of a combined quantity or, failing that, of a sampled parameter."""
