@@ -394,8 +394,9 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
     names = [n for n in QUANTITY_UNITS if n in present] + sorted(present - set(QUANTITY_UNITS))
     quantities = {}
     # each member's draws widened to its own step error (:func:`widen_draws`), within the support
-    widened_draws = [{n: widen_draws(v, (m.step_error or {}).get(n), _support(n, m))
-                      for n, v in m.quantities.items()} for m in members]
+    supports = [{n: _support(n, m) for n in m.quantities} for m in members]
+    widened_draws = [{n: widen_draws(v, (m.step_error or {}).get(n), support[n])
+                      for n, v in m.quantities.items()} for m, support in zip(members, supports)]
     for name in names:
         having = [i for i, m in enumerate(members) if name in m.quantities]
         share = float(w[having].sum())
@@ -449,8 +450,7 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
                             "step_error": step or None, "widened": widened,
                             "step_error_widened": (max(float(errors[having.index(i)])
                                                        for i in widened_by) if widened else None),
-                            "support": _joined_support([_support(name, members[i])
-                                                        for i in counted]),
+                            "support": _joined_support([supports[i][name] for i in counted]),
                             "equal_weights": _quantiles(equal)}
     for name in left_open:
         if name in quantities:
