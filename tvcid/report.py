@@ -10,8 +10,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from discovery.structure.set_posterior import (QUANTITY_UNITS, partly_present,
-                                               printed_present_or_absent)
+from discovery.structure.set_posterior import (COMPONENT_QUANTITIES, QUANTITY_UNITS,
+                                               partly_present, printed_present_or_absent)
 from models.hypotheses import parameter_unit
 from models.structures import Structure, prune_reason
 
@@ -248,7 +248,7 @@ CHOICE_LABELS = {"dead_zone_position": "dead zone on", "delay_position": "delay 
 def _structural(structure, choice, value) -> str:
     """Where a component decided off could not be on with the choices the set shares (a friction
     offset beside a dead zone on the error), the rule that decides it, not the data."""
-    if value is not False or choice not in ("friction", "backlash", "bandpass"):
+    if value is not False or choice not in COMPONENT_QUANTITIES:
         return ""
     reason = prune_reason(dataclasses.replace(Structure.parse(structure), **{choice: True}))
     return "" if reason is None else f" (not by the data: {reason.split(':')[0]})"

@@ -52,9 +52,9 @@ resumes; rows of an earlier layout, judged on the interval alone, are run again)
 commit of the code that ran it. A draw's directory without its row (``DIR/drawNNNN``, from an
 interrupted run or copied from an earlier one) is resumed as ``discover`` resumes: its recordings
 read back, its ranking, next test and finished chains carried over, the step errors, weights and
-combined posterior computed again by this code. So the rows of a code change that leaves the sampling alone
-are made again at the new commit in one to three minutes a draw, where a fresh draw takes one to
-two hours.
+combined posterior computed again by this code. So the rows of a code change that leaves the
+sampling alone are made again at the new commit in one to three minutes a draw, where a fresh
+draw takes one to two hours.
 """
 from __future__ import annotations
 
