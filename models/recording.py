@@ -292,15 +292,19 @@ def _read_csv(path):
     header = [h.strip() for h in rows[0]]
     if len(set(header)) != len(header):
         _fail(path, "header repeats a column name")
-    data = np.empty((len(rows) - 1, len(header)))
     for i, row in enumerate(rows[1:]):
         if len(row) != len(header):
             _fail(path, f"data row {i + 1} has {len(row)} fields, the header has {len(header)}")
-        for j, cell in enumerate(row):
-            try:
-                data[i, j] = float(cell)
-            except ValueError:
-                _fail(path, f"data row {i + 1}, column '{header[j]}': not a number ({cell!r})")
+    try:
+        data = np.array(rows[1:], dtype=float).reshape(len(rows) - 1, len(header))
+    except ValueError:  # find the cell to name it
+        for i, row in enumerate(rows[1:]):
+            for j, cell in enumerate(row):
+                try:
+                    float(cell)
+                except ValueError:
+                    _fail(path, f"data row {i + 1}, column '{header[j]}': not a number ({cell!r})")
+        raise
     return {name: data[:, j].copy() for j, name in enumerate(header)}
 
 

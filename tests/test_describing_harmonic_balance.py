@@ -154,3 +154,26 @@ def test_results_plot_on_given_axes_without_new_figures():
     assert paper002_family(4.89e-3, 8.57, CONTROLLER_A, hypothesis("M002")).plot(ax=ax2) is ax2
     assert len(ax2.lines) == 1 and plt.get_fignums() == open_figures
     plt.close(fig)
+
+
+def test_cells_on_the_edge_of_a_region_without_cycles_are_not_searched(monkeypatch):
+    """M000's dead zone with a friction offset has ``N <= 0`` just above its half width, where
+    ``Phi`` is set to exactly 1: the zero imaginary part there is no sign change, so only cells
+    where both parts change strictly sign are refined (the grid's edge row took 23 of 27 root
+    searches, all failing)."""
+    from discovery.describing import harmonic_balance
+
+    calls = []
+    real_root = harmonic_balance.root
+
+    def counted(*args, **kwargs):
+        calls.append(args[1])
+        return real_root(*args, **kwargs)
+
+    monkeypatch.setattr(harmonic_balance, "root", counted)
+    m000 = hypothesis("M000")
+    result = predict_limit_cycles(m000, CONTROLLER_A, n_amplitudes=40, n_frequencies=60)
+    (cycle,) = result.stable_cycles
+    assert cycle.frequency == pytest.approx(8.48, abs=0.01)
+    edge = np.log(m000.dead_zone * 1.0001)
+    assert len(calls) < 10 and all(start[0] > edge + 0.1 for start in calls)

@@ -204,8 +204,10 @@ def solve_harmonic_balance(
     re, im = np.sign(grid.real), np.sign(grid.imag)
 
     def changes(s):
+        # strictly negative to strictly positive: a region where Phi is set to exactly 1
+        # (no cycle can exist there) has a zero imaginary part but no zero of Phi on its edge
         corners = np.stack([s[:-1, :-1], s[1:, :-1], s[:-1, 1:], s[1:, 1:]])
-        return corners.min(axis=0) != corners.max(axis=0)
+        return (corners.min(axis=0) < 0) & (corners.max(axis=0) > 0)
 
     cells = np.argwhere(changes(re) & changes(im))
 
