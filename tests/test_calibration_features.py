@@ -264,3 +264,84 @@ def test_a_record_still_settling_is_simulated_from_where_it_starts(tmp_path, mon
 
     _, settled = _settling_record(tmp_path / "d15_settled.csv", 15, lead=60.0)
     assert FeatureTerm(settled, 10.0, 20.0, 5e-4).record_start is None
+
+
+def _held_record(tmp_path):
+    """Coverage draw 16's truth at its second setting (controller held at 200 Hz), 12 s sampled
+    at 200 Hz, noise 1.9e-5 rad: the record whose step error the features correct."""
+    from studies.benchmarks.coverage import Config, coverage_scenario
+
+    scenario = coverage_scenario(16, Config())
+    exp = scenario.recordings[1].experiment()
+    rec = synthetic_recording(scenario.truth, exp, 30.0, 1.9e-5, 4, tmp_path / "b.csv",
+                              keep_last=12.0, dt=5e-5, rate=200.0)
+    return scenario.truth, rec
+
+
+def test_the_solver_correction_is_the_median_change_over_points_where_one_point_jumps(tmp_path):
+    """Near the held controller's switching events the step-doubling change is not smooth in the
+    parameters: at 16 points within 1 % of the truth (dead zone, delay, backlash and feedback gain
+    scattered; seeded) H1 moves by 0.004 to 2.3 data sd, its median 0.08. The correction over
+    those points is twice the median change, its variance the mean squared change: the one-point
+    rule's on average, without its jump at a special point."""
+    truth, rec = _held_record(tmp_path)
+    term = FeatureTerm(rec, 10.0, 20.0, 5e-4).setup(truth)
+    sd = np.sqrt(np.diag(term._data_cov))
+    rng = np.random.default_rng(0)
+    names = ("dead_zone", "delay", "backlash", "feedback_gain")
+    sets = [truth] + [truth.replace(**{n: getattr(truth, n) * (1 + 0.01 * rng.standard_normal())
+                                       for n in names}) for _ in range(15)]
+    warm = term.warm_start is not None
+    changes = []
+    for s in sets:
+        term.solver_variance(s, warm)
+        changes.append(term.solver_bias / 2.0)
+    changes = np.array(changes)
+    h1 = np.abs(changes[:, term.features.index("H1")]) / sd[term.features.index("H1")]
+    assert h1.max() > 1.0 and h1.min() < 0.05 and h1.max() > 20 * np.median(h1)
+    var = term.solver_correction(sets, warm)
+    assert np.allclose(term.solver_bias, 2.0 * np.median(changes, axis=0), rtol=1e-9, atol=0)
+    assert np.allclose(var, np.mean(changes**2, axis=0), rtol=1e-9, atol=0)
+    one = term.solver_variance(sets[0], warm)  # one point: the change and its square
+    assert np.allclose(one, changes[0] ** 2, rtol=1e-9, atol=0)
+
+
+def test_the_start_measures_the_correction_at_its_walkers_and_a_resumed_run_keeps_it(tmp_path):
+    """A features calibration measures each record's solver correction over its maximum a
+    posteriori and eight of the walkers' starting points, keeps both in its checkpoint, and a
+    resumed run takes them from there rather than from the maximum alone; the half-step log
+    posterior of the step error measures its own correction over the same points."""
+    from discovery.calibration import Calibration
+    from discovery.calibration.runner import ConvergenceWarning
+    from discovery.calibration.step_error import halved_log_posterior
+
+    truth, rec = _held_record(tmp_path)
+
+    def cal(steps):
+        return Calibration(truth, params=("dead_zone", "delay"), likelihood="features",
+                           window=10.0, transient=20.0, dt=5e-4, n_walkers=10, max_steps=steps,
+                           check_every=5, stop_when_converged=False, backend=tmp_path / "c.h5",
+                           seed=2)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        first = cal(5).fit([rec])
+        points = first.solver_check_points_
+        assert len(points) == 9 and points[0] == pytest.approx(first.map_start_)
+        term = first.log_posterior_.terms[0]
+        lp = first.log_posterior_
+        sets = [lp.params_for(np.array([p[n] for n in first.names_])) for p in points]
+        bias, var = term.solver_bias.copy(), term.solver_var.copy()
+        again = FeatureTerm(rec, 10.0, 20.0, 5e-4).setup(truth)
+        assert np.array_equal(again.solver_correction(sets), var)
+        assert np.array_equal(again.solver_bias, bias)
+        at_map_alone = again.solver_variance(sets[0])
+        assert not np.array_equal(at_map_alone, var)
+        resumed = cal(10).fit([rec])
+    assert resumed.report_.new_steps == 5
+    assert resumed.solver_check_points_ == points
+    assert np.array_equal(resumed.log_posterior_.terms[0].solver_bias, bias)
+    assert np.array_equal(resumed.log_posterior_.terms[0].solver_var, var)
+    over_points = halved_log_posterior(resumed).simulated_seconds
+    at_one = halved_log_posterior(resumed, at=points[0]).simulated_seconds
+    assert over_points > at_one

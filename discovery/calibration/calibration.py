@@ -350,6 +350,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
         start_params = base.replace(**{n: v for n, v in start_values.items() if n != SIGMA})
         self.fallbacks_ = {}
         self.transients_, self.transient_errors_ = {}, {}  # set once the walkers are placed
+        self.solver_check_points_ = None  # likewise (StartSearch._set_solver_correction)
         not_periodic = []
         for i, term in enumerate(self.terms_):
             if isinstance(term, WaveformTerm) and self.features_fallback:
@@ -518,6 +519,10 @@ class Calibration(StartSearch, LaplaceAdaptation):
                     transient = ({k: v[()] for k, v in f[H5_GROUP]["transient_var"].items()}
                                  if H5_GROUP in f and "transient_var" in f[H5_GROUP] else None)
                     step_check = f[H5_GROUP].attrs.get("step_check_at") if H5_GROUP in f else None
+                    solver = ({k: v[()] for k, v in f[H5_GROUP]["solver_correction"].items()}
+                              if H5_GROUP in f and "solver_correction" in f[H5_GROUP] else None)
+                    solver_points = (f[H5_GROUP].attrs.get("solver_check_points")
+                                     if H5_GROUP in f else None)
                     chosen = f[H5_GROUP].attrs.get("transients") if H5_GROUP in f else None
                     fallbacks = f[H5_GROUP].attrs.get("fallbacks") if H5_GROUP in f else None
                 if fallbacks is not None and old == config:  # resuming: the records that fell back
@@ -527,6 +532,11 @@ class Calibration(StartSearch, LaplaceAdaptation):
                             self._fall_back(names.index(name), reason)
                 if step_check is not None and old == config:  # resuming: the steps of the start
                     self._refine_steps_at(json.loads(step_check), save=False)
+                if solver is not None and old == config:  # resuming: the start's solver corrections
+                    for term in self.terms_:
+                        if term.name in solver and hasattr(term, "set_solver_correction"):
+                            term.set_solver_correction(*solver[term.name])
+                    self.solver_check_points_ = json.loads(solver_points) if solver_points else None
                 if chosen is not None and old == config:  # resuming: the transients chosen
                     self.transients_ = json.loads(chosen)
                     for term in self.terms_:

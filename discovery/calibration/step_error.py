@@ -96,10 +96,11 @@ _SE_SUBSAMPLE = 1000
 
 
 # -- the likelihood at half the step ------------------------------------------------------------
-def _halve(term, start_params, at, warm):
+def _halve(term, start_params, at, warm, around=()):
     """A copy of ``term`` simulating at half its step, built as its own set-up builds it, its
-    solver error measured at ``at`` (an ``ActuatorParams``); ``(copy, runs)`` where ``runs``
-    lists the set-up's simulations as ``(seconds, step)``."""
+    solver error measured at ``at`` (an ``ActuatorParams``; a features record's over ``at`` and
+    ``around`` too, as its start measured it); ``(copy, runs)`` where ``runs`` lists the set-up's
+    simulations as ``(seconds, step)``."""
     half = copy.copy(term)  # the original's arrays are shared, never written: every change rebinds
     h = float(term.simulator.dt) / 2.0
     runs = []
@@ -126,12 +127,16 @@ def _halve(term, start_params, at, warm):
             # step doubling's own warm start at h / 2
             runs += [(_WARM_START_SECONDS, h)] * (1 + 2 * len(piece)) + [(p, h) for p in piece] * 2
             runs += [(_WARM_START_SECONDS, h / 2)]
-        if isinstance(term, FeatureTerm):
-            half.refine_at(at)  # the features' Richardson correction and its variance
+        points = 1
+        if isinstance(term, FeatureTerm):  # the features' Richardson correction and its variance
+            sets = [at, *around]
+            points = len(sets)
+            var = half.solver_correction(sets, warm)
+            half.set_solver_correction(half.solver_bias, var)
         else:
             half.solver_var = None
             half.solver_var = half.waveform_solver_variance(at, warm)
-        runs += [(end, h), (end, h / 2)] + [(p, h) for p in piece] + [(p, h / 2) for p in piece]
+        runs += ([(end, h), (end, h / 2)] + [(p, h) for p in piece] + [(p, h / 2) for p in piece]) * points
     else:
         raise TypeError(f"{type(term).__name__}: no half-step build for this likelihood term")
     return half, runs
@@ -155,6 +160,13 @@ def _step_check_point(calibration, posterior=None) -> dict:
     return point
 
 
+def _solver_check_points(calibration) -> list:
+    """Where the calibration's start measured its features' solver correction (natural
+    coordinates; the maximum a posteriori first); empty for a run whose checkpoint has none."""
+    points = getattr(calibration, "solver_check_points_", None)
+    return list(points) if points else []
+
+
 def halved_log_posterior(calibration, at=None):
     """The calibration's log posterior with every term simulating at half its step.
 
@@ -162,7 +174,8 @@ def halved_log_posterior(calibration, at=None):
     record's warm start from the calibration's start values, an open-loop record's edges placed
     again (on the grid or where they are, :meth:`.likelihood.open_loop.OpenLoopTerm.edge_loads`),
     and each term's solver error (features: the Richardson correction; waveforms: the variance)
-    measured at ``at`` against a quarter step. The discrepancy factors, the transients, a
+    measured at ``at`` against a quarter step (features: over the points the start measured its
+    correction at, when ``at`` is left to its default). The discrepancy factors, the transients, a
     features record's start imprint, the priors and the noise sd are the calibration's: only the
     step differs. The calibration itself is left as it is.
 
@@ -181,15 +194,20 @@ def halved_log_posterior(calibration, at=None):
         set-up's runs.
     """
     cal = calibration
-    at = _step_check_point(cal, getattr(cal, "posterior_", None)) if at is None else at
+    around = []
+    if at is None:
+        at = _step_check_point(cal, getattr(cal, "posterior_", None))
+        around = _solver_check_points(cal)[1:]
     lp0 = cal.log_posterior_
     point = lp0.params_for(np.array([float(at[n]) for n in cal.names_]))
     if point is None:
         raise ValueError(f"no valid parameter set at {at}")
+    others = [p for p in (lp0.params_for(np.array([float(x[n]) for n in cal.names_]))
+                          for x in around) if p is not None]
     start = cal.base_.replace(**{n: v for n, v in cal.start_.items() if n != SIGMA})
     terms, runs = [], []
     for term in lp0.terms:
-        half, r = _halve(term, start, point, bool(cal.warm_start))
+        half, r = _halve(term, start, point, bool(cal.warm_start), others)
         terms.append(half)
         runs += r
     lp = LogPosterior(lp0.base, lp0.names, dict(zip(lp0.names, lp0.priors)), terms, lp0.sigma)

@@ -385,14 +385,45 @@ class FeatureTerm(_ClosedLoopTerm):
         corrected (that draw's posterior, whose dead zone sits 5 % below the truth, is decided by
         its open-loop square). Zeros when the halved step does not fit the grid.
         """
+        return self.solver_correction([params], warm_start)
+
+    def solver_correction(self, param_sets, warm_start=True):
+        """:meth:`solver_variance` over ``param_sets``: the correction is ``SOLVER_ERROR_FACTOR``
+        times the median change, its variance the mean squared change; sets :attr:`solver_bias`
+        and returns the variance.
+
+        The change is not smooth in the parameters: near a held controller's or a dead zone's
+        switching events it jumps from point to point, so that one point can be a special one
+        where halving the step moves a feature many times more (or less) than at its neighbours
+        (``tests/test_calibration_features.py``: points within 1 % of a drawn truth move H1 by
+        0.004 to 2.3 data sd). A correction taken at one such point shifts every draw's
+        likelihood by that much; the median is the systematic part. The mean square is what a
+        one-point variance is on average, and it covers the points where the change is far from
+        the median.
+        """
         self.solver_bias = np.zeros(len(self.features))
-        pair = _step_doubling(self, self.model_features, params, warm_start)
-        if pair is None:
-            return np.zeros(len(self.features))
-        change = pair[1] - pair[0]
-        ok = np.isfinite(change)
-        self.solver_bias = np.where(ok, SOLVER_ERROR_FACTOR * change, 0.0)
-        return np.where(ok, change * change, 0.0)
+        change = []
+        for params in param_sets:  # each with the half step's warm start at its own point
+            pair = _step_doubling(self, self.model_features, params, warm_start)
+            if pair is None:
+                return np.zeros(len(self.features))
+            change.append(pair[1] - pair[0])
+        change = np.asarray(change, dtype=float)
+        ok = np.isfinite(change).any(axis=0)
+        filled = np.where(np.isfinite(change), change, np.nan)
+        with np.errstate(all="ignore"):
+            median = np.array([np.nanmedian(c) if k else 0.0 for c, k in zip(filled.T, ok)])
+            square = np.array([np.nanmean(c * c) if k else 0.0 for c, k in zip(filled.T, ok)])
+        self.solver_bias = np.where(ok, SOLVER_ERROR_FACTOR * median, 0.0)
+        return np.where(ok, square, 0.0)
+
+    def set_solver_correction(self, bias, var):
+        """Set :attr:`solver_bias` and :attr:`solver_var` (from :meth:`solver_correction`, or a
+        checkpoint)."""
+        self.solver_bias = np.asarray(bias, dtype=float).reshape(len(self.features))
+        self.solver_var = np.asarray(var, dtype=float).reshape(len(self.features))
+        self._refactor()
+        return self
 
     def refine_at(self, params):
         """The solver's correction and variance measured again at ``params`` (the maximum a
