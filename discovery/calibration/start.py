@@ -279,8 +279,7 @@ class StartSearch:
         self.solver_check_points_ = [dict(zip(self.names_, row.tolist())) for row, _ in kept]
         sets = [p for _, p in kept]
         for term in terms:
-            var = term.solver_correction(sets, term.warm_start is not None)
-            term.set_solver_correction(term.solver_bias, var)
+            term.correct_over(sets, term.warm_start is not None)
         if self.backend is not None:
             with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
                 group = f.require_group(H5_GROUP)

@@ -129,10 +129,8 @@ def _halve(term, start_params, at, warm, around=()):
             runs += [(_WARM_START_SECONDS, h / 2)]
         points = 1
         if isinstance(term, FeatureTerm):  # the features' Richardson correction and its variance
-            sets = [at, *around]
-            points = len(sets)
-            var = half.solver_correction(sets, warm)
-            half.set_solver_correction(half.solver_bias, var)
+            points = 1 + len(around)
+            half.correct_over([at, *around], half.warm_start is not None)
         else:
             half.solver_var = None
             half.solver_var = half.waveform_solver_variance(at, warm)

@@ -417,6 +417,11 @@ class FeatureTerm(_ClosedLoopTerm):
         self.solver_bias = np.where(ok, SOLVER_ERROR_FACTOR * median, 0.0)
         return np.where(ok, square, 0.0)
 
+    def correct_over(self, param_sets, warm_start=True):
+        """:meth:`solver_correction` over ``param_sets``, set as the term's; returns ``self``."""
+        var = self.solver_correction(param_sets, warm_start)
+        return self.set_solver_correction(self.solver_bias, var)
+
     def set_solver_correction(self, bias, var):
         """Set :attr:`solver_bias` and :attr:`solver_var` (from :meth:`solver_correction`, or a
         checkpoint)."""
@@ -428,9 +433,7 @@ class FeatureTerm(_ClosedLoopTerm):
     def refine_at(self, params):
         """The solver's correction and variance measured again at ``params`` (the maximum a
         posteriori; :meth:`solver_variance`)."""
-        self.solver_var = self.solver_variance(params, self.warm_start is not None)
-        self._refactor()
-        return self
+        return self.correct_over([params], self.warm_start is not None)
 
     def _wander_variance(self, n_segments, n_mc, rng):
         """``(wander, settling)`` variances of the window's features beyond sensor noise.
