@@ -286,7 +286,7 @@ def _read_csv(path):
         rows = list(csv.reader(io.StringIO(text, newline="")))  # quoted names may hold line breaks
     except csv.Error as exc:
         _fail(path, f"not a readable CSV file ({exc})")
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    rows = [r for r in rows if r and (r[0].strip() or any(c.strip() for c in r[1:]))]
     if not rows:
         _fail(path, "file is empty")
     header = [h.strip() for h in rows[0]]
@@ -378,10 +378,10 @@ def save_recording(path, columns: dict, meta: dict) -> Path:
                                  "whitespace (the reader strips it)")
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(names)
-        for row in zip(*(columns[n] for n in names)):
-            writer.writerow([repr(float(v)) for v in row])
+        csv.writer(fh).writerow(names)
+        # numbers need no quoting: written as the csv writer would, without its per-cell cost
+        rows = np.column_stack([columns[n] for n in names]).tolist()
+        fh.writelines(",".join(map(repr, row)) + "\r\n" for row in rows)
     # strict JSON: an infinite parameter (no saturation) as null, read back by params_from_dict
     text = json.dumps(jsonable(meta, str), indent=2, sort_keys=True, allow_nan=False)
     sidecar_path(path).write_text(text + "\n", encoding="utf-8")
