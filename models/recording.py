@@ -297,14 +297,14 @@ def _read_csv(path):
             _fail(path, f"data row {i + 1} has {len(row)} fields, the header has {len(header)}")
     try:
         data = np.array(rows[1:], dtype=float).reshape(len(rows) - 1, len(header))
-    except ValueError:  # find the cell to name it
+    except ValueError:  # cell by cell, to name the one that is not a number
+        data = np.empty((len(rows) - 1, len(header)))
         for i, row in enumerate(rows[1:]):
             for j, cell in enumerate(row):
                 try:
-                    float(cell)
+                    data[i, j] = float(cell)
                 except ValueError:
                     _fail(path, f"data row {i + 1}, column '{header[j]}': not a number ({cell!r})")
-        raise
     return {name: data[:, j].copy() for j, name in enumerate(header)}
 
 
