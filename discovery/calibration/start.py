@@ -266,8 +266,7 @@ class StartSearch:
         term has one.
 
         The check at the maximum alone can fall on a point special for the step: the change
-        jumps from point to point (H1 by 0.004 to 2.3 data sd within 1 % of a drawn truth,
-        :meth:`.likelihood.features.FeatureTerm.solver_correction`)."""
+        jumps from point to point (:meth:`.likelihood.features.FeatureTerm.solver_correction`)."""
         terms = [t for t in self.terms_ if hasattr(t, "solver_correction")]
         if not terms:
             return False

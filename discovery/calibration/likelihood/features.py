@@ -395,8 +395,8 @@ class FeatureTerm(_ClosedLoopTerm):
         The change is not smooth in the parameters: near a held controller's or a dead zone's
         switching events it jumps from point to point, so that one point can be a special one
         where halving the step moves a feature many times more (or less) than at its neighbours
-        (``tests/test_calibration_features.py``: points within 1 % of a drawn truth move H1 by
-        0.004 to 2.3 data sd). A correction taken at one such point shifts every draw's
+        (measured in ``tests/test_calibration_features.py``, over points within 1 % of a drawn
+        truth). A correction taken at one such point shifts every draw's
         likelihood by that much; the median is the systematic part. The mean square is what a
         one-point variance is on average, and it covers the points where the change is far from
         the median.
