@@ -2,10 +2,12 @@
 import functools
 import os
 
-# Set before numba is imported: two xdist workers on two cores, each with numba's default of one
-# thread per core, would run four threads on two cores.
+# Set before numba and numpy are imported: two xdist workers on two cores, each with numba's and
+# OpenBLAS's default of one thread per core, would run four threads on two cores (and OpenBLAS's
+# spin against the kernel's: discovery/threads.py).
 if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import pytest  # noqa: E402
 
