@@ -308,11 +308,12 @@ class StepError:
         beyond a tilt, is not larger than the spread of the posterior's own log density by
         more than twice the residual sd's own relative error, ``1 / sqrt(2 dof)`` with ``dof``
         the regression's residual degrees of freedom. Where it is larger, the half-step
-        posterior is not this one moved, and the errors are the regression's noise. A case
-        measured: the features' solver correction, measured once at the chain's start where
-        halving the step moved the cycle's fundamental by 5 of its data sd, applied at draws
-        where the step moves it by 0.2 sd or less; at half the step the correction is measured
-        again and nearly vanishes, and the draws reorder."""
+        posterior is not this one moved, and the errors are the regression's noise. Such a
+        member: a features solver correction that does not hold at the posterior's draws (taken
+        where halving the step moves the cycle's fundamental by several data sd, applied at draws
+        where it moves it by a fraction of one,
+        :meth:`.likelihood.features.FeatureTerm.solver_correction`); at half the step the
+        correction nearly vanishes, and the draws reorder."""
         if not (math.isfinite(self.residual_sd) and math.isfinite(self.log_prob_sd)):
             return True
         dof = max(self.n_points - len(self.parameters) - 1, 1)
