@@ -18,7 +18,8 @@ sets of ranges (:data:`RANGES`); ``wide``, the default, is what a user's actuato
   sines, and (``wide``) staircases of random levels held for U(0.5, 1.5) half-periods;
   acquisition at 200, 500, 1000 or 2000 Hz (``wide``) or 200 or 1000 Hz; controller held at
   200 Hz or continuous; sensor noise 1e-5 to 1e-4 rad; offset 0 or U(-3e-4, 3e-4) rad;
-  quantisation 0 or 5e-6 to 3e-5 rad.
+  quantisation 0 or 5e-6 to 3e-5 rad;
+* ``short``: ``wide`` with every record 5-15 s long (a short session at the rig).
 
 Truths are redrawn until they oscillate at every closed-loop setting of the design. The recordings
 are made by the plain-Python reference path (:func:`models.reference.simulate_reference`, a second
@@ -124,19 +125,26 @@ class Ranges:
         Acquisition rates (Hz), one drawn per design.
     waveforms : tuple of str
         Open-loop commands: ``square``, ``sine``, ``piecewise`` (a staircase of random levels).
+    closed_seconds, open_seconds : tuple of float
+        Uniform range of a limit cycle's and of an open-loop test's recorded length (s).
     """
 
     threshold_factor: float
     delay: tuple
     rates: tuple
     waveforms: tuple
+    closed_seconds: tuple = (20.0, 40.0)
+    open_seconds: tuple = (8.0, 12.0)
 
 
 #: ``wide``: thresholds and delays over a decade, 200 Hz to 2 kHz, staircases among the commands
-#: (a user's actuator and rig); ``papers``: within a factor 2.5 of the papers' thresholds.
+#: (a user's actuator and rig); ``short``: ``wide`` in sessions of short records (5-15 s each);
+#: ``papers``: within a factor 2.5 of the papers' thresholds.
 RANGES = {
     "wide": Ranges(math.sqrt(10.0), (0.8e-3, 8e-3), (200.0, 500.0, 1000.0, 2000.0),
                    ("square", "sine", "piecewise")),
+    "short": Ranges(math.sqrt(10.0), (0.8e-3, 8e-3), (200.0, 500.0, 1000.0, 2000.0),
+                    ("square", "sine", "piecewise"), (5.0, 15.0), (5.0, 15.0)),
     "papers": Ranges(2.5, (1e-3, 8e-3), (200.0, 1000.0), ("square", "sine")),
 }
 
@@ -219,10 +227,11 @@ def draw_design(rng, ranges="wide"):
     pool = list(CONTROLLERS) + [(rng.uniform(4, 12), rng.uniform(0.04, 0.08), rng.uniform(4, 14))]
     n_closed = int(rng.integers(1, 4))
     picks = rng.permutation(len(pool))[:n_closed]
-    recs = [RecordingDesign("closed", float(rng.uniform(20, 40)), rate, *map(float, pool[i]),
+    recs = [RecordingDesign("closed", float(rng.uniform(*r.closed_seconds)), rate, *map(float, pool[i]),
                             controller_rate=ctrl_rate) for i in picks]
     for _ in range(int(rng.integers(0, 3))):
-        duration, waveform = float(rng.uniform(8, 12)), str(rng.choice(list(r.waveforms)))
+        duration = float(rng.uniform(*r.open_seconds))
+        waveform = str(rng.choice(list(r.waveforms)))
         amplitude = float(rng.uniform(5e-3, 30e-3))
         frequency = float(math.exp(rng.uniform(math.log(0.3), math.log(3.0))))
         edges, levels = (_staircase(rng, duration, amplitude, frequency)
