@@ -63,10 +63,11 @@ def test_truths_cover_every_kept_structure_within_the_stated_ranges(ranges, fact
         assert 0.8 * wanted <= span <= wanted, name
 
 
-@pytest.mark.parametrize("ranges, rates, waveforms", [
-    ("wide", {200.0, 500.0, 1000.0, 2000.0}, {"square", "sine", "piecewise"}),
-    ("papers", {200.0, 1000.0}, {"square", "sine"})])
-def test_designs_within_the_stated_ranges(ranges, rates, waveforms):
+@pytest.mark.parametrize("ranges, rates, waveforms, closed_s, open_s", [
+    ("wide", {200.0, 500.0, 1000.0, 2000.0}, {"square", "sine", "piecewise"}, (20, 40), (8, 12)),
+    ("short", {200.0, 500.0, 1000.0, 2000.0}, {"square", "sine", "piecewise"}, (5, 15), (5, 15)),
+    ("papers", {200.0, 1000.0}, {"square", "sine"}, (20, 40), (8, 12))])
+def test_designs_within_the_stated_ranges(ranges, rates, waveforms, closed_s, open_s):
     rng = np.random.default_rng(1)
     n_open, seen_rates, seen_waveforms = [], set(), set()
     for _ in range(300):
@@ -77,11 +78,12 @@ def test_designs_within_the_stated_ranges(ranges, rates, waveforms):
         for r in recs:
             seen_rates.add(r.rate)
             if r.kind == "closed":
-                assert 20 <= r.duration <= 40 and r.controller_rate in (None, 200.0)
+                assert closed_s[0] <= r.duration <= closed_s[1]
+                assert r.controller_rate in (None, 200.0)
                 continue
             seen_waveforms.add(r.waveform)
             assert 5e-3 <= r.amplitude <= 30e-3 and 0.3 <= r.frequency <= 3.0
-            assert 8 <= r.duration <= 12
+            assert open_s[0] <= r.duration <= open_s[1]
             if r.waveform == "piecewise":
                 dwell = np.diff((0.0,) + r.edges)
                 assert len(r.levels) == len(r.edges) + 1 and r.edges[-1] < r.duration
@@ -98,7 +100,7 @@ def test_designs_within_the_stated_ranges(ranges, rates, waveforms):
 
 
 def test_unknown_ranges_get_one_line():
-    with pytest.raises(ValueError, match="unknown ranges 'narrow'; choose one of wide, papers"):
+    with pytest.raises(ValueError, match="unknown ranges 'narrow'; choose one of wide, short, papers"):
         draw_scenario(1, ranges="narrow")
 
 
