@@ -25,10 +25,11 @@ def study_main(module, argv=None):
     return summary
 
 
-def code_commit():
-    """The checkout's git commit, short, with ``+dirty`` when tracked files differ from it
-    (``None`` outside git); benchmark rows record the commit of the code their process imported
-    (rows of a resumed benchmark may come from several)."""
+def code_commit(paths=None):
+    """The checkout's git commit, short, with ``+dirty`` when tracked files (those under
+    ``paths``, where given) differ from it (``None`` outside git); benchmark rows record the
+    commit of the code their process imported (rows of a resumed benchmark may come from
+    several)."""
     import subprocess
 
     def git(*args):
@@ -37,6 +38,7 @@ def code_commit():
 
     try:
         commit = git("rev-parse", "--short", "HEAD")
-        return commit + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+        changed = git("status", "--porcelain", "--untracked-files=no", "--", *map(str, paths or ()))
+        return commit + ("+dirty" if changed else "")
     except (OSError, subprocess.CalledProcessError):
         return None

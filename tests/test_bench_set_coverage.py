@@ -1,7 +1,9 @@
-"""studies.benchmarks.set_coverage: a draw's row judges what the report prints, per quantity: a
-pinned quantity on its 90 % interval, a not-pinned one on the range the recordings allow, a
-component the truth lacks on whether it is printed absent or "present or absent"; the table
-counts the verdicts per rule, the widths and the intervals narrower than the step error."""
+"""studies.benchmarks.set_coverage and set_judge: a draw's row judges what the report prints, per
+quantity: a pinned quantity on its 90 % interval, a not-pinned one on the range the recordings
+allow (an open end on the prior's bound), a component the truth lacks on whether it is printed
+absent or "present or absent"; the judgements that cannot fail are counted apart from the goals;
+the table counts the verdicts per rule, the rows per commit, the widths and the intervals
+narrower than the step error; a stored row is judged again from what it holds."""
 import json
 
 import numpy as np
@@ -11,19 +13,20 @@ from models import M000, M002
 from models.structures import Structure
 from studies.benchmarks.set_coverage import (GAUSSIAN_MEDIAN_POSITION, GOAL_QUANTITIES,
                                              coverage_goals, coverage_row, drop_old_layout,
-                                             narrower_than_step, quantity_entry, summarise,
-                                             truth_position, truth_quantities)
+                                             narrower_than_step, quantity_entry, rejudge_rows,
+                                             summarise, truth_position, truth_quantities)
+from studies.benchmarks.set_judge import rejudge_row
 
 
 def _q(lo, hi, mid=None, pinned=True, present=1.0, allowed=None, allowed_open=None, step=None,
-       widened=False):
-    """A combined quantity as ``combine`` writes it."""
+       widened=False, support=None):
+    """A combined quantity as ``combine`` writes it (``support``: its prior's range)."""
     return {"q05": lo, "q50": (lo + hi) / 2 if mid is None else mid, "q95": hi, "unit": "",
             "members": 1, "present": present, "depends_on_structure": False,
             "spread_over_width": 0.0, "width_over_prior": None, "pinned": pinned,
             "allowed": allowed,
             "allowed_open": (allowed_open or [False, False]) if allowed is not None else None,
-            "step_error": step, "widened": widened,
+            "step_error": step, "widened": widened, "support": support,
             "equal_weights": {"q05": lo, "q50": (lo + hi) / 2, "q95": hi}}
 
 
@@ -79,30 +82,152 @@ def test_a_pinned_quantity_is_judged_on_its_interval_whatever_its_allowed_range(
     assert row["goals"]["dead_zone[error]"] is True and row["truth_in_set"]
 
 
-def test_a_not_pinned_quantity_is_judged_on_the_allowed_range_an_open_end_bounding_nothing():
+def test_a_not_pinned_quantity_is_judged_on_the_allowed_range_an_open_end_on_the_priors_bound():
     """A not-pinned backlash whose interval lies under the truth (the prior's mass) is covered by
-    an allowed range open at its ceiling even though its closed number lies under the truth; the
-    same range closed there does not cover it; without an allowed range the interval judges, and
-    the row says so."""
+    an allowed range open at its ceiling when the prior's ceiling lies above the truth, even
+    though the range's closed number lies under it; the same range closed there does not cover
+    it; without an allowed range the interval judges, and the row says so."""
     truth = M002()
     b = truth.backlash
     printed = _printed(truth)
     printed["backlash"] = _q(0.01 * b, 0.5 * b, pinned=False, allowed=[1e-6, 0.8 * b],
-                             allowed_open=[False, True])
+                             allowed_open=[False, True], support=[1e-6, 3e-3])
     entry = _row(truth, printed)["quantities"]["backlash"]
     assert entry["rule"] == "allowed" and entry["covered"] is True and entry["inside"] is False
+    assert entry["judged_range"] == [1e-6, 3e-3] and entry["prior_bound_source"] == "support"
+    assert entry["prior_bounds"] == [1e-6, 3e-3] and entry["can_fail"] is True
     printed["backlash"] = _q(0.01 * b, 0.5 * b, pinned=False, allowed=[1e-6, 0.8 * b])
     entry = _row(truth, printed)["quantities"]["backlash"]
     assert entry["rule"] == "allowed" and entry["covered"] is False
     # a floor left open does not rescue a truth above the closed ceiling
     printed["backlash"] = _q(0.01 * b, 0.5 * b, pinned=False, allowed=[2 * b, 0.8 * b],
-                             allowed_open=[True, False])
+                             allowed_open=[True, False], support=[1e-6, 3e-3])
     assert _row(truth, printed)["quantities"]["backlash"]["covered"] is False
     printed["backlash"] = _q(0.01 * b, 0.5 * b, pinned=False)
     entry = _row(truth, printed)["quantities"]["backlash"]
     assert entry["rule"] == "interval" and entry["allowed_missing"] and entry["covered"] is False
     table = summarise([_row(truth, printed)])
     assert table["quantities"]["backlash"]["allowed_missing"] == 1
+
+
+def test_a_truth_below_the_priors_floor_is_a_miss_on_a_range_open_at_its_lower_end():
+    """A not-pinned delay printed "down to the prior's floor" (1.2 ms) with a true delay of
+    0.9 ms: a miss, counted among the judgements that can fail and named beyond the prior; the
+    same with the floor at 0.6 ms covers it. A stored row without the prior's bounds is judged
+    on the floor the priors set whatever the fit where its draws end within 0.5 % above it; where
+    they end elsewhere the row cannot say, and the judgement is undecided, counted apart."""
+    truth = M002().replace(delay=9e-4)
+    printed = _printed(truth)
+    printed["delay"] = _q(1.5e-3, 8e-3, pinned=False, allowed=[1.2005e-3, 9e-3],
+                          allowed_open=[True, False], support=[1.2e-3, 0.02])
+    row = _row(truth, printed)
+    e = row["quantities"]["delay"]
+    assert (e["rule"], e["covered"], e["can_fail"]) == ("allowed", False, True)
+    assert e["judged_range"] == [1.2e-3, 9e-3] and e["inside_allowed"] is False
+    table = summarise([row])
+    assert table["beyond_prior"] == [[1, "delay"]]
+    assert (table["quantities"]["delay"]["covered"], table["quantities"]["delay"]["draws"]) == (0, 1)
+    printed["delay"] = {**printed["delay"], "support": [6e-4, 0.02]}
+    assert _row(truth, printed)["quantities"]["delay"]["covered"] is True
+
+    stored = {**e, "prior_bounds": None, "prior_bounds_from": None}
+    again = rejudge_row({**row, "quantities": {**row["quantities"], "delay": stored}}, "abc")
+    d = again["quantities"]["delay"]
+    assert (d["covered"], d["prior_bound_source"], d["judged_range"][0]) == (False, "fixed edge", 1.2e-3)
+    assert again["goals"]["delay"] is False and again["judged_commit"] == "abc"
+    far = {**stored, "allowed": [1.1e-3, 9e-3]}  # neither floor lies within 0.5 % under 1.1 ms
+    again = rejudge_row({**row, "quantities": {**row["quantities"], "delay": far}}, "abc")
+    d = again["quantities"]["delay"]
+    assert d["covered"] is None and d["undecided"] and d["can_fail"] is None
+    table = summarise([again])["quantities"]["delay"]
+    assert (table["undecided"], table["draws"], table["cannot_fail"]) == (1, 0, 0)
+
+
+def test_a_truth_of_0_against_present_or_absent_cannot_fail_and_leaves_the_goals_denominator():
+    """M002 lacks a friction offset: printed "present or absent" it is covered but cannot fail,
+    counted apart; printed absent (the set lacks it) or present it can fail. Over 30 draws the
+    goal reads only the draws that can fail: 26 of 29 with three cannot-fail draws apart."""
+    truth = M002()
+    printed = _printed(truth)
+    printed["friction_offset"] = _q(-0.01, 0.01, present=0.4)
+    e = _row(truth, printed)["quantities"]["friction_offset"]
+    assert (e["rule"], e["covered"], e["can_fail"]) == ("absent", True, False)
+    assert _row(truth, printed)["cannot_fail"] == ["friction_offset"]
+    del printed["friction_offset"]
+    assert _row(truth, printed)["quantities"]["friction_offset"]["can_fail"] is True
+    printed["friction_offset"] = _q(-0.01, 0.01)
+    e = _row(truth, printed)["quantities"]["friction_offset"]
+    assert (e["covered"], e["can_fail"]) == (False, True)
+
+    rows = []
+    for seed in range(30):
+        printed = _printed(truth)
+        if seed < 3:
+            printed["friction_offset"] = _q(-0.01, 0.01, present=0.4)
+        elif seed < 6:
+            printed["friction_offset"] = _q(-0.01, 0.01)
+        rows.append(_row(truth, printed, seed=seed))
+    table = summarise(rows)
+    f = table["quantities"]["friction_offset"]
+    assert (f["covered"], f["draws"], f["cannot_fail"]) == (24, 27, 3)
+    assert f["by_rule"]["absent"] == {"covered": 24, "draws": 27, "cannot_fail": 3}
+    assert table["cannot_fail"] == {"present_or_absent": 3, "open_at_both_ends": 0}
+    goal = next(g for g in coverage_goals(table) if g.what.startswith("friction_offset"))
+    assert goal.measured == pytest.approx(24 / 27) and goal.met
+    assert "24 of 27 = 89% (3 that cannot fail apart)" in goal.line()
+
+
+def test_a_range_open_at_both_ends_holding_the_truth_cannot_fail_and_leaves_the_goals_denominator():
+    """A not-pinned band-pass gain allowed over its prior's whole range (both ends open) holds
+    the truth by what it prints: covered, cannot fail, out of the goal's count; over 30 draws,
+    10 of them so, the goal reads 20 covered of 20."""
+    truth = M000()
+    g = truth.bandpass_gain
+    printed = _printed(truth)
+    printed["bandpass_gain"] = _q(0.1 * g, 5 * g, pinned=False, allowed=[3.001, 299.7],
+                                  allowed_open=[True, True], support=[3.0, 300.0])
+    e = _row(truth, printed)["quantities"]["bandpass_gain"]
+    assert (e["rule"], e["covered"], e["can_fail"]) == ("allowed", True, False)
+    rows = [_row(truth, printed if s < 10 else _printed(truth), seed=s) for s in range(30)]
+    table = summarise(rows)
+    b = table["quantities"]["bandpass_gain"]
+    assert (b["covered"], b["draws"], b["cannot_fail"]) == (20, 20, 10)
+    assert b["by_rule"]["allowed"] == {"covered": 0, "draws": 0, "cannot_fail": 10}
+    assert table["cannot_fail"] == {"present_or_absent": 0, "open_at_both_ends": 10}
+    assert table["beyond_prior"] == []
+
+
+def test_rows_are_counted_by_the_commit_that_sampled_them_and_the_one_that_judged_them():
+    """Three rows sampled at one commit, two judged again at another from the row alone (no
+    chain), one sampled elsewhere: the summary counts them by each; judging a row again at its
+    own sampling commit records no second commit."""
+    truth = M002()
+    rows = [{**_row(truth, _printed(truth), seed=s), "commit": c}
+            for s, c in ((1, "aaa"), (2, "aaa"), (3, "aaa"), (4, "bbb"))]
+    rows, n = rejudge_rows(rows[:2], everything=True, commit="ccc")
+    rows += [{**_row(truth, _printed(truth), seed=s), "commit": c} for s, c in ((3, "aaa"), (4, "bbb"))]
+    assert n == 2 and [r.get("judged_commit") for r in rows] == ["ccc", "ccc", None, None]
+    assert summarise(rows)["commits"] == {"sampled": {"aaa": 3, "bbb": 1},
+                                          "judged": {"ccc": 2, "aaa": 1, "bbb": 1}}
+    assert "judged_commit" not in rejudge_row(rows[0], "aaa")
+    # a row judged before the judge said which judgements can fail is not counted until judged
+    bare = {**rows[2], "quantities": {n: {k: v for k, v in e.items() if k != "can_fail"}
+                                      for n, e in rows[2]["quantities"].items()}}
+    assert summarise([bare])["old_layout"] == 1
+    again, n = rejudge_rows([bare, rows[3]], commit="ccc")
+    assert n == 1 and again[0]["judged_commit"] == "ccc" and "judged_commit" not in again[1]
+    assert summarise(again)["draws"] == 2
+
+
+def test_the_stored_rows_are_what_their_judging_commit_gives_them():
+    """The stored record's rows judged again from the rows alone, at their own judging commit,
+    come out as stored: every verdict, cannot-fail mark and judged range."""
+    from studies.benchmarks.results_table import load_records
+
+    rows = load_records()["bench_set_coverage"]["rows"]
+    for r in rows:
+        assert "judged_commit" in r and r["judged_commit"] != r["commit"]
+        assert rejudge_row(r, r["judged_commit"]) == r
 
 
 def test_a_component_the_truth_lacks_is_covered_only_where_it_is_not_printed_present():
@@ -190,7 +315,8 @@ def test_widths_are_relative_to_the_median_for_intervals_judged_on_them_and_the_
     assert table["quantities"]["delay"]["median_relative_width"] == pytest.approx(0.4)
     assert table["quantities"]["delay"]["widths"] == 3
     assert table["quantities"]["backlash"]["median_relative_width"] is None
-    assert table["quantities"]["backlash"]["by_rule"]["allowed"] == {"covered": 3, "draws": 3}
+    assert table["quantities"]["backlash"]["by_rule"]["allowed"] == {"covered": 3, "draws": 3,
+                                                                     "cannot_fail": 0}
 
 
 def test_an_interval_narrower_than_twice_its_step_error_is_counted_and_fails_its_goal():
@@ -244,8 +370,10 @@ def test_over_thirty_draws_every_printed_quantity_meets_its_band_and_full_covera
     assert table["draws"] == 30 and table["quantities"]["dead_zone[velocity]"]["draws"] == 15
     assert table["quantities"]["delay"]["covered"] == 26
     assert table["quantities"]["friction_offset"]["by_rule"] == {
-        "interval": {"covered": 13, "draws": 15}, "allowed": {"covered": 0, "draws": 0},
-        "absent": {"covered": 13, "draws": 15}, "lacking": {"covered": 0, "draws": 0}}
+        "interval": {"covered": 13, "draws": 15, "cannot_fail": 0},
+        "allowed": {"covered": 0, "draws": 0, "cannot_fail": 0},
+        "absent": {"covered": 13, "draws": 15, "cannot_fail": 0},
+        "lacking": {"covered": 0, "draws": 0, "cannot_fail": 0}}
     goals = coverage_goals(table)
     assert len(goals) == len(GOAL_QUANTITIES) + 1 and all(g.met for g in goals)
     assert not any(g.met for g in coverage_goals(summarise(rows[:-1])))
@@ -267,8 +395,10 @@ def test_the_table_counts_chains_stopped_at_the_cap_apart_and_old_or_failed_rows
     stopped = table["by_chains"]["stopped at the cap"]
     assert stopped["draws"] == 2 and table["by_chains"]["converged"]["draws"] == 4
     # i = 3 (a miss) and 6 (a hit) stop at the cap; of the converged, i = 2 misses
-    assert stopped["quantities"]["delay"] == {"covered": 1, "draws": 2}
-    assert table["by_chains"]["converged"]["quantities"]["delay"] == {"covered": 3, "draws": 4}
+    assert stopped["quantities"]["delay"] == {"covered": 1, "draws": 2, "cannot_fail": 0,
+                                              "undecided": 0}
+    assert table["by_chains"]["converged"]["quantities"]["delay"]["covered"] == 3
+    assert table["by_chains"]["converged"]["quantities"]["delay"]["draws"] == 4
     assert table["converged"] == 4 and table["cycles_only"] == {"draws": 1, "converged": 1}
     assert [r["stopped_at_cap"] for r in rows[:2]] == [[], ["m1"]]
     assert not any(g.met for g in coverage_goals(table))
@@ -284,15 +414,22 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     printed = _printed(truth)
     printed["backlash"] = _q(0.0, 0.5 * truth.backlash, pinned=False,
                              allowed=[0.0, 2 * truth.backlash])
-    rows = [_row(truth, printed, seed=s, converged=(True, True), in_set=["x"]) for s in (1000, 1001)]
+    rows = [{**_row(truth, printed, seed=s, converged=(True, True), in_set=["x"]), "commit": "aaa"}
+            for s in (1000, 1001)]
+    rows[1]["judged_commit"] = "bbb"
     old = {"seed": 1003, "structure": "s", "truth_in_set": True, "members": ["s"],
            "converged": True, "quantities": {"delay": {"truth": 1.0, "inside": True}}}
     text = set_coverage({"bench_set_coverage": {
         "rows": rows + [{"seed": 1002, "error": "boom"}, old]}})
     assert text.startswith("2 of 30 draws finished (seeds 1000-1003, 1 failed, 1 of an earlier "
-                           "layout, judged on the interval alone, not counted)")
-    assert "goal delay: truth covered by what the report prints: 2 of 2 = 100%" in text
-    assert "goal friction_offset: truth covered by what the report prints: 2 of 2 = 100%" in text
+                           "layout, not counted; rows sampled at `aaa` (2); rows judged at "
+                           "`aaa` (1), `bbb` (1))")
+    assert "goal delay: truth covered by what the report prints, where that can fail: 2 of 2" in text
+    assert ("goal friction_offset: truth covered by what the report prints, where that can fail: "
+            "2 of 2 = 100%") in text
+    assert ("judgements that cannot fail, apart from the goals: 0 (a truth of 0 against \"present "
+            "or absent\" 0, a truth inside the prior against a range open at both ends 0); misses "
+            "whose truth lies beyond the prior's bound an open end stands for: none") in text
     assert text.count("NOT met") == len(GOAL_QUANTITIES) + 1
     assert "draws whose every chain converged: 2 (dead_zone[error] 2 of 2 covered" in text
     assert "draws with a chain stopped at its cap: 0;" in text

@@ -204,9 +204,10 @@ def next_test(records):
 
 def set_coverage(records):
     """The discover path's coverage: per printed quantity, the truths covered by what the report
-    prints over the finished draws that judge it (:func:`.set_coverage.summarise`), its goals, the
-    median relative width of the intervals judged, and the draws' sets and chains; rows of an
-    earlier layout are counted, not judged."""
+    prints over the finished draws whose judgement of it can fail (:func:`.set_coverage.summarise`),
+    its goals, the judgements that cannot fail and the misses beyond the prior counted apart, the
+    median relative width of the intervals judged, the draws' sets and chains, and the rows'
+    sampling and judging commits; rows of an earlier layout are counted, not judged."""
     from .set_coverage import MIN_DRAWS, coverage_goals, summarise
 
     rows = records["bench_set_coverage"]["rows"]
@@ -222,6 +223,12 @@ def set_coverage(records):
             for q, c in part["quantities"].items() if c["draws"]) + ")")
         for label, part in table["by_chains"].items())
     only = table["cycles_only"]
+    cf = table["cannot_fail"]
+    split += (f"; judgements that cannot fail, apart from the goals: {sum(cf.values())} (a truth "
+              f"of 0 against \"present or absent\" {cf['present_or_absent']}, a truth inside the "
+              f"prior against a range open at both ends {cf['open_at_both_ends']}); misses whose "
+              f"truth lies beyond the prior's bound an open end stands for: "
+              + (", ".join(f"{q} of draw {seed}" for seed, q in table["beyond_prior"]) or "none"))
     allowed = {q: a for q, a in table["allowed"].items() if a["draws"]}
     if allowed:
         split += "; truth inside the range the recordings allow: " + ", ".join(
@@ -236,10 +243,13 @@ def set_coverage(records):
         split += (f"; truth's median distance from the median in half-widths of its interval "
                   f"{p['median_abs']:.2f} over {p['intervals']} intervals "
                   f"({p['gaussian_median_abs']:.2f} for calibrated Gaussian intervals)")
-    old = (f", {table['old_layout']} of an earlier layout, judged on the interval alone, not counted"
+    old = (f", {table['old_layout']} of an earlier layout, not counted"
            if table["old_layout"] else "")
+    commits = "; ".join(f"rows {how} at " + ", ".join(f"`{c}` ({n})" for c, n in counts.items())
+                        for how, counts in (("sampled", table["commits"]["sampled"]),
+                                            ("judged", table["commits"]["judged"])))
     return (f"{table['draws']} of {MIN_DRAWS} draws finished (seeds {seeds[0]}-{seeds[-1]}, "
-            f"{table['failed']} failed{old}); " + _goals_text(coverage_goals(table))
+            f"{table['failed']} failed{old}; {commits}); " + _goals_text(coverage_goals(table))
             + f"; {split}; limit cycles alone in {only['draws']} draws, their chains converged "
             f"in {only['converged']}; truth's structure in the set in {table['truth_in_set']} of "
             f"{table['draws']}; members calibrated per draw {min(sizes)}-{max(sizes)}")

@@ -1,7 +1,7 @@
 """Coverage of what ``tvcid discover`` prints: structure and linear block unknown.
 
 ``python -m studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--ranges wide|papers]
-[--jobs J | --dask ADDRESS] [--out DIR]``
+[--jobs J | --dask ADDRESS] [--out DIR] [--rejudge]``
 
 Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded; the discovery benchmark's
 seeds by default) is a truth over every structure of the grammar and a test design over the
@@ -15,22 +15,13 @@ structure search, the set, the calibration of every member and their combination
 The row judges what the report prints for every quantity of the combined posterior
 (:func:`discovery.structure.set_posterior.combine`: the dead zone at each place, the threshold,
 the backlash, the friction offset, the band-pass gain, the delay, the DC gain and the bandwidth),
-each by one rule, named in the row:
-
-* ``interval``: the truth has the quantity, the report prints it, and it is pinned (``pinned``
-  true, or ``None`` where no prior judges it): covered when the truth lies inside the printed 90 %
-  interval (widened to the step error where ``discover`` widens it). A component the set leaves
-  open (``present`` under 1, or ``left_open``: printed "present or absent; if present, ...",
-  whichever members calibrated) is judged on its interval if present.
-* ``allowed``: as above, but not pinned: covered when the truth lies inside the range the
-  recordings allow; an open end (the prior's floor or ceiling) bounds nothing on its side. A
-  not-pinned quantity without an allowed range is judged on its interval and flagged
-  ``allowed_missing``.
-* ``absent``: the truth lacks the component (backlash, friction offset, band-pass loop): covered
-  when the report prints it absent or "present or absent"; not when it prints it present.
-* ``lacking``: the truth has the quantity and the report prints no interval for it (a component
-  decided absent, one left open that no calibrated member has, the dead zone at a place no member
-  puts it): not covered.
+each by one rule of :mod:`studies.benchmarks.set_judge`, named in the row: ``interval`` (a pinned
+quantity on its printed 90 % interval), ``allowed`` (a not-pinned one on the range the
+recordings allow, an open end judged on the prior's bound on its side, stored per quantity as
+``prior_bounds``), ``absent`` (a component the truth lacks: not printed present) and ``lacking``
+(the truth has it and nothing is printed). A judgement that cannot fail (a truth of 0 against
+"present or absent"; a truth inside the prior against a range open at both ends) is counted
+apart (``can_fail`` false) and left out of the goals.
 
 A dead-zone place, or the threshold, that the truth does not have is printed but not judged
 (``rule`` ``None``): the truth's own place is. Beside the verdict, each printed quantity records
@@ -45,14 +36,19 @@ two, while the median distance of every truth from its median, against the 0.41 
 Gaussian intervals, says at any count whether the intervals are too wide or too narrow.
 
 Goals, over at least 30 finished draws: for each printed quantity, the truth covered in 80-97 %
-of the draws that judge it; no printed interval narrower than twice its step error. The chains'
-convergence is reported, not a goal: the draws with a chain stopped at its cap are counted apart
+of the draws whose judgement of it can fail; no printed interval narrower than twice its step
+error. The chains' convergence is reported, not a goal: the draws with a chain stopped at its cap are counted apart
 (``by_chains``), not left out. Rows are written to ``DIR/bench.json`` as each draw ends (a rerun
-resumes; rows of an earlier layout, judged on the interval alone, are run again); each names the
-commit of the code that ran it. A draw's directory without its row (``DIR/drawNNNN``, from an
+resumes; rows of an earlier layout, judged on the interval alone, are run again, and rows judged
+without ``can_fail`` are judged again from the row); each names the commit that sampled its
+chains (``commit``) and, where different, the one that judged it (``judged_commit``).
+``--rejudge`` judges every row of ``DIR/bench.json`` again from the row alone
+(:func:`studies.benchmarks.set_judge.rejudge_row`: no recording, no chain), records the judging
+commit and prints the table. A draw's directory without its row (``DIR/drawNNNN``, from an
 interrupted run or copied from an earlier one) is resumed as ``discover`` resumes: its recordings
 read back, its ranking, next test and finished chains carried over, the step errors, weights and
-combined posterior computed again by this code. So the rows of a code change that leaves the
+combined posterior computed again by this code (the row's ``chains_carried_over`` is then
+true: its ``commit`` is this run's, not necessarily the one that sampled the chains). So the rows of a code change that leaves the
 sampling alone are made again at the new commit in one to three minutes a draw, where a fresh
 draw takes one to two hours.
 """
@@ -66,8 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.structure.set_posterior import (COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities,
-                                               printed_present_or_absent)
+from discovery.structure.set_posterior import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
 from models.strict_json import write_json
 
 from ..common import code_commit
@@ -75,19 +70,18 @@ from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
+from .set_judge import (RULES, beyond_prior, inside_interval, narrower_than_step,  # noqa: F401
+                        printed_as, quantity_entry, rejudge_row, row_verdicts)
 
 CODE_COMMIT = code_commit()
+#: The files whose code judges a stored row (``--rejudge``): their commit is the judging one.
+JUDGE_FILES = tuple(Path(__file__).with_name(n) for n in ("set_judge.py", "set_coverage.py"))
 #: The band the share of truths covered must fall in.
 GOAL_BAND = (0.80, 0.97)
 #: The quantities the report prints, each with its goal.
 GOAL_QUANTITIES = tuple(QUANTITY_UNITS)
 #: Draws at least, for the goals to be judged.
 MIN_DRAWS = 30
-#: The rules a judged quantity is judged by (the module docstring).
-RULES = ("interval", "allowed", "absent", "lacking")
-#: A width within this relative slack of twice the step error is not narrower: the mixture's
-#: draws are its members' taken at evenly spaced ranks, quantiles to a few parts in 10^4.
-STEP_SLACK = 1e-3
 
 
 def truth_quantities(truth) -> dict:
@@ -96,88 +90,10 @@ def truth_quantities(truth) -> dict:
     return {k: float(v[0]) for k, v in member_quantities(truth.to_dict(), {}).items()}
 
 
-def printed_as(q, left_open=False) -> str:
-    """How the report prints combined quantity ``q`` (``None``: no calibrated member has it):
-    ``present or absent`` (``present`` under 1, or a component the set leaves open:
-    ``left_open``, or ``q``'s own ``left_open``), ``absent`` or ``present``."""
-    if left_open or (q is not None and printed_present_or_absent(q)):
-        return "present or absent"
-    return "absent" if q is None else "present"
-
-
-def inside_interval(value, q) -> bool:
-    """Whether ``value`` lies inside ``q``'s printed 90 % interval (none printed: no)."""
-    return q["q05"] is not None and q["q95"] is not None and q["q05"] <= value <= q["q95"]
-
-
-def inside_allowed(value, allowed, allowed_open=None) -> bool:
-    """Whether ``value`` lies inside ``allowed`` (``[low, high]``); an end ``allowed_open`` marks
-    as the prior's bound bounds nothing on its side."""
-    low_open, high_open = allowed_open or (False, False)
-    return bool((low_open or value >= allowed[0]) and (high_open or value <= allowed[1]))
-
-
-def judge(name, value, q, left_open=False) -> tuple:
-    """``(rule, covered, allowed_missing)`` for quantity ``name`` with truth ``value`` (``None``:
-    the truth lacks it) against the combined summary ``q`` (``None``: the set lacks it); the rule
-    ``None`` where the quantity is not judged."""
-    component = name in COMPONENT_QUANTITIES.values()
-    if value is None or not math.isfinite(value):
-        if component and value is None:
-            return "absent", printed_as(q, left_open) != "present", False
-        return None, None, False
-    if q is None:
-        return "lacking", False, False
-    if q.get("pinned") is False:
-        if q.get("allowed") is not None:
-            return "allowed", inside_allowed(value, q["allowed"], q.get("allowed_open")), False
-        return "interval", inside_interval(value, q), True
-    return "interval", inside_interval(value, q), False
-
-
-def narrower_than_step(q):
-    """Whether ``q``'s printed interval is narrower than twice its step error, or, where the
-    quantity's support cuts ``q50 +- step error`` (a delay's prior floor), narrower than what
-    the support leaves of it (``None`` without a step error or an interval)."""
-    step = q.get("step_error")
-    if not step or None in (q["q05"], q["q50"], q["q95"]):
-        return None
-    floor, ceiling = q.get("support") or (None, None)
-    low = q["q50"] - step if floor is None else max(q["q50"] - step, floor)
-    high = q["q50"] + step if ceiling is None else min(q["q50"] + step, ceiling)
-    return bool(q["q95"] - q["q05"] < (high - low) * (1 - STEP_SLACK))
-
-
-def quantity_entry(name, value, q, left_open=False) -> dict:
-    """One quantity of a row: what is printed, the truth, the rule and the verdict, the step
-    error's check and, for an interval the rule judges, its relative width."""
-    rule, covered, allowed_missing = judge(name, value, q, left_open)
-    q = q or {}
-    q05, q50, q95 = q.get("q05"), q.get("q50"), q.get("q95")
-    allowed = q.get("allowed")
-    known = value is not None and math.isfinite(value)
-    width = None
-    if rule == "interval" and None not in (q05, q50, q95) and q50 != 0:
-        width = (q95 - q05) / abs(q50)
-    return {
-        "truth": value, "printed": printed_as(q or None, left_open), "present": q.get("present", 0.0),
-        "q05": q05, "q50": q50, "q95": q95, "pinned": q.get("pinned"),
-        "allowed": allowed, "allowed_open": q.get("allowed_open"),
-        "rule": rule, "covered": covered, "allowed_missing": allowed_missing,
-        # both tests, whatever the rule: how the interval and the range would have judged
-        "inside": inside_interval(value, q) if known and q else None,
-        "inside_allowed": (inside_allowed(value, allowed, q.get("allowed_open"))
-                           if known and allowed is not None else None),
-        "relative_width": width, "step_error": q.get("step_error"),
-        "widened": bool(q.get("widened", False)),
-        "narrower_than_step": narrower_than_step(q) if q else None,
-    }
-
-
 def coverage_row(seed, truth, structure, summary) -> dict:
     """The row of one draw: per quantity printed or held by the truth, :func:`quantity_entry`;
-    ``goals`` maps each judged quantity to its verdict; the members, their weights and which
-    chains stopped at their cap."""
+    ``goals`` maps each judged quantity to its verdict and ``cannot_fail`` lists those whose
+    judgement cannot fail; the members, their weights and which chains stopped at their cap."""
     values = truth_quantities(truth)
     sp = summary["set_posterior"]
     combined = sp["quantities"]
@@ -197,7 +113,7 @@ def coverage_row(seed, truth, structure, summary) -> dict:
         "stopped_at_cap": [m["structure"] for m in members if not m["converged"]],
         "not_pinned": sorted({n for m in members for n in m["posterior"].get("not_pinned", [])}),
         "quantities": quantities,
-        "goals": {n: e["covered"] for n, e in quantities.items() if e["rule"] is not None},
+        **row_verdicts(quantities),
         "narrower_than_step": [n for n, e in quantities.items() if e["narrower_than_step"]],
         "commit": CODE_COMMIT,
     }
@@ -209,13 +125,14 @@ def run_draw(seed, out_dir, quick, ranges="wide") -> dict:
 
     scenario = draw_scenario(seed, ranges=ranges)
     draw_dir = Path(out_dir) / f"draw{seed:03d}"
+    carried = (draw_dir / "discover").exists()
     t0 = time.perf_counter()
     paths = write_recordings(scenario, draw_dir / "recordings", reuse=True)
     t_data = time.perf_counter() - t0
     t0 = time.perf_counter()
     summary = discover(paths, draw_dir / "discover", seed=seed, quick=quick, progress=False).summary
     row = coverage_row(seed, scenario.truth, scenario.structure, summary)
-    row.update(design=scenario.to_dict(), seconds_data=t_data,
+    row.update(design=scenario.to_dict(), chains_carried_over=carried, seconds_data=t_data,
                seconds_discover=time.perf_counter() - t0,
                seconds_by_stage={k: round(float(v), 1) for k, v in summary["timings"].items()
                                  if isinstance(v, (int, float))})
@@ -238,10 +155,35 @@ def cycles_only(row) -> bool:
 
 
 def of_this_layout(row) -> bool:
-    """Whether a finished row judges its quantities by this module's rules (an earlier layout
-    judged the interval alone and has no ``rule``)."""
+    """Whether a finished row judges its quantities by rules (an earlier layout judged the
+    interval alone and has no ``rule``)."""
     quantities = row.get("quantities") or {}
     return bool(quantities) and all("rule" in e for e in quantities.values())
+
+
+def judged_by_these_rules(row) -> bool:
+    """Whether a finished row of this layout says which judgements can fail (a row that does not
+    is judged again from the row, :func:`rejudge_rows`)."""
+    return all("can_fail" in e for e in row["quantities"].values())
+
+
+def judging_commit():
+    """The checkout's commit, ``+dirty`` where the judge's own files (:data:`JUDGE_FILES`) differ
+    from it: the commit a stored row is judged again at."""
+    return code_commit(JUDGE_FILES)
+
+
+def rejudge_rows(rows, everything=False, commit=None) -> tuple:
+    """``(rows, n)``: ``rows`` with the finished rows of this layout judged again
+    (:func:`rejudge_row`, at ``commit``, default :func:`judging_commit`): every one with
+    ``everything``, else those not :func:`judged_by_these_rules`; ``n`` of them."""
+    commit = judging_commit() if commit is None else commit
+    out, n = [], 0
+    for r in rows:
+        if "error" not in r and of_this_layout(r) and (everything or not judged_by_these_rules(r)):
+            r, n = rejudge_row(r, commit), n + 1
+        out.append(r)
+    return out, n
 
 
 #: The median of ``|truth_position|`` for a calibrated Gaussian posterior's 90 % interval:
@@ -263,14 +205,32 @@ def truth_position(entry):
     return (t - q50) / half if half > 0 else None
 
 
+def _judged(rows, q) -> list:
+    """The entries of quantity ``q`` the rows judge."""
+    return [r["quantities"][q] for r in rows
+            if q in r["quantities"] and r["quantities"][q]["rule"] is not None]
+
+
 def _tally(rows, names) -> dict:
-    """Per quantity, the draws covering it over the draws judging it."""
+    """Per quantity, the draws covering it over the draws whose judgement of it can fail
+    (``covered`` of ``draws``, the goals' counts), and apart those whose judgement cannot fail
+    (``cannot_fail``) or that the row leaves undecided (``undecided``)."""
     out = {}
     for q in names:
-        judged = [r["quantities"][q] for r in rows
-                  if q in r["quantities"] and r["quantities"][q]["rule"] is not None]
-        out[q] = {"covered": sum(bool(e["covered"]) for e in judged), "draws": len(judged)}
+        judged = _judged(rows, q)
+        can = [e for e in judged if e["can_fail"]]
+        out[q] = {"covered": sum(bool(e["covered"]) for e in can), "draws": len(can),
+                  "cannot_fail": sum(e["can_fail"] is False for e in judged),
+                  "undecided": sum(e["covered"] is None for e in judged)}
     return out
+
+
+def _count(values) -> dict:
+    """How many of ``values`` each distinct value is, most first."""
+    counts = {}
+    for v in values:
+        counts[v] = counts.get(v, 0) + 1
+    return dict(sorted(counts.items(), key=lambda x: (-x[1], str(x[0]))))
 
 
 def summarise(rows) -> dict:
@@ -280,14 +240,22 @@ def summarise(rows) -> dict:
     -------
     dict
         ``draws`` (finished rows of this layout), ``failed``, ``old_layout`` (finished rows of an
-        earlier layout: not judged); ``quantities``: per quantity ``covered`` of ``draws`` (those
-        judging it), ``by_rule`` (the same per rule), ``allowed_missing`` (not pinned, judged on
-        the interval for want of a range), ``median_relative_width`` over ``widths`` intervals
-        judged on the interval rule; ``by_chains``: ``converged`` and ``stopped at the cap``,
-        each ``draws`` and per quantity ``covered`` of ``draws``; ``allowed``: per quantity the
-        truths ``inside`` the range the recordings allow over the ``draws`` that print one;
-        ``step``: printed ``intervals`` with a step error, those ``narrower`` than twice it,
-        those ``widened``, and those ``without_step_error``; ``position``: over the
+        earlier layout, or not saying which judgements can fail: not counted); ``commits``: rows per ``sampled`` commit (``commit``) and
+        per ``judged`` one (``judged_commit``, else ``commit``); ``quantities``: per quantity
+        ``covered`` of ``draws`` (those whose judgement can fail: the goals' counts),
+        ``cannot_fail`` and ``undecided`` (counted apart), ``by_rule`` (``covered`` of
+        ``draws`` per rule over the judgements that can fail, and the rule's ``cannot_fail``),
+        ``allowed_missing`` (not pinned, judged on the interval for want of a range),
+        ``median_relative_width`` over ``widths`` intervals judged on the interval rule;
+        ``cannot_fail``: the judgements that cannot fail, ``present_or_absent`` (a truth of 0
+        against "present or absent") and ``open_at_both_ends`` (a truth inside the prior against
+        a range open at both ends); ``beyond_prior``: the misses whose truth lies beyond the
+        prior's bound an open end stands for, each ``[seed, quantity]``; ``by_chains``:
+        ``converged`` and ``stopped at the cap``, each ``draws`` and per quantity the counts
+        above; ``allowed``: per quantity the truths ``inside`` the range the recordings allow
+        (judged on the prior's bounds at its open ends) over the ``draws`` that print one and
+        decide it; ``step``: printed ``intervals`` with a step error, those ``narrower`` than
+        twice it, those ``widened``, and those ``without_step_error``; ``position``: over the
         ``intervals`` judged on the interval rule, the ``median_abs`` of
         :func:`truth_position` and the share ``within_half`` (``|position| < 0.5``), beside
         ``gaussian_median_abs`` (:data:`GAUSSIAN_MEDIAN_POSITION`; the quantities of one draw
@@ -295,33 +263,37 @@ def summarise(rows) -> dict:
         ``cycles_only`` (``draws`` and their ``converged``).
     """
     finished = [r for r in rows if "error" not in r]
-    done = [r for r in finished if of_this_layout(r)]
+    done = [r for r in finished if of_this_layout(r) and judged_by_these_rules(r)]
     extra = sorted({q for r in done for q in r["quantities"]} - set(GOAL_QUANTITIES))
     names = list(GOAL_QUANTITIES) + extra
     tally = _tally(done, names)
     quantities = {}
     for q in names:
-        judged = [r["quantities"][q] for r in done
-                  if q in r["quantities"] and r["quantities"][q]["rule"] is not None]
+        judged = _judged(done, q)
         widths = [e["relative_width"] for e in judged if e["relative_width"] is not None]
         quantities[q] = {
             **tally[q],
-            "by_rule": {rule: {"covered": sum(bool(e["covered"]) for e in judged if e["rule"] == rule),
-                               "draws": sum(e["rule"] == rule for e in judged)} for rule in RULES},
+            "by_rule": {rule: {"covered": sum(bool(e["covered"]) for e in judged
+                                              if e["rule"] == rule and e["can_fail"]),
+                               "draws": sum(e["rule"] == rule and bool(e["can_fail"]) for e in judged),
+                               "cannot_fail": sum(e["rule"] == rule and e["can_fail"] is False
+                                                  for e in judged)} for rule in RULES},
             "allowed_missing": sum(bool(e["allowed_missing"]) for e in judged),
             "median_relative_width": float(np.median(widths)) if widths else None,
             "widths": len(widths),
         }
+    entries = [e for r in done for e in r["quantities"].values() if e["can_fail"] is False]
+    cannot_fail = {"present_or_absent": sum(e["rule"] == "absent" for e in entries),
+                   "open_at_both_ends": sum(e["rule"] == "allowed" for e in entries)}
+    beyond = [[r["seed"], q] for r in done for q, e in r["quantities"].items() if beyond_prior(e)]
     by_chains = {}
     for label, converged in (("converged", True), ("stopped at the cap", False)):
         part = [r for r in done if bool(r["converged"]) is converged]
         by_chains[label] = {"draws": len(part), "quantities": _tally(part, names)}
     allowed = {}
     for q in names:
-        judged = [r["quantities"][q] for r in done
-                  if q in r["quantities"] and r["quantities"][q]["rule"] is not None
-                  and r["quantities"][q]["inside_allowed"] is not None]
-        allowed[q] = {"inside": sum(e["inside_allowed"] for e in judged), "draws": len(judged)}
+        tested = [e for e in _judged(done, q) if e["inside_allowed"] is not None]
+        allowed[q] = {"inside": sum(e["inside_allowed"] for e in tested), "draws": len(tested)}
     printed = [e for r in done for e in r["quantities"].values() if e["printed"] != "absent"]
     step = {"intervals": sum(e["narrower_than_step"] is not None for e in printed),
             "narrower": sum(bool(e["narrower_than_step"]) for e in printed),
@@ -334,8 +306,11 @@ def summarise(rows) -> dict:
                 "within_half": float(np.mean(positions < 0.5)) if positions.size else None,
                 "gaussian_median_abs": GAUSSIAN_MEDIAN_POSITION}
     only = [r for r in done if cycles_only(r)]
+    commits = {"sampled": _count(r.get("commit") for r in done),
+               "judged": _count(r.get("judged_commit", r.get("commit")) for r in done)}
     return {"draws": len(done), "failed": len(rows) - len(finished),
-            "old_layout": len(finished) - len(done), "quantities": quantities,
+            "old_layout": len(finished) - len(done), "commits": commits, "quantities": quantities,
+            "cannot_fail": cannot_fail, "beyond_prior": beyond,
             "by_chains": by_chains, "allowed": allowed, "step": step, "position": position,
             "converged": sum(r["converged"] for r in done),
             "truth_in_set": sum(r["truth_in_set"] for r in done),
@@ -352,9 +327,12 @@ def coverage_goals(table) -> list:
         c = table["quantities"][q]
         k, m = c["covered"], c["draws"]
         share = k / m if m else None
-        goals.append(Goal(f"{q}: truth covered by what the report prints",
+        apart = ", ".join(f"{c[key]} {text}" for key, text in (
+            ("cannot_fail", "that cannot fail"), ("undecided", "undecided")) if c[key])
+        goals.append(Goal(f"{q}: truth covered by what the report prints, where that can fail",
                           share if enough else None, low=lo, high=hi, fmt="{:.0%}",
-                          shown=f"{k} of {m}" + (f" = {share:.0%}" if share is not None else ""),
+                          shown=f"{k} of {m}" + (f" = {share:.0%}" if share is not None else "")
+                          + (f" ({apart} apart)" if apart else ""),
                           target=f"{lo:.0%} to {hi:.0%} over >= {MIN_DRAWS} draws"))
     s = table["step"]
     goals.append(Goal("printed intervals narrower than twice their step error",
@@ -378,33 +356,40 @@ def drop_old_layout(path) -> int:
     return dropped
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    add_draw_options(parser, "short chains (150 steps), 2 draws", 2, "results/bench_set_coverage")
-    args = parser.parse_args(argv)
-    dropped = drop_old_layout(Path(args.out) / "bench.json")
-    if dropped:
-        print(f"{dropped} draws of an earlier layout run again")
+def rejudge_record(path, everything=False) -> int:
+    """Judge the rows of ``path`` (a ``bench.json``) again (:func:`rejudge_rows`) and write it
+    back with its table; returns how many rows were judged."""
+    path = Path(path)
+    if not path.exists():
+        return 0
+    record = json.loads(path.read_text())
+    rows, n = rejudge_rows(record["rows"], everything=everything)
+    if n:
+        write_json(path, {**record, "rows": rows, "table": summarise(rows)})
+    return n
 
-    def describe(row):
-        verdicts = ", ".join(f"{q} {'in' if v else 'OUT'}" for q, v in row["goals"].items())
-        stopped = len(row["stopped_at_cap"])
-        return (f"draw {row['seed']}: truth {row['structure']}, set of {len(row['members'])}, "
-                f"{stopped} chains stopped at the cap: {verdicts} [{row['seconds_discover']:.0f} s]")
 
-    def save(path, rows):
-        write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows)})
-
-    rows = run_benchmark(args, guarded_draw, describe, save)
-    table = summarise(rows)
-    print(f"\n{table['draws']} draws ({table['failed']} failed); truth in the set "
-          f"{table['truth_in_set']}; every chain converged in {table['converged']}")
+def print_table(table) -> None:
+    """The table's lines: per quantity the counts of :func:`summarise`, the judgements apart, the
+    chains, the truths' positions and the step errors."""
+    sampled = ", ".join(f"{c} ({n})" for c, n in table["commits"]["sampled"].items())
+    judged = ", ".join(f"{c} ({n})" for c, n in table["commits"]["judged"].items())
+    print(f"\n{table['draws']} draws ({table['failed']} failed); sampled at {sampled}; judged at "
+          f"{judged}; truth in the set {table['truth_in_set']}; every chain converged in "
+          f"{table['converged']}")
     for q, c in table["quantities"].items():
         rules = ", ".join(f"{rule} {r['covered']} of {r['draws']}"
                           for rule, r in c["by_rule"].items() if r["draws"])
         width = c["median_relative_width"]
         print(f"  {q:22s} covered {c['covered']} of {c['draws']} ({rules or 'none judged'}); "
+              f"cannot fail {c['cannot_fail']}; undecided {c['undecided']}; "
               f"median relative width {'-' if width is None else f'{width:.2g}'}")
+    cf = table["cannot_fail"]
+    print(f"  judgements that cannot fail: a truth of 0 against \"present or absent\" "
+          f"{cf['present_or_absent']}, a truth inside the prior against a range open at both "
+          f"ends {cf['open_at_both_ends']}")
+    print(f"  misses beyond the prior's bound an open end stands for: "
+          + (", ".join(f"draw {seed} {q}" for seed, q in table["beyond_prior"]) or "none"))
     for label, part in table["by_chains"].items():
         print(f"  {label}: {part['draws']} draws")
     p = table["position"]
@@ -415,6 +400,42 @@ def main(argv=None) -> int:
     s = table["step"]
     print(f"  printed intervals narrower than twice the step error: {s['narrower']} of "
           f"{s['intervals']} ({s['widened']} widened, {s['without_step_error']} without a step error)")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    add_draw_options(parser, "short chains (150 steps), 2 draws", 2, "results/bench_set_coverage")
+    parser.add_argument("--rejudge", action="store_true",
+                        help="judge every row of DIR/bench.json again from the row alone (no "
+                             "sampling), write it back and print the table")
+    args = parser.parse_args(argv)
+    path = Path(args.out) / "bench.json"
+    if args.rejudge:
+        n = rejudge_record(path, everything=True)
+        print(f"{n} rows of {path} judged again at {judging_commit()}")
+        table = summarise(json.loads(path.read_text())["rows"]) if path.exists() else summarise([])
+        print_table(table)
+        return goal_report(coverage_goals(table))
+    stale = rejudge_record(path)
+    if stale:
+        print(f"{stale} rows judged again from the row (they did not say which judgements can fail)")
+    dropped = drop_old_layout(path)
+    if dropped:
+        print(f"{dropped} draws of an earlier layout run again")
+
+    def describe(row):
+        verdicts = ", ".join(f"{q} {'in' if v else 'undecided' if v is None else 'OUT'}"
+                             for q, v in row["goals"].items())
+        stopped = len(row["stopped_at_cap"])
+        return (f"draw {row['seed']}: truth {row['structure']}, set of {len(row['members'])}, "
+                f"{stopped} chains stopped at the cap: {verdicts} [{row['seconds_discover']:.0f} s]")
+
+    def save(path, rows):
+        write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows)})
+
+    rows = run_benchmark(args, guarded_draw, describe, save)
+    table = summarise(rows)
+    print_table(table)
     return goal_report(coverage_goals(table))
 
 
