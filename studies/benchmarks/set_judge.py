@@ -103,9 +103,9 @@ def judged_range(name, value, allowed, allowed_open, prior_bounds=None):
     """``(range, source, decided)``: the range ``value`` is judged on, ``allowed``
     (``[low, high]``) with each end ``allowed_open`` marks replaced by the prior's bound on its
     side (``None``: unbounded); ``source`` names where a bound came from (``"prior"``,
-    ``"support"``, ``"fixed edge"``, or ``None`` where no open end is used); ``decided`` is false
-    when ``value`` lies beyond an open end whose prior bound neither ``prior_bounds`` nor
-    :func:`fixed_prior_edge` gives (its end is then left at the outermost draw)."""
+    ``"support"``, ``"fixed edge"``, or ``None`` where no open end is used); an open end whose
+    bound neither ``prior_bounds`` nor :func:`fixed_prior_edge` gives stays at the outermost
+    draw, which decides a ``value`` inside it; ``decided`` is false for a ``value`` beyond it."""
     low_open, high_open = allowed_open or (False, False)
     bounds, source = prior_bounds if prior_bounds is not None else (None, None)
     out, decided, used = list(allowed), True, None
