@@ -27,8 +27,8 @@ the judgements that can fail; those that cannot are counted apart. A truth beyon
 against a range open at both ends is a miss and can fail: the prior the report names excludes it.
 
 The prior's bounds of each quantity are stored in the row (``prior_bounds``: from the combined
-entry's ``prior_bounds`` where ``discover`` exports them, else its ``support``, the members'
-prior draws' range stretched to hold their draws). A row without them is judged on what the
+entry's ``prior_bounds`` or ``prior_range`` where ``discover`` exports them, else its
+``support``, the members' prior draws' range stretched to hold their draws). A row without them is judged on what the
 code that made its priors sets whatever the member's fit (:func:`fixed_prior_edge`); a
 judgement that needs a bound neither gives is *undecided* (``covered`` ``None``), counted apart.
 """
@@ -81,8 +81,9 @@ def inside_interval(value, q) -> bool:
 def prior_bounds_of(q):
     """``(bounds, source)``: the prior's ``[floor, ceiling]`` of combined quantity ``q`` (an end
     ``None`` where nothing bounds it) and where they come from, ``"prior"`` (the entry's
-    ``prior_bounds``) or ``"support"``; ``(None, None)`` where the entry has neither."""
-    for key, source in (("prior_bounds", "prior"), ("support", "support")):
+    ``prior_bounds`` or ``prior_range``, its members' priors) or ``"support"`` (their prior
+    draws' range stretched to hold their draws); ``(None, None)`` where the entry has none."""
+    for key, source in (("prior_bounds", "prior"), ("prior_range", "prior"), ("support", "support")):
         if q.get(key) is not None:
             return [None if b is None else float(b) for b in q[key]], source
     return None, None
