@@ -342,7 +342,11 @@ def test_combined_quantity_joins_the_members_allowed_ranges_and_the_summary_prin
     bare = combine([MemberPosterior("c", {"backlash": np.full(100, 1e-4)}, {}, 0.0)])
     assert bare.quantities["backlash"]["allowed"] is None
     verdict = _verdicts(combined.to_dict())["backlash"][2]
-    assert verdict == f"not pinned by the recordings; they allow {high:.4g} down to the prior's floor"
+    floor = combined.quantities["backlash"]["prior_range"][0]
+    assert floor == pytest.approx(prior.min())
+    # read from its lower end to its upper end, the prior's end with its value
+    assert verdict == (f"not pinned by the recordings; they allow the prior's floor ({floor:.4g}) "
+                       f"to {high:.4g}")
 
 
 def test_an_open_end_short_of_the_prior_is_where_the_draws_end():
@@ -377,8 +381,8 @@ def test_the_summary_marks_a_chain_stopped_at_its_cap_and_names_prior_bounds_and
     from tvcid.report import summary_lines
 
     text = "\n".join(summary_lines({"structures": rows, "decided": {}, "set_posterior": combined}))
-    assert "| `a` | 0.70 | 0.50 | converged |" in text
-    assert ("| `b` | 0.30 | 0.50 | **stopped at its cap** (2000 steps): its intervals are lower "
+    assert "| `a` | 0.70 | - | 0.50 | converged |" in text
+    assert ("| `b` | 0.30 | - | 0.50 | **stopped at its cap** (2000 steps): its intervals are lower "
             "bounds on the width; its intervals move by up to 30 % of their width") in text
     assert "`b`: backlash." in text and "At a prior bound" in text
     assert "`c`, `d`, about 12 % of the weight by their held-out scores" in text

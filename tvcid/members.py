@@ -2,7 +2,9 @@
 
 :func:`calibrate_member_task` does all of one member's own work: its chain
 (:func:`tvcid.pipeline._calibrate_member`, checkpointed in ``chain-<tag>.h5`` of the output
-directory), its summary, its step error and its pointwise log-likelihood for the weights. It
+directory), its summary, its step error and the importance draws of its evidence for the weights
+(:func:`discovery.structure.member_evidence.member_importance_draws`); or, screening, the chain
+and the draws alone. It
 gets everything as arguments and hands back a :class:`MemberRun`, both of which pickle, so it
 runs the same in this process (the default) or on a Dask worker; :func:`tvcid.pipeline._calibrate`
 combines the runs in the members' order.
@@ -31,10 +33,12 @@ class MemberRun:
         Combined quantity -> draws, of the posterior and of the priors alone.
     step_error : dict
         Combined quantity -> its step error.
-    pointwise : discovery.structure.set_weights.MemberPointwise or None
-        For the weights (only when the set has several members).
+    draws : discovery.structure.member_evidence.ImportanceDraws or None
+        Its evidence's importance draws, for the weights (only when the set has several members).
     simulated_seconds : float
-        Seconds simulated: the chain (start included), the step error, the pointwise draws.
+        Seconds simulated: the chain (start included), the step error, the importance draws.
+    simulated_steps : float
+        Kernel steps of the same runs.
     start_seconds : float
         Of which the chain's start.
     """
@@ -46,13 +50,14 @@ class MemberRun:
     quantities: dict = field(default_factory=dict)
     prior_quantities: dict = field(default_factory=dict)
     step_error: dict = field(default_factory=dict)
-    pointwise: object = None
+    draws: object = None
     simulated_seconds: float = 0.0
+    simulated_steps: float = 0.0
     start_seconds: float = 0.0
 
 
 def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out,
-                          weigh):
+                          weigh, screen=False):
     """One member's calibration and what the set needs of it.
 
     Parameters
@@ -70,7 +75,10 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     out : pathlib.Path
         Where the chain is checkpointed (created if missing).
     weigh : bool
-        Evaluate the pointwise log-likelihood for the members' weights.
+        Draw the importance points of its evidence for the members' weights.
+    screen : bool
+        The chain (to ``max_steps``) and the importance draws only: what the screening of the
+        set's members by weight needs (:func:`tvcid.pipeline._calibrate`).
 
     Returns
     -------
@@ -78,10 +86,10 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     """
     from discovery.calibration.start import NoFiniteStartError
     from discovery.calibration.step_error import measure_step_error, widen_quantiles
+    from discovery.structure.member_evidence import member_importance_draws
     from discovery.structure.set_posterior import member_quantities, not_pinned, prior_quantities
-    from discovery.structure.set_weights import member_pointwise
 
-    from .pipeline import WEIGHT_DRAWS, _calibrate_member
+    from .pipeline import _calibrate_member
 
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
     try:
@@ -90,6 +98,17 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     except NoFiniteStartError as exc:
         return MemberRun(row["structure"], failed=str(exc))
     simulated = seconds["start"] + seconds["sampling"]
+    steps = post.calibration.log_posterior_.simulated_steps  # the chain's, start included
+    draws = None
+    if weigh:
+        draws = member_importance_draws(post, seed=seed)
+        simulated += draws.simulated_seconds
+        steps += draws.simulated_steps
+    if screen:
+        return MemberRun(row["structure"], kept={"converged": post.report.converged,
+                                                 "iterations": int(post.report.iterations)},
+                         draws=draws, simulated_seconds=simulated, simulated_steps=steps,
+                         start_seconds=seconds["start"])
     s = post.summary()
     kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
                               "acceptance", "n_over_tau", "at_prior_bound", "laplace_move",
@@ -97,21 +116,17 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     kept["not_pinned"] = not_pinned(post, priors)
     step = measure_step_error(post, seed=seed, params=row["params"])
     simulated += step.simulated_seconds
+    steps += step.simulated_steps
     kept["step_error"] = step.to_dict()
     kept["parameters"] = widen_quantiles(kept["parameters"],
                                          {n: v["error"] for n, v in step.parameters.items()},
                                          {n: (p.low, p.high) for n, p in priors.items()})
     kept["structure"], kept["chain"] = row["structure"], chain
     kept["merged_into"] = row["merged_into"]
-    draws = {n: post.samples[:, j] for j, n in enumerate(post.names)}
-    pointwise = None
-    if weigh:
-        before = post.calibration.log_posterior_.simulated_seconds
-        pointwise = member_pointwise(post, n_draws=WEIGHT_DRAWS, seed=seed)
-        simulated += post.calibration.log_posterior_.simulated_seconds - before
+    samples = {n: post.samples[:, j] for j, n in enumerate(post.names)}
     return MemberRun(
         row["structure"], posterior=post, kept=kept,
-        quantities=member_quantities(row["params"], draws),
+        quantities=member_quantities(row["params"], samples),
         prior_quantities=prior_quantities(row["params"], priors, seed=seed),
-        step_error={n: v["error"] for n, v in step.quantities.items()}, pointwise=pointwise,
-        simulated_seconds=simulated, start_seconds=seconds["start"])
+        step_error={n: v["error"] for n, v in step.quantities.items()}, draws=draws,
+        simulated_seconds=simulated, simulated_steps=steps, start_seconds=seconds["start"])

@@ -34,9 +34,9 @@ DISCOVERY_FORMAT = 2
 #: Distinct members of the set calibrated at most (best score first); the rest are listed in
 #: ``set_posterior.not_calibrated`` with their share of the weight by the ranking.
 MAX_MEMBERS = 6
-#: Posterior draws of each member at which its pointwise log-likelihood is evaluated for the
-#: members' weights (:func:`discovery.structure.set_weights.member_pointwise`).
-WEIGHT_DRAWS = 200
+#: Steps of every member's chain before the members are weighed and those under the deciding
+#: share are screened (:func:`_calibrate`).
+SCREEN_STEPS = 300
 
 
 def _json_default(v):
@@ -268,14 +268,14 @@ def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, 
         summary, offsets, t_disc = _rank_structures(
             recs, fixed, seed, search, progress, inputs, executor=executor)
         _write(out, summary)  # the ranking survives whatever happens to the chain
-    if "next_test" not in summary:
+    if mcmc:  # a finished chain resumes at once; a larger --max-steps continues it
+        summary = _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps,
+                             progress, out, executor)
+        _write(out, summary)
+    if "next_test" not in summary:  # after the weights: it splits the members that carry them
         t0 = time.perf_counter()
         summary["next_test"] = next_test(summary, recs, seed, out)
         summary["timings"]["next_test"] = time.perf_counter() - t0
-        _write(out, summary)
-    if mcmc:
-        summary = _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps,
-                             progress, out, executor)
     summary["timings"]["discovery"] = t_disc
     _write(out, summary)
     return DiscoveryResult(summary, out)
@@ -381,18 +381,29 @@ def next_test(summary, recs, seed, out):
     (:func:`discovery.structure.discrimination.discriminating_tests` on the set's unmerged
     members at their fitted parameters, refitted to the recordings for the best
     candidates; the default menu acquired at the recordings' highest rate, the recordings'
-    median noise); writes ``next_test.png``. ``None`` for a set of one."""
+    median noise); writes ``next_test.png``. A calibrated member whose weight is under
+    :data:`discovery.structure.set_weights.DECIDING_SHARE` is left out (``left_out``: the data
+    have decided against it); one beyond the calibration's cap stays. ``None`` for a set of one."""
     from discovery.structure.discrimination import (
         default_candidates,
         discriminating_tests,
     )
+    from discovery.structure.set_weights import DECIDING_SHARE
     from discovery.structure.targets import make_target
     from models import params_from_dict
 
-    members = [params_from_dict("custom", s["params"]) for s in summary["structures"]
-               if s["indistinguishable_from_best"] and s["merged_into"] is None]
-    if len(members) < 2:
-        return None
+    weight = {m["structure"]: m["weight"]
+              for m in (summary.get("set_posterior") or {}).get("members") or ()}
+    rows = [s for s in summary["structures"]
+            if s["indistinguishable_from_best"] and s["merged_into"] is None]
+    left_out = [{"structure": s["structure"], "weight": weight[s["structure"]]} for s in rows
+                if weight.get(s["structure"], 1.0) < DECIDING_SHARE]
+    members = [params_from_dict("custom", s["params"]) for s in rows
+               if weight.get(s["structure"], 1.0) >= DECIDING_SHARE]
+    if len(members) < 2:  # the weights leave one structure: nothing to split
+        return ({"best": None, "tests": [], "left_out": left_out,
+                 "members": [s["structure"] for s in rows if s["structure"] not in
+                             {x["structure"] for x in left_out}]} if left_out else None)
     noise = median_sensor_noise(summary)
     rate = max(r.sample_rate for r in recs)
     recorded = [make_target(r, 5e-4) for r in recs]  # the targets ignore a constant offset
@@ -407,6 +418,7 @@ def next_test(summary, recs, seed, out):
     plt.close(ax.figure)
     result = ranking.to_dict()
     result["tests"] = result["tests"][:8]  # the best few; the figure shows twelve
+    result["left_out"] = left_out
     return result
 
 
@@ -498,10 +510,17 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
     """The posterior over the set: every distinct member calibrated (:func:`_calibrate_member`,
     at most :data:`MAX_MEMBERS`, best score first), and the richer structure of each component
     the set leaves open that no distinct member has
-    (:func:`discovery.structure.set_posterior.richer_members`). Each member's step error is
-    measured (:func:`discovery.calibration.step_error.measure_step_error`) and its pointwise
-    log-likelihood evaluated for the weights (:func:`discovery.structure.set_weights.weigh_set`);
-    then the members are combined by those weights
+    (:func:`discovery.structure.set_posterior.richer_members`).
+
+    A set of several members is calibrated in two rounds. First every member's chain runs
+    :data:`SCREEN_STEPS` steps and the members are weighed by their evidence
+    (:func:`discovery.structure.set_weights.evidence_weights`); a member whose weight stays under
+    :data:`discovery.structure.set_weights.DECIDING_SHARE` even at its estimate's allowance is
+    *screened*: its chain stops there and its short chain gives its ranges (the report says so).
+    Then the others' chains continue to the cap. The screening is stored in ``discovery.json``
+    (``set_screening``), so a resumed run screens the same members. Each member's step error is
+    measured (:func:`discovery.calibration.step_error.measure_step_error`) and its evidence
+    estimated again from its final chain; the members are combined by those weights
     (:func:`discovery.structure.set_posterior.combine`), and the members beyond the cap named
     with their share of the weight by the ranking. A member whose chain cannot start (no point
     about its fit where every recording's likelihood is finite) is left out and named in
@@ -511,14 +530,14 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
     (:func:`tvcid.members.calibrate_member_task`; default: one after the other in this
     process), combined here in the members' order."""
     from discovery.executors import LocalProcesses
+    from discovery.structure.ranking_shares import uncalibrated_share
     from discovery.structure.set_posterior import (
         MemberPosterior,
         combine,
         left_open_quantities,
         richer_members,
     )
-    from discovery.structure.ranking_shares import uncalibrated_share
-    from discovery.structure.set_weights import weigh_set
+    from discovery.structure.set_weights import DECIDING_SHARE, evidence_weights, weighed_choices
 
     from .members import calibrate_member_task
 
@@ -527,22 +546,57 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
             if s["indistinguishable_from_best"] and s["merged_into"] is None]
     best_score = rows[0]["score"]
     calibrated = rows[:MAX_MEMBERS] + richer_members(summary["structures"], summary["decided"])
-    members, pointwise, simulated, start = [], {}, 0.0, 0.0
-    failed = []
     executor = executor if executor is not None else LocalProcesses(1)
     here = isinstance(executor, LocalProcesses) and executor.jobs == 1
     n = len(calibrated)
-    shared = (recs, offsets, fixed, seed, quick, max_steps,
-              progress and here,  # a worker's bars would garble this terminal
-              out.resolve(), n > 1)
-    runs = executor.map(calibrate_member_task, calibrated, *([x] * n for x in shared))
+    cap = max_steps or (150 if quick else 2000)
+    shared = (recs, offsets, fixed, seed, quick)
+    show = progress and here  # a worker's bars would garble this terminal
+    cost = {"simulated_seconds": 0.0, "simulated_steps": 0.0, "start": 0.0}
+
+    def account(run):
+        cost["simulated_seconds"] += run.simulated_seconds
+        cost["simulated_steps"] += run.simulated_steps
+        cost["start"] += run.start_seconds
+
+    screened, first_draws = set(), {}
+    screen_steps = min(SCREEN_STEPS, cap)
+    if n > 1 and screen_steps < cap:
+        screening = summary.get("set_screening")
+        names_now = [r["structure"] for r in calibrated]
+        if not screening or screening.get("members") != names_now \
+                or screening.get("steps") != screen_steps:
+            runs = executor.map(calibrate_member_task, calibrated, *([x] * n for x in shared),
+                                [screen_steps] * n, [show] * n, [out.resolve()] * n, [True] * n,
+                                [True] * n)
+            for row, run in zip(calibrated, runs):
+                account(run)
+                if run.failed is None:
+                    first_draws[row["structure"]] = run.draws
+            weighed = (evidence_weights(first_draws, rows=calibrated, seed=seed)
+                       if len(first_draws) > 1 else None)
+            screening = {"members": names_now, "steps": screen_steps,
+                         "share": DECIDING_SHARE,
+                         "weights": None if weighed is None else weighed.weights,
+                         "upper": None if weighed is None else weighed.upper,
+                         "screened": [] if weighed is None else weighed.screened()}
+            summary["set_screening"] = screening
+            _write(out, summary)  # a resumed run screens the same members
+        screened = set(screening["screened"])
+    caps = [screen_steps if r["structure"] in screened else cap for r in calibrated]
+    # a screened member's draws are the first round's where it ran here (its chain has not moved
+    # since; on a resumed run they are drawn again, the same draws)
+    weigh = [n > 1 and not (r["structure"] in screened and r["structure"] in first_draws)
+             for r in calibrated]
+    runs = executor.map(calibrate_member_task, calibrated, *([x] * n for x in shared), caps,
+                        [show] * n, [out.resolve()] * n, weigh, [False] * n)
+    members, draws, failed = [], {}, []
     for row, run in zip(calibrated, runs):
         if run.failed is not None:
             # the rest of the set still has its posterior; the report names this member
             failed.append({"structure": row["structure"], "reason": run.failed})
             continue
-        simulated += run.simulated_seconds
-        start += run.start_seconds
+        account(run)
         if not members:
             summary["posterior"] = run.kept
             from .figures import write_posterior_figures
@@ -550,39 +604,60 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
             write_posterior_figures(run.posterior, out, seed=seed)
         margin = row.get("margin")
         ratio = (row["score"] - best_score) / margin if margin else 0.0
+        kept = run.kept
+        if row["structure"] in screened:
+            kept = {**kept, "screened": {"steps": screen_steps, "share": DECIDING_SHARE,
+                                         "upper_weight": summary["set_screening"]["upper"][
+                                             row["structure"]]}}
         members.append(MemberPosterior(
-            row["structure"], run.quantities, run.kept, float(ratio),
+            row["structure"], run.quantities, kept, float(ratio),
             log_prob=run.posterior.log_prob, prior_quantities=run.prior_quantities,
             step_error=run.step_error))
-        if run.pointwise is not None:
-            pointwise[row["structure"]] = run.pointwise
+        d = run.draws if run.draws is not None else first_draws.get(row["structure"])
+        if d is not None:
+            draws[row["structure"]] = d
     names = [m.structure for m in members]
     if not members:
         summary["set_posterior"] = {"criterion": "no member calibrated", "quantities": {},
                                     "members": [], "failed": failed,
                                     "not_calibrated": [r["structure"] for r in rows[MAX_MEMBERS:]]}
-        summary["timings"]["mcmc"] = time.perf_counter() - t0
-        summary.setdefault("simulated_seconds", {})["mcmc"] = simulated
-        summary["simulated_seconds"]["mcmc_start"] = start
+        _record_cost(summary, t0, cost)
         return summary
-    left_open = left_open_quantities(summary["decided"])
     if len(members) > 1:
-        weighting = weigh_set(pointwise, rows=calibrated, seed=seed)
+        weighting = evidence_weights({m: draws[m] for m in names},
+                                     rows=[r for r in calibrated if r["structure"] in names],
+                                     seed=seed)
+        weights = weighting.weights
+    else:
+        weighting, weights = None, {names[0]: 1.0}
+    choices = weighed_choices(summary["decided"], weights, summary["indistinguishable"])
+    # a component whose other side only uncalibrated members hold prints "present or absent"
+    left_open = left_open_quantities({c: None if v["by"] == "open" and None in v["weights"].values()
+                                      else True for c, v in choices.items()})
+    if weighting is not None:
         combined = combine(members, weights=weighting.of(names), seed=seed,
                            criterion=weighting.rule, left_open=left_open).to_dict()
         combined["weighting"] = weighting.to_dict()
     else:
         combined = combine(members, seed=seed, criterion="one structure",
                            left_open=left_open).to_dict()
+    combined["choices"] = choices
     dropped = uncalibrated_share(rows + [r for r in calibrated if r not in rows], names, seed=seed)
     combined["not_calibrated"] = dropped.names
     combined["not_calibrated_share"] = dropped.share if dropped.names else None
     combined["failed"] = failed
+    combined["screened"] = sorted(screened & set(names))
     summary["set_posterior"] = combined
-    summary["timings"]["mcmc"] = time.perf_counter() - t0
-    summary.setdefault("simulated_seconds", {})["mcmc"] = simulated
-    summary["simulated_seconds"]["mcmc_start"] = start  # of which the chains' starts
+    _record_cost(summary, t0, cost)
     return summary
+
+
+def _record_cost(summary, t0, cost):
+    """The set stage's wall time, simulated seconds and kernel steps into ``summary``."""
+    summary["timings"]["mcmc"] = time.perf_counter() - t0
+    summary.setdefault("simulated_seconds", {})["mcmc"] = cost["simulated_seconds"]
+    summary["simulated_seconds"]["mcmc_start"] = cost["start"]  # of which the chains' starts
+    summary.setdefault("simulated_steps", {})["mcmc"] = cost["simulated_steps"]
 
 
 def _write(out, summary):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from discovery.structure.set_posterior import (COMPONENT_QUANTITIES, QUANTITY_UNITS,
+from discovery.structure.set_posterior import (COMPONENT_QUANTITIES, QUANTITY_UNITS, decided_absent,
                                                partly_present, printed_present_or_absent)
 from models.hypotheses import parameter_unit
 from models.structures import Structure, prune_reason
@@ -23,11 +23,17 @@ PHYSICAL = ("dead_zone", "backlash", "delay", "friction_offset", "gain", "dampin
 
 
 def _convergence_line(members) -> str:
-    """Whether every calibrated member's chain converged, and what to do where one did not."""
-    late = [m for m in members if not m["converged"]]
+    """Whether every calibrated member's chain converged, and what to do where one did not (a
+    member screened by its weight is not run to convergence, and said so in its own line)."""
+    screened = [m for m in members if not m["converged"] and m["posterior"].get("screened")]
+    late = [m for m in members if not m["converged"] and m not in screened]
+    tail = ("" if not screened else " Screened by their weight, not run to convergence: "
+            + ", ".join(f"`{m['structure']}`" for m in screened) + ".")
     if not late:
         return ("Every calibrated structure's chain converged (more than 50 autocorrelation "
-                "times long).")
+                "times long)." if not screened else
+                "Every other calibrated structure's chain converged (more than 50 "
+                "autocorrelation times long)." + tail)
     def alone(m):
         move = m["posterior"].get("laplace_move")
         return ("; without the Laplace move, whose proposal would be "
@@ -43,15 +49,21 @@ def _convergence_line(members) -> str:
                       f"{drift(m)})" for m in late)
     return (f"**Not converged**: {which}; 50 autocorrelation times are needed. Their intervals, "
             "and the combined ones, are not yet their posteriors': the same command with a larger "
-            "`--max-steps` continues the chains.")
+            "`--max-steps` continues the chains." + tail)
 
 
 def _chain_cell(m) -> str:
-    """A member's chain in the summary's table: converged, or stopped at its cap with how far
-    its intervals still move."""
+    """A member's chain in the summary's table: converged, screened by its weight, or stopped at
+    its cap with how far its intervals still move."""
     if m["converged"]:
         return "converged"
     post = m["posterior"]
+    screened = post.get("screened")
+    if screened:
+        return (f"screened: under {100 * screened['share']:.0f} % of the weight after "
+                f"{screened['steps']} steps (at most {100 * screened['upper_weight']:.1f} % "
+                "allowing for its estimate's error), so not run to the cap; its ranges are its "
+                "short chain's")
     d = post.get("interval_drift")
     moves = (f"; its intervals move by up to {100 * d['largest']:.0f} % of their width between the "
              "chain's halves" if d else "")
@@ -67,22 +79,20 @@ def _num(value, digits=4) -> str:
 
 
 def _allowed_text(q) -> str:
-    """The range the recordings allow. An open end the prior sets is named as the prior's floor
-    or ceiling; one where a chain's draws end before the profile falls is a bound at least that
-    far out."""
+    """The range the recordings allow, from its lower end to its upper end. An end the prior
+    sets is named as the prior's floor or ceiling, with its value; one where a chain's draws end
+    before the profile falls is a bound at least that far out."""
     lo, hi = q["allowed"]
     low_open, high_open = q.get("allowed_open") or (False, False)
     low_prior, high_prior = q.get("allowed_at_prior") or (low_open, high_open)
+    prior = q.get("prior_range") or (None, None)
     if low_prior and high_prior:
-        return "they allow the prior's whole range"
-    low = ("the prior's floor" if low_prior else
-           f"{_num(lo)} or below (where the draws end)" if low_open else _num(lo))
-    high = ("the prior's ceiling" if high_prior else
-            f"{_num(hi)} or above (where the draws end)" if high_open else _num(hi))
-    if low_prior:
-        return f"they allow {high} down to the prior's floor"
-    if high_prior:
-        return f"they allow {low} up to the prior's ceiling"
+        return "they allow the prior's whole range" + (
+            f" ({_num(prior[0])} to {_num(prior[1])})" if None not in prior else "")
+    low = (f"the prior's floor{'' if prior[0] is None else ' (' + _num(prior[0]) + ')'}" if low_prior
+           else f"{_num(lo)} or below (where the draws end)" if low_open else _num(lo))
+    high = (f"the prior's ceiling{'' if prior[1] is None else ' (' + _num(prior[1]) + ')'}" if high_prior
+            else f"{_num(hi)} or above (where the draws end)" if high_open else _num(hi))
     return f"they allow {low} to {high}"
 
 
@@ -95,7 +105,8 @@ def _verdict(q) -> str:
         parts.append("depends on the structure")
     if q.get("pinned") is False:
         parts.append("not pinned by the recordings")
-    elif q["members"] > 1 and not q["depends_on_structure"] and q.get("pinned"):
+    elif (q["members"] > 1 and not q["depends_on_structure"] and q.get("pinned")
+          and not printed_present_or_absent(q) and not decided_absent(q)):
         parts.append("decided regardless of the structure")
     # a component left open always shows the range its richer members allow
     if q.get("allowed") and (q.get("pinned") is False or printed_present_or_absent(q)):
@@ -111,19 +122,19 @@ def _weighting(sp) -> str:
     """How the members are weighted, in a phrase (the rule in full is ``criterion``)."""
     w = sp.get("weighting") or {}
     method = w.get("method")
-    if method == "pseudo-BMA+":
-        return "weighted by pseudo-BMA+ on their leave-one-out predictive densities"
+    if method == "evidence":
+        return "weighted by their posterior probabilities (each one's evidence)"
     if method == "held-out scores":
-        return ("weighted by each one's probability of the lowest expected held-out score "
-                "(leave-one-out importance sampling is unreliable on these recordings)")
+        return ("weighted by each one's probability of the lowest expected held-out score (no "
+                "member's evidence could be estimated)")
     if method == "equal":
-        return "with equal weights (neither the predictive densities nor the scores weigh them)"
+        return "with equal weights (neither the evidence nor the scores weigh them)"
     return sp["criterion"]
 
 
 def _quantity_row(name, q) -> str:
-    """One row of the summary's table; a component the set leaves open reads "present or
-    absent" with its interval if present."""
+    """One row of the summary's table; a component the weights leave open reads "present or
+    absent" with its interval if present, one they decide absent reads "absent"."""
     interval = f"[{_num(q['q05'])}, {_num(q['q95'])}]"
     if partly_present(q):
         return (f"| {name} | present or absent ({100 * q['present']:.0f} % of the weight present) | "
@@ -131,7 +142,34 @@ def _quantity_row(name, q) -> str:
     if q.get("left_open"):  # the members without it could not be calibrated
         return (f"| {name} | present or absent (the set leaves it open; only members with it "
                 f"calibrated) | if present, {interval} | {q['unit']} | {_verdict(q)} |")
-    return f"| {name} | {_num(q['q50'])} | {interval} | {q['unit']} | {_verdict(q)} |"
+    if decided_absent(q):
+        return (f"| {name} | absent (the members with it hold {100 * q['present']:.1f} % of the "
+                f"weight) | if present, {interval} | {q['unit']} | {_verdict(q)} |")
+    present = ("" if q.get("present", 1.0) >= 1.0 - 1e-9 else
+               f"present ({100 * q['present']:.0f} % of the weight); ")
+    return f"| {name} | {_num(q['q50'])} | {interval} | {q['unit']} | {present}{_verdict(q)} |"
+
+
+#: An equal-weight interval is printed beside the weighted one when an end moves by more than
+#: this fraction of the weighted interval's width.
+EQUAL_DIFFERS = 0.1
+
+
+def _equal_weight_lines(sp) -> list:
+    """The quantities whose equal-weight interval differs from the weighted one, both printed."""
+    rows = []
+    for name, q in sp["quantities"].items():
+        e = q.get("equal_weights") or {}
+        if None in (e.get("q05"), e.get("q95"), q.get("q05"), q.get("q95")):
+            continue
+        width = q["q95"] - q["q05"]
+        if max(abs(e["q05"] - q["q05"]), abs(e["q95"] - q["q95"])) > EQUAL_DIFFERS * max(width, 0):
+            rows.append(f"{name} [{_num(e['q05'])}, {_num(e['q95'])}] {q['unit']} (by weight "
+                        f"[{_num(q['q05'])}, {_num(q['q95'])}])")
+    if not rows:
+        return []
+    return ["", "With equal weights instead (1/n each, whatever the evidence): " + "; ".join(rows)
+            + "."]
 
 
 def _members_lines(sp) -> list:
@@ -178,11 +216,7 @@ def summary_lines(summary) -> list:
     else:
         lines.append(f"The recordings leave {len(distinct)} structures open; best `{best['structure']}`, "
                      "also " + ", ".join(f"`{s['structure']}`" for s in distinct[1:]) + ".")
-    decided = [f"{CHOICE_LABELS[c]} {_shown(v)}{_structural(best['structure'], c, v)}"
-               for c, v in summary["decided"].items() if v is not None]
-    open_ = [CHOICE_LABELS[c] for c, v in summary["decided"].items() if v is None]
-    lines.append("Decided: " + (", ".join(decided) or "no structural choice") + ". Not decided: "
-                 + (", ".join(open_) or "nothing") + ".")
+    lines.append(_decided_line(summary, best))
     combined = (summary.get("set_posterior") or {}).get("quantities")
     if combined:
         sp = summary["set_posterior"]
@@ -199,10 +233,14 @@ def summary_lines(summary) -> list:
                       "imply, so it follows where the prior puts its mass; the range the "
                       "recordings allow is where the profile log posterior stays within 1.92 nats "
                       "of the best."]
+        lines += _equal_weight_lines(sp) if n > 1 else []
         if n > 1 or not all(m["converged"] for m in sp["members"]):
-            lines += ["", "| structure | weight | equal weight | chain |", "|---|---|---|---|"]
+            held = (sp.get("weighting") or {}).get("held_out") or {}
+            lines += ["", "| structure | weight | by held-out score | equal weight | chain |",
+                      "|---|---|---|---|---|"]
             lines += [f"| `{m['structure']}` | {m.get('weight', 1 / n):.2f} | "
-                      f"{m.get('equal_weight', 1 / n):.2f} | {_chain_cell(m)} |" for m in sp["members"]]
+                      f"{_num(held.get(m['structure']), 2)} | {m.get('equal_weight', 1 / n):.2f} | "
+                      f"{_chain_cell(m)} |" for m in sp["members"]]
         lines += _members_lines(sp)
         lines += ["", _convergence_line(sp["members"])]
     else:
@@ -226,12 +264,49 @@ def summary_lines(summary) -> list:
     return lines + ["", _next_test_headline(summary.get("next_test"), len(distinct)), ""]
 
 
+def _decided_line(summary, best) -> str:
+    """What the set and the weights decide, and what they leave open with each side's share:
+    one rule (:func:`discovery.structure.set_weights.weighed_choices`) for this line and the
+    table's "present or absent"."""
+    choices = (summary.get("set_posterior") or {}).get("choices")
+    if not choices:  # no calibration: the set's structures alone
+        choices = {c: {"value": None if v is None else _shown(v), "by": "set" if v is not None
+                       else "open", "weights": {}} for c, v in summary["decided"].items()}
+    decided, open_ = [], []
+    for c, v in choices.items():
+        if v["by"] == "set":
+            raw = summary["decided"][c]
+            decided.append(f"{CHOICE_LABELS[c]} {v['value']}{_structural(best['structure'], c, raw)}")
+        elif v["by"] == "weights":
+            decided.append(f"{CHOICE_LABELS[c]} {v['value']} ({100 * v['weights'][v['value']]:.0f} % "
+                           "of the weight)")
+        else:
+            seen = v["weights"] or {s: None for s in _seen(summary, c)}
+            seen = dict(sorted(seen.items(), key=lambda kv: -1.0 if kv[1] is None else -kv[1]))
+            seen = {k: w for k, w in seen.items() if w is not None} | {
+                k: w for k, w in seen.items() if w is None}  # shares first, largest first
+            open_.append(f"{CHOICE_LABELS[c]} " + " or ".join(
+                f"{value} ({'uncalibrated' if w is None else f'{100 * w:.0f} %'})"
+                if v["weights"] else value for value, w in seen.items()))
+    return ("Decided: " + (", ".join(decided) or "no structural choice") + ". Not decided: "
+            + ("; ".join(open_) or "nothing") + ".")
+
+
+def _seen(summary, choice) -> list:
+    """The values the set's structures take for ``choice``, as shown."""
+    members = [s for s in summary["structures"] if s["indistinguishable_from_best"]]
+    return sorted({_shown(Structure.parse(m["structure"]).to_dict()[choice]) for m in members})
+
+
 def _next_test_headline(nt, n_distinct) -> str:
     """The summary's line on the next test (``nt``: the summary's ``next_test``); where no
     candidate ran, the reasons the best structure gave."""
     if not nt:
         return ("Next test: none needed (one structure left)." if n_distinct <= 1
                 else "Next test: not computed.")
+    if nt.get("left_out") and len(nt["members"]) < 2:
+        return (f"Next test: none needed: the weights leave one structure, `{nt['members'][0]}` "
+                f"(the others hold under 5 % of the weight).")
     if nt.get("best") is None:
         reasons = sorted({t["skipped"] for t in nt["tests"] if "skipped" in t})
         return f"Next test: no candidate of the menu could be simulated ({'; '.join(reasons)})."
@@ -260,7 +335,7 @@ def _shown(value):
 
 def _next_test_lines(nt):
     """The report's section on the test that would tell the set's structures apart."""
-    if not nt:
+    if not nt or len(nt.get("members") or ()) < 2:
         return []
     lines = ["", "## A test that would decide", "",
              f"The {len(nt['members'])} structures the recordings cannot tell apart, "
@@ -270,8 +345,10 @@ def _next_test_lines(nt):
              f"truth is at least {nt['decides']:g} (the margin's floor is 0.1 a recording). The "
              "whole menu is compared at the fitted parameters; the best candidates again with "
              "every member refitted to all the recordings and the other's record of the test "
-             "(what a rerun would do: a refit absorbs most of a difference at fixed parameters).",
-             ""]
+             "(what a rerun would do: a refit absorbs most of a difference at fixed parameters)."
+             + (" Left out, the weights having decided against them: " + ", ".join(
+                 f"`{x['structure']}` ({100 * x['weight']:.1f} %)" for x in nt["left_out"]) + "."
+                if nt.get("left_out") else ""), ""]
     best = nt.get("best")
     if best is None:
         return lines + ["No candidate test ran (the best structure shows no cycle at the candidate "
@@ -338,9 +415,11 @@ def discovery_report(summary) -> str:
     lines += ["## Recordings", "", ", ".join(summary["recordings"]), ""]
     lines += ["## Ranking", "",
               f"Criterion: {summary['structures'][0]['criterion']}. Indistinguishable: score within "
-              "twice the standard error of the difference from the best (from the disagreement of "
-              "the two folds; at least 0.1 per recording); a structure that only adds a component "
-              "to one of those without beating it by that margin is merged into it.", "",
+              "the margin of the best: the standard error of the difference (from the disagreement "
+              "of the two folds; at least 0.05 per recording) times Student's t quantile for the "
+              "degrees of freedom it has (2 where the floors set it, up to 14 where one "
+              "recording's folds do); a structure that only adds a component to one of those "
+              "without beating it by that margin is merged into it.", "",
               "| rank | structure | score | in-sample cost | indistinguishable | merged into |",
               "|---|---|---|---|---|---|"]
     for i, s in enumerate(summary["structures"], 1):

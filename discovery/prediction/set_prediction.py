@@ -21,7 +21,10 @@ solver error) and ``r = 1.645 s m`` the 90 % half-width of a recording's measure
 cycle at relative sd ``s`` (:func:`measurement_resolution`; 0 without one). Independent spreads add
 in quadrature: the sum of the half-widths (``2 h`` for two equal ones, against ``sqrt(2) h``)
 bounds the difference of two Gaussian measurements of one value at 98 %, not 90 %. Otherwise the
-choice of structure changes the answer there, and the output says so. Without ``r``, members
+choice of structure changes the answer there, and the output says so. Where the members carry
+weights, a member under the deciding share
+(:data:`discovery.structure.set_weights.DECIDING_SHARE`) is not counted: the data have decided
+against it, and the output names it (``not_counted``). Without ``r``, members
 whose chains pin them tightly would be called apart for differences no recording could show (two
 members of one set, fitting the recorded cycles alike, predict them 0.1-0.5 % apart with bands
 narrower than that).
@@ -143,15 +146,21 @@ def _apart(a, b, resolution=0.0) -> bool:
     return hi["q50"] - lo["q50"] > float(np.sqrt(h_lo**2 + r_lo**2 + h_hi**2 + r_hi**2))
 
 
-def members_agree(bands: dict, resolution=None) -> tuple:
+def members_agree(bands: dict, resolution=None, weights=None) -> tuple:
     """Whether the members' predictions agree (the module's rule), and the disagreeing pairs.
 
     ``bands``: member -> a :meth:`.cycles.CyclePrediction.to_dict`; ``resolution``: relative sd
-    per quantity (:func:`measurement_resolution`; ``None``: the bands alone). Returns
+    per quantity (:func:`measurement_resolution`; ``None``: the bands alone); ``weights``: member
+    -> weight, where a member under :data:`discovery.structure.set_weights.DECIDING_SHARE` (the
+    data have decided against it) is not counted (``None``: every member counts). Returns
     ``(agree, [(a, b, why), ...])``."""
+    from discovery.structure.set_weights import DECIDING_SHARE
+
     resolution = resolution or {}
+    counted = {n: b for n, b in bands.items()
+               if weights is None or weights.get(n, 1.0) >= DECIDING_SHARE}
     pairs = []
-    for (na, a), (nb, b) in combinations(bands.items(), 2):
+    for (na, a), (nb, b) in combinations(counted.items(), 2):
         osc_a, osc_b = a["fraction_oscillating"] > 0.5, b["fraction_oscillating"] > 0.5
         if osc_a != osc_b:
             pairs.append((na, nb, "one oscillates, the other not"))
@@ -197,9 +206,12 @@ class SetPrediction:
         """The mixture's bands and oscillating fraction (the module's rule), the verdict, and per
         member its :meth:`.cycles.CyclePrediction.to_dict` with its ``weight`` and
         ``share_of_band`` (its part of the mixture's oscillating mass)."""
+        from discovery.structure.set_weights import DECIDING_SHARE
+
         w = self.member_weights()
         bands = {n: p.to_dict() for n, p in self.members.items()}
-        agree, pairs = members_agree(bands, self.resolution)
+        agree, pairs = members_agree(bands, self.resolution,
+                                     weights=w if self.weights is not None else None)
         mass = {n: w[n] * b["fraction_oscillating"] for n, b in bands.items()}
         total = sum(mass.values())
         for n, b in bands.items():
@@ -211,6 +223,9 @@ class SetPrediction:
             "fraction_oscillating": float(total),
             "members_agree": agree,
             "disagreeing": [{"members": [a, b], "why": why} for a, b, why in pairs],
+            # members the weights decided against: not counted in the verdict
+            "not_counted": sorted(n for n in bands if self.weights is not None
+                                  and w[n] < DECIDING_SHARE),
             "members": bands,
             "weights": w,
             "weights_stored": self.weights is not None,
@@ -249,7 +264,10 @@ class SetMap:
         out = np.zeros(shape, dtype=bool)
         for idx in np.ndindex(*shape):
             bands = {n: m.point_bands(idx) for n, m in self.members.items()}
-            out[idx] = not members_agree(bands, self.resolution)[0]
+            out[idx] = not members_agree(
+                bands, self.resolution,
+                weights=None if self.weights is None else _normalised(self.weights,
+                                                                      list(self.members)))[0]
         return out
 
     def to_dict(self) -> dict:

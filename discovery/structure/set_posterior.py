@@ -45,9 +45,11 @@ import numpy as np
 from discovery.calibration.profile_range import ALLOWED_DROP, allowed_range, in_log_coordinate
 from discovery.calibration.step_error import widen_draws
 
+from .set_weights import DECIDING_SHARE
+
 __all__ = ["MemberPosterior", "SetPosterior", "allowed_range", "combine",
            "linear_block_dc_gain_and_bandwidth", "member_quantities",
-           "not_pinned", "prior_quantities", "richer_members",
+           "not_pinned", "prior_quantities", "richer_members", "decided_absent",
            "QUANTITY_UNITS", "COMPONENT_QUANTITIES", "ALLOWED_DROP"]
 
 #: Unit of each combined quantity (the dead zone's depends on its place).
@@ -320,15 +322,23 @@ NEGLIGIBLE_WEIGHT = 0.01
 
 
 def partly_present(q) -> bool:
-    """Whether members without combined quantity ``q``'s component hold some of the weight
-    (``present`` under 1, to rounding)."""
-    return q.get("present", 1.0) < 1.0 - 1e-9
+    """Whether the members with combined quantity ``q``'s component and those without it both
+    keep at least :data:`~discovery.structure.set_weights.DECIDING_SHARE` of the weight."""
+    return DECIDING_SHARE <= q.get("present", 1.0) <= 1.0 - DECIDING_SHARE
+
+
+def decided_absent(q) -> bool:
+    """Whether the weights decide combined quantity ``q``'s component absent: the members with
+    it hold under :data:`~discovery.structure.set_weights.DECIDING_SHARE` of the weight (and
+    the set does not leave it open to uncalibrated members)."""
+    return q.get("present", 1.0) < DECIDING_SHARE and not q.get("left_open")
 
 
 def printed_present_or_absent(q) -> bool:
     """Whether combined quantity ``q`` (a :func:`combine` entry) is a component the report prints
-    "present or absent": members without it hold some of the weight (``present`` under 1), or the
-    set leaves the component open (``left_open``)."""
+    "present or absent": the members with it and those without both keep at least the deciding
+    share of the weight (:func:`partly_present`), or the set leaves the component open to members
+    that could not be calibrated (``left_open``)."""
     return bool(q.get("left_open")) or partly_present(q)
 
 
@@ -372,7 +382,8 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
         :func:`allowed_range` joined, or ``None``) with ``allowed_open`` (``[low end, high
         end]``: the profile has not fallen by the drop where the draws end) and
         ``allowed_at_prior`` (that open end is the prior's: the prior stops the draws there;
-        an open end short of it is where a chain's draws end), ``step_error`` (the
+        an open end short of it is where a chain's draws end), ``prior_range`` (``[floor,
+        ceiling]`` of the members' priors, mapped to the quantity), ``step_error`` (the
         members' step errors averaged by their weights: a draw's expected error), ``widened``
         (some member's draws were widened to its own step error before the mixing,
         :func:`discovery.calibration.step_error.widen_draws`: a member's interval narrower than
@@ -416,13 +427,13 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
                   if members[i].log_prob is not None]
         ranges = [r for r in ranges if r is not None]
         allowed, allowed_open, allowed_prior = None, None, None
+        bounds = _prior_bounds([(members[i].prior_quantities or {}).get(name) for i in counted])
         if ranges:
             low = min(ranges, key=lambda r: r.low)
             high = max(ranges, key=lambda r: r.high)
             allowed = [low.low, high.high]
             allowed_open = [any(r.low_open for r in ranges if r.low <= low.low),
                             any(r.high_open for r in ranges if r.high >= high.high)]
-            bounds = _prior_bounds([(members[i].prior_quantities or {}).get(name) for i in counted])
             allowed_prior = [bool(allowed_open[0] and bounds is not None
                                   and _near(allowed[0], bounds[0], bounds)),
                              bool(allowed_open[1] and bounds is not None
@@ -447,6 +458,7 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
                             "pinned": (max(over) <= NOT_PINNED_FRACTION) if over else None,
                             "allowed": allowed, "allowed_open": allowed_open,
                             "allowed_at_prior": allowed_prior,
+                            "prior_range": None if bounds is None else list(bounds),
                             "step_error": step or None, "widened": widened,
                             "step_error_widened": (max(float(errors[having.index(i)])
                                                        for i in widened_by) if widened else None),

@@ -1,0 +1,113 @@
+"""One verdict per component: the summary's "decided" / "not decided", its table's "present or
+absent" and the members' weights come from one rule
+(:func:`discovery.structure.set_weights.weighed_choices`, :data:`DECIDING_SHARE`), and every
+row's words agree with each other."""
+import numpy as np
+import pytest
+
+from discovery.structure.set_posterior import MemberPosterior, combine, decided_absent
+from discovery.structure.set_weights import DECIDING_SHARE, weighed_choices
+from tvcid.report import summary_lines
+
+A = "dz_velocity+delay_before_first_integrator+friction+backlash"
+B = "dz_velocity+delay_output+friction+backlash"
+C = "dz_velocity+delay_before_first_integrator+friction+backlash+bandpass"
+D = "dz_velocity+delay_output+friction+backlash+bandpass"
+DECIDED = {"dead_zone_position": "velocity", "delay_position": None, "friction": True,
+           "backlash": True, "bandpass": None}
+
+
+def _member(name, rng, bandpass=False, n=4000):
+    q = {"delay": 2e-3 + 1e-5 * rng.standard_normal(n),
+         "dead_zone[velocity]": 8e-3 + 1e-5 * rng.standard_normal(n)}
+    if bandpass:
+        q["bandpass_gain"] = 70 + rng.standard_normal(n)
+    return MemberPosterior(name, q, {"converged": True}, 0.0)
+
+
+def _summary(weights, choices_weights=None):
+    rng = np.random.default_rng(1)
+    members = [_member(n, rng, bandpass=n == C) for n in weights]
+    sp = combine(members, weights=list(weights.values()), seed=1).to_dict()
+    sp["choices"] = weighed_choices(DECIDED, choices_weights or weights, list(weights))
+    rows = [{"structure": n, "indistinguishable_from_best": True, "merged_into": None,
+             "components": {}} for n in weights]
+    return {"structures": rows, "decided": DECIDED, "set_posterior": sp}
+
+
+def _screen(summary):
+    return "\n".join(summary_lines(summary))
+
+
+def test_a_choice_is_decided_by_the_set_by_the_weights_or_left_open_with_each_side_s_share():
+    """The set decides what its structures share; the weights decide a choice whose other side
+    holds under 5 % together; otherwise every value's share is given, and a value held only by
+    a structure without a weight (beyond the cap) keeps the choice open."""
+    c = weighed_choices(DECIDED, {A: 0.97, B: 0.01, C: 0.02}, [A, B, C])
+    assert c["friction"] == {"value": "on", "by": "set", "weights": {"on": 1.0}}
+    assert c["delay_position"]["value"] == "before_first_integrator"
+    assert c["delay_position"]["by"] == "weights"
+    assert c["bandpass"]["value"] == "off" and c["bandpass"]["weights"]["on"] == pytest.approx(0.02)
+    c = weighed_choices(DECIDED, {A: 0.6, B: 0.3, C: 0.1}, [A, B, C])
+    assert c["delay_position"] == {"value": None, "by": "open", "weights": {
+        "before_first_integrator": pytest.approx(0.7), "output": pytest.approx(0.3)}}
+    c = weighed_choices(DECIDED, {A: 1.0}, [A, C])  # C beyond the cap: no weight
+    assert c["bandpass"] == {"value": None, "by": "open", "weights": {"off": 1.0, "on": None}}
+    assert DECIDING_SHARE == 0.05
+
+
+def test_the_summary_names_each_open_choice_s_alternatives_and_the_weights_decisions():
+    """"Not decided" names every alternative with its share, the largest first; a choice the weights decide reads
+    as decided with its weight, never also as not decided; and a component the weights decide
+    absent prints "absent", not "present or absent"."""
+    text = _screen(_summary({A: 0.6, B: 0.38, C: 0.02}))
+    decided_line = next(li for li in text.splitlines() if li.startswith("Decided:"))
+    assert "band-pass loop off (98 % of the weight)" in decided_line
+    assert ("Not decided: delay position before_first_integrator (62 %) or output (38 %)."
+            in decided_line)
+    assert "band-pass loop" not in decided_line.split("Not decided:")[1]
+    row = next(li for li in text.splitlines() if li.startswith("| bandpass_gain |"))
+    assert "| absent (the members with it hold 2.0 % of the weight) |" in row
+    assert "present or absent" not in row
+
+
+def test_a_component_present_or_absent_is_never_also_decided_regardless_of_the_structure():
+    """Both sides over 5 %: the row reads "present or absent" and its verdict never says
+    "decided regardless of the structure" (it depends on which member is right)."""
+    rng = np.random.default_rng(2)
+    with_it = _member(C, rng, bandpass=True)
+    without = _member(A, rng)
+    other = _member(D, rng, bandpass=True)
+    prior = {"bandpass_gain": np.exp(rng.uniform(np.log(1), np.log(1000), 4000))}
+    with_it.prior_quantities = other.prior_quantities = prior
+    sp = combine([with_it, without, other], weights=[0.45, 0.11, 0.44], seed=1).to_dict()
+    q = sp["quantities"]["bandpass_gain"]
+    assert q["members"] == 2 and q["pinned"] and not q["depends_on_structure"]
+    assert not decided_absent(q)
+    sp["choices"] = weighed_choices(DECIDED, {C: 0.45, A: 0.11, D: 0.44}, [A, C, D])
+    rows = [{"structure": n, "indistinguishable_from_best": True, "merged_into": None}
+            for n in (C, A, D)]
+    text = _screen({"structures": rows, "decided": DECIDED, "set_posterior": sp})
+    row = next(li for li in text.splitlines() if li.startswith("| bandpass_gain |"))
+    assert "present or absent (89 % of the weight present)" in row
+    assert "decided regardless of the structure" not in row
+    assert "Not decided: delay position before_first_integrator (56 %) or output (44 %); band-pass loop on (89 %) or off (11 %)." in text
+
+
+def test_where_equal_weights_print_another_interval_both_are_printed_with_their_rules():
+    """Two members whose delays differ, weighted 0.95 / 0.05: the equal-weight interval differs
+    and is printed beside the weighted one; weighted 0.5 / 0.5 it is the same, and not printed."""
+    rng = np.random.default_rng(3)
+    a, b = _member(A, rng), _member(B, rng)
+    b.quantities["delay"] = b.quantities["delay"] + 5e-4
+    for weights, printed in (([0.95, 0.05], True), ([0.5, 0.5], False)):
+        sp = combine([a, b], weights=weights, seed=1).to_dict()
+        sp["choices"] = weighed_choices(DECIDED, dict(zip((A, B), weights)), [A, B])
+        rows = [{"structure": n, "indistinguishable_from_best": True, "merged_into": None}
+                for n in (A, B)]
+        text = _screen({"structures": rows, "decided": DECIDED, "set_posterior": sp})
+        line = [li for li in text.splitlines() if li.startswith("With equal weights instead")]
+        assert bool(line) == printed, text
+        if printed:
+            e = sp["quantities"]["delay"]["equal_weights"]
+            assert f"delay [{e['q05']:.4g}, {e['q95']:.4g}] s (by weight [" in line[0]
