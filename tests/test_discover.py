@@ -636,9 +636,18 @@ def test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature():
     a structure worse by 0.07 on every one of five recordings, the two folds agreeing (benchmark
     draw 1017's dead zone on the error: +0.02 to +0.14 on each, 0.35 in all), is outside the
     margin of ``2 sqrt(5) TOL_ABS / 2`` = 0.224 (a linear sum of the floors, 0.5, kept it inside);
-    the same 0.07 on one recording alone is inside; one recording's margin is the larger of its
-    folds' disagreement and its floor."""
-    from discovery.structure.indistinguishable import TOL_ABS, indistinguishable_margin
+    the same 0.07 on one recording alone is inside; one recording's margin is two standard
+    errors where its floor sets them, and Student's t quantile at one degree of freedom (13.97
+    standard errors) where its folds' disagreement does: two folds estimate the noise from one
+    difference."""
+    from scipy import stats
+
+    from discovery.structure.indistinguishable import (
+        MARGIN_QUANTILE,
+        TOL_ABS,
+        indistinguishable_margin,
+        margin_degrees,
+    )
 
     best = np.zeros((2, 5))
     everywhere = np.full((2, 5), 0.07)
@@ -647,12 +656,23 @@ def test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature():
     margin = indistinguishable_margin(best, everywhere, 5)
     assert margin == pytest.approx(math.sqrt(5) * TOL_ABS)
     assert everywhere.mean(axis=0).sum() > margin > once.mean(axis=0).sum()
-    assert indistinguishable_margin(best[:, :1], np.array([[0.3], [0.1]]), 1) == pytest.approx(0.2)
+    t1 = stats.t.ppf(MARGIN_QUANTILE, 1)
+    assert t1 == pytest.approx(13.97, abs=0.01)
+    assert indistinguishable_margin(best[:, :1], np.array([[0.3], [0.1]]), 1) == pytest.approx(
+        t1 * 0.1)
     assert indistinguishable_margin(best[:, :1], np.array([[0.11], [0.1]]), 1) == pytest.approx(TOL_ABS)
     # a recording's own floor (a wandering cycle's window cost) counts for that recording alone
     floors = np.array([0.4, TOL_ABS, TOL_ABS, TOL_ABS, TOL_ABS])
     assert indistinguishable_margin(best, everywhere, 5, floors) == pytest.approx(
         math.sqrt(0.4**2 + 4 * TOL_ABS**2))
+    # two recordings whose folds set the error and three whose floors do: Welch-Satterthwaite
+    mixed = np.zeros((2, 5))
+    mixed[0, :2], mixed[1, :2] = 0.5, 0.1  # sd 0.2 each, estimated
+    nu = (2 * 0.2**2 + 3 * 0.05**2) ** 2 / (2 * 0.2**4)
+    assert margin_degrees([0.2, 0.2, 0.05, 0.05, 0.05], [True, True, False, False, False]) == \
+        pytest.approx(nu)
+    assert indistinguishable_margin(best, mixed, 5) == pytest.approx(
+        stats.t.ppf(MARGIN_QUANTILE, nu) * math.sqrt(2 * 0.2**2 + 3 * 0.05**2))
 
 
 def test_wandering_cycles_raise_the_margin_floor(tmp_path):

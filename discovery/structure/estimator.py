@@ -23,10 +23,11 @@ Pipeline (:meth:`StructureDiscovery.fit`):
    :func:`.ranking.in_sample_screen` of the best in-sample cost is refitted (locally, from its
    optimum) on one half of every recording and scored on the other half, both ways round.
 5. **Report what the data cannot decide** (:mod:`.indistinguishable`) -- structures whose score
-   is within :func:`.indistinguishable.indistinguishable_margin` of the best (twice the standard
-   error of the score difference: each recording's from the disagreement of the two folds, with a
-   floor that a wandering cycle raises, :func:`.indistinguishable.margin_floors`; the recordings'
-   added in quadrature) are indistinguishable from it; a structure that only adds components to
+   is within :func:`.indistinguishable.indistinguishable_margin` of the best (Student's t
+   quantile for its degrees of freedom times the standard error of the score difference: each
+   recording's from the disagreement of the two folds, with a floor that a wandering cycle raises,
+   :func:`.indistinguishable.margin_floors`; the recordings' added in quadrature) are
+   indistinguishable from it; a structure that only adds components to
    an indistinguishable one without beating it by that margin is merged into it (the output says
    which), and so is every superset of a member whatever its own fit scored (at its added
    components' zero it is that member). The local spread of each coordinate

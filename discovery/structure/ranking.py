@@ -62,6 +62,8 @@ class StructureFit:
     margin : float or None
         How much worse than the best score this one's may be and still be indistinguishable
         from it (:func:`.indistinguishable.indistinguishable_margin`); ``None`` when not weighed.
+    margin_se : float or None
+        The standard error of its score's difference from the best's, behind ``margin``.
     """
 
     structure: Structure
@@ -79,6 +81,7 @@ class StructureFit:
     held_out: dict = field(default_factory=dict)
     fold_costs: np.ndarray | None = None
     margin: float | None = None
+    margin_se: float | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -92,6 +95,7 @@ class StructureFit:
             "held_out": self.held_out,
             "fold_costs": None if self.fold_costs is None else np.asarray(self.fold_costs).tolist(),
             "margin": self.margin,
+            "margin_se": self.margin_se,
             "indistinguishable_from_best": self.indistinguishable_from_best,
             "merged_into": self.merged_into,
             "coordinate_sd": self.coordinate_sd,

@@ -1,16 +1,15 @@
 """The members' shares of the weight read off the ranking's held-out scores, with no calibration:
-the weights :func:`.set_weights.weigh_set` falls back on where PSIS-LOO cannot weigh the members,
-and the share of the members the cap leaves uncalibrated.
+the comparison :func:`.set_weights.evidence_weights` prints beside the weights, and the share of
+the members the cap leaves uncalibrated.
 
 **Weights from the ranking.** A structure's ``score`` is its two-fold held-out cost: the sum over
 recordings of each recording's mean squared residual in units of what it resolves (about 1 per
 recording for the generating model), not a log density, so ``exp(-score / 2)`` would count a
 recording's hundreds of residuals as one, and ``exp(-n score / 2)`` would count their correlated
-stretches as independent. The ranking's own yardstick is its margin, twice the standard error
-of a score's difference from the best (:func:`.indistinguishable.indistinguishable_margin`). A
+stretches as independent. The ranking's own yardstick is the standard error behind its margin
+(:func:`.indistinguishable.indistinguishable_margin`): that of a score's difference from the best. A
 member's share is its probability of having the lowest expected held-out score, its difference
-from the best normal with that standard error: what pseudo-BMA+ tends to where the elpd
-differences span many nats. The members the cap leaves uncalibrated get their share this way
+from the best normal with that standard error. The members the cap leaves uncalibrated get their share this way
 (:func:`uncalibrated_share`), so the report can say what part of the weight was not calibrated.
 """
 from __future__ import annotations
@@ -27,7 +26,7 @@ __all__ = ["UncalibratedShare", "ranking_shares", "uncalibrated_share", "RANKING
 RANKING_DRAWS = 20000
 #: The ranking-based share's rule (:func:`ranking_shares`).
 RANKING_RULE = ("probability of the lowest expected two-fold held-out score, each member's "
-                "difference from the best normal with half its margin as standard error "
+                "difference from the best normal with the standard error behind its margin "
                 "(differences drawn independently)")
 
 
@@ -36,9 +35,9 @@ def ranking_shares(rows, seed=0, n_draws=RANKING_DRAWS) -> dict:
 
     Each member's share is the probability that its expected two-fold held-out score is the
     lowest: its difference from the best score is drawn normal, with mean the observed
-    difference and standard error half its ``margin`` (the set rule's margin is twice that
-    error, :func:`.indistinguishable.indistinguishable_margin`); the best's own row (no margin)
-    is exact; the differences are drawn independently with a seeded
+    difference and standard error ``margin_se``, the one behind its ``margin``
+    (:func:`.indistinguishable.indistinguishable_margin`; half the margin in a ranking that stores
+    none); the best's own row (no margin) is exact; the differences are drawn independently with a seeded
     ``numpy.random.Generator``, which ignores that they share the best's error (the shares then
     lean slightly towards equal). A score is not a log density (the module docstring), so it is
     not put through ``exp(-score / 2)``.
@@ -47,7 +46,7 @@ def ranking_shares(rows, seed=0, n_draws=RANKING_DRAWS) -> dict:
     ----------
     rows : list of dict
         The members' rows of ``discovery.json``'s ``structures``: ``structure``, ``score`` and
-        ``margin`` (``None`` for the best).
+        ``margin`` (``None`` for the best) and ``margin_se``.
     seed : int
     n_draws : int
 
@@ -60,7 +59,7 @@ def ranking_shares(rows, seed=0, n_draws=RANKING_DRAWS) -> dict:
     if not names:
         return {}
     score = np.array([_number(r.get("score")) for r in rows])
-    se = np.array([0.0 if r.get("margin") is None else _number(r["margin"]) / 2.0 for r in rows])
+    se = np.array([_se(r) for r in rows])
     ok = np.isfinite(score) & np.isfinite(se)
     if not ok.any():
         return {n: 1.0 / len(names) for n in names}
@@ -121,6 +120,16 @@ def uncalibrated_share(rows, calibrated, seed=0) -> UncalibratedShare:
     shares = ranking_shares(rows, seed=seed)
     names = [r["structure"] for r in rows if r["structure"] not in calibrated]
     return UncalibratedShare(names, float(sum(shares[n] for n in names)), shares)
+
+
+def _se(row) -> float:
+    """A row's standard error of its score's difference from the best: its ``margin_se``, or
+    half its ``margin`` in a ranking that stores none; 0 for the best (no margin)."""
+    if row.get("margin") is None:
+        return 0.0
+    if row.get("margin_se") is not None:
+        return _number(row["margin_se"])
+    return _number(row["margin"]) / 2.0
 
 
 def _number(v) -> float:
