@@ -381,33 +381,51 @@ def test_open_loop_command_rebuilt_from_sidecar(tmp_path):
     assert ll_sampled[0] > ll_sampled[1]  # and with the edges rebuilt from the samples
 
 
-def test_default_delay_prior_refuses_a_start_below_two_steps():
+def test_default_delay_prior_refuses_a_start_below_one_step():
     from discovery.calibration import default_prior
 
     assert default_prior("delay", 7e-3, dt=5e-4).low == pytest.approx(3.5e-3)
-    assert default_prior("delay", 1.5e-3, dt=5e-4).low == pytest.approx(1e-3)
-    for start in (2.4e-4, 8e-4):
-        with pytest.raises(ValueError, match=f"delay starts at {start:.3g} s, below two steps.*declare"):
+    assert default_prior("delay", 1.5e-3, dt=5e-4).low == pytest.approx(7.5e-4)
+    # a start under two steps keeps a prior from one step, the kernel's shortest delay
+    assert (default_prior("delay", 8e-4, dt=5e-4).low, default_prior("delay", 8e-4).low) == \
+        pytest.approx((5e-4, 4e-4))
+    for start in (2.4e-4, 4.9e-4):
+        with pytest.raises(ValueError, match=f"delay starts at {start:.3g} s, below one step.*declare"):
             default_prior("delay", start, dt=5e-4)
 
 
-def test_a_short_delay_without_a_declared_prior_sets_the_step():
-    """A delay starting below two default steps (0.8 ms against 2 x 0.5 ms) halves the step
-    until two fit under it, and its default prior starts there; a declared prior or step is
-    kept, and a delay above two default steps keeps the default step."""
+def test_the_step_follows_the_floor_of_the_delay_prior():
+    """The default step is halved until one step fits under the delay prior's floor, declared or
+    default (half the start): 0.8 ms starts a prior at 0.4 ms on 2.5e-4 s steps, a declared
+    floor of 0.1 ms runs at 6.25e-5 s; a floor at or above 5e-4 s, a delay not sampled or a given
+    step keeps the step; a floor finer than four halvings is a one-line error."""
+    from discovery.calibration.priors import MAX_DELAY_HALVINGS, step_under_delay
     from models.recording import load_recording
+
+    assert [step_under_delay(f, 5e-4) for f in (7e-3, 5e-4, 4.9e-4, 2.5e-4, 1e-4, 3.125e-5)] == \
+        [5e-4, 5e-4, 2.5e-4, 2.5e-4, 6.25e-5, 3.125e-5]
+    assert MAX_DELAY_HALVINGS == 4
+    for floor in (3e-5, 0.0, -1e-3):
+        with pytest.raises(ValueError, match="delay prior's floor .* below the finest default step"):
+            step_under_delay(floor, 5e-4)
 
     recs = [load_recording(Path(__file__).resolve().parents[1] / "data" / "m000_closed_A.csv")]
     short = M002().replace(delay=8e-4)
     cal = Calibration(short, params=("delay",), likelihood="features").setup(recs)
     assert cal.dt_ == 2.5e-4
-    assert (cal.priors_["delay"].low, cal.priors_["delay"].high) == pytest.approx((5e-4, 1.6e-3))
-    assert Calibration(short.replace(delay=1.7e-3), params=("delay",),
+    assert (cal.priors_["delay"].low, cal.priors_["delay"].high) == pytest.approx((4e-4, 1.6e-3))
+    assert Calibration(short.replace(delay=1e-3), params=("delay",),
                        likelihood="features").setup(recs).dt_ == 5e-4
     declared = Calibration(short, params=("delay",), likelihood="features",
                            priors={"delay": Uniform(1e-4, 2e-3)}).setup(recs)
-    assert declared.dt_ == 5e-4
+    assert declared.dt_ == 6.25e-5
+    assert Calibration(short, params=("delay",), likelihood="features",
+                       priors={"delay": Uniform(5e-4, 2e-3)}).setup(recs).dt_ == 5e-4
+    with pytest.raises(ValueError, match=r"delay prior's floor \(1e-06 s\)"):
+        Calibration(short, params=("delay",), likelihood="features",
+                    priors={"delay": Uniform(1e-6, 2e-3)}).setup(recs)
     assert Calibration(short, params=("delay",), likelihood="features", dt=1e-4).setup(recs).dt_ == 1e-4
+    assert Calibration(short, params=("dead_zone",), likelihood="features").setup(recs).dt_ == 5e-4
     assert Calibration(M002(), params=("delay",), likelihood="features").setup(recs).dt_ == 5e-4
 
 

@@ -134,3 +134,35 @@ def test_delay_line_holds_a_jump_at_its_node_and_averages_it_over_a_share():
         plain.write(1.0 if k >= 3 else 0.0)
     # an unmarked jump ramps over the step before its node
     assert plain.read(0.25 + 0.25) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("position", ["output", "before_integrator", "before_first_integrator"])
+def test_step_error_does_not_grow_as_the_delay_nears_one_step(position):
+    """The kernel's shortest delay is one step (the delayed signal is stored on the step grid),
+    and one step resolves it as well as more: at 5e-4 s, against a step of 3.125e-5 s, an
+    open-loop square's waveform error at a delay of one step or 1.6 steps is within 25 % of its
+    error at eight (measured: within 3 %, and 0.64x before the integrator), and a held loop's
+    cycle (amplitude and frequency) is off by no more at one step or 1.6 steps than at two
+    (measured: 0.4-0.8x of it at every position).
+    :func:`discovery.calibration.priors.step_under_delay` rests on this."""
+    from discovery.calibration.priors import step_under_delay
+
+    base = hypothesis("M001f", delay_position=position)
+    square, loop = OpenLoop.square(0.01, 1.0), ClosedLoop(5.84, 0.062, 12.3, sample_rate=200.0)
+    dt, fine = 5e-4, 3.125e-5
+    square_error, cycle_error = {}, {}
+    for delay in (5e-4, 8e-4, 1e-3, 4e-3):
+        p = base.replace(delay=delay)
+        assert step_under_delay(delay, dt) == dt
+        coarse, ref = (simulate(p, square, 4.0, dt=h, rate=2000.0).delta for h in (dt, fine))
+        square_error[delay] = float(np.sqrt(np.mean((coarse - ref) ** 2)))
+        a, b = (simulate(p, loop, 20.0, dt=h, rate=None).features(window=8.0) for h in (dt, fine))
+        assert b.n_periods >= 4  # a live cycle
+        cycle_error[delay] = max(abs(a.amplitude / b.amplitude - 1), abs(a.frequency / b.frequency - 1))
+    assert square_error[4e-3] > 0.0 and cycle_error[1e-3] > 0.0
+    for delay in (5e-4, 8e-4):
+        assert square_error[delay] < 1.25 * square_error[4e-3], square_error
+        assert cycle_error[delay] <= cycle_error[1e-3], cycle_error
+    # under one step the kernel refuses the delay rather than reading samples it has not stored
+    with pytest.raises(ValueError, match="shorter than the step"):
+        simulate(base.replace(delay=0.9 * dt), square, 1.0, dt=dt)

@@ -35,7 +35,7 @@ from .likelihood.waveform import (
 from .log_posterior import LogPosterior, check_parameter_names
 from .moves import LaplaceAdaptation
 from .posterior import Posterior
-from .priors import SIGMA, Prior, default_prior, ridge_coordinates
+from .priors import SIGMA, Prior, default_prior, ridge_coordinates, step_under_delay
 from .runner import run_ensemble
 from .start import StartSearch
 
@@ -146,8 +146,8 @@ class Calibration(StartSearch, LaplaceAdaptation):
     dt : float or None
         RK4 step of the simulations (each output-error record may halve it further,
         :meth:`.likelihood.solver._WaveformSolverError._refine_step`). Default ``DEFAULT_DT``,
-        5e-4 s, halved until two steps fit under the start of a sampled delay without a declared
-        prior (whose default prior starts at two steps).
+        5e-4 s, halved until one step, the kernel's shortest delay, fits under the floor of a
+        sampled delay's prior, declared or default (:func:`.priors.step_under_delay`).
         Learned attribute ``dt_``: the step used.
     n_walkers, max_steps, tau_factor
         Ensemble size, step cap, ``N > tau_factor * tau``.
@@ -241,15 +241,19 @@ class Calibration(StartSearch, LaplaceAdaptation):
 
     # -- set-up ---------------------------------------------------------------------------------
     def _default_dt(self, base, names, priors, start):
-        """``DEFAULT_DT``, halved until two steps fit under the start of a sampled delay without
-        a declared prior, whose default prior's floor is two steps (:func:`.priors.default_prior`).
-        Halved, not shrunk to fit, so that it still divides the records' sample interval."""
+        """``DEFAULT_DT``, halved until one step fits under the floor of a sampled delay's prior
+        (:func:`.priors.step_under_delay`): the declared prior's, or the default prior's, half the
+        delay's start (:func:`.priors.default_prior`). A delay not sampled keeps ``DEFAULT_DT``."""
         dt = DEFAULT_DT[self.likelihood]
-        if "delay" in names and "delay" not in priors:
-            delay = float(start.get("delay", getattr(base, "delay")))
-            while 0.0 < delay < 2.0 * dt:
-                dt /= 2.0
-        return dt
+        if "delay" not in names:
+            return dt
+        if "delay" in priors:
+            floor = priors["delay"].low
+        else:
+            floor = 0.5 * float(start.get("delay", getattr(base, "delay")))
+            if floor == 0.0:  # default_prior names the problem: no prior centred on 0
+                return dt
+        return step_under_delay(floor, dt)
 
     def _base(self):
         h = self.hypothesis

@@ -25,6 +25,7 @@ __all__ = [
     "WIDTH_PARAMETERS",
     "default_prior",
     "parse_prior",
+    "step_under_delay",
     "ridge_coordinates",
 ]
 
@@ -151,13 +152,49 @@ class LogUniform(Prior):
         return LogUniform(self.low, self.high, linear=True)
 
 
+#: Halvings of a default step that :func:`step_under_delay` takes at most (5e-4 s down to
+#: 3.1e-5 s: every simulation 16 times as long).
+MAX_DELAY_HALVINGS = 4
+
+
+def step_under_delay(floor, dt, max_halvings=MAX_DELAY_HALVINGS) -> float:
+    """The RK4 step ``dt`` halved until one step fits under ``floor`` (s), a delay prior's floor.
+
+    The kernel stores the delayed signal on the step grid and interpolates it linearly between
+    grid points, so it needs ``delay >= dt``: a shorter delay is refused (``models.simulate``) and
+    a walker proposing one gets a likelihood of ``-inf``. One step is all it needs: at 5e-4 s, the
+    step's error in the cycle's features and in an open-loop square's waveform against a step of
+    3.1e-5 s is the same for a delay of one step as for eight, at every delay position
+    (``tests/test_kernel_vs_reference.py::test_step_error_does_not_grow_as_the_delay_nears_one_step``).
+    Halved, not shrunk to fit, so that the step still divides the records' sample interval; a
+    floor at or above ``dt`` keeps ``dt`` (no cost where the prior does not need it).
+
+    Raises
+    ------
+    ValueError
+        When ``floor`` is not above 0 or needs more than ``max_halvings`` halvings.
+    """
+    floor, step = float(floor), float(dt)
+    for _ in range(int(max_halvings) + 1):
+        if floor >= step * (1.0 - 1e-9):  # the kernel's own tolerance on a whole number of steps
+            return step
+        step /= 2.0
+    raise ValueError(
+        f"delay prior's floor ({floor:.3g} s) is below the finest default step "
+        f"({dt / 2 ** int(max_halvings):.3g} s), the kernel's shortest delay; raise the floor "
+        "or give the step (--dt)"
+    )
+
+
 def default_prior(name, value, dt=None) -> Prior:
     """The prior tvcid uses when none is declared, centred on the starting ``value``.
 
     Widths (:data:`WIDTH_PARAMETERS`) get a log-uniform prior over a factor 5 either side; the
-    delay a uniform prior on ``[max(value/2, 2 dt), 2 value]`` (a start below 2 dt is refused); any
-    other parameter a uniform one over a factor 2 either side. A parameter whose starting value is 0
-    needs a declared prior.
+    delay a uniform prior on ``[max(value/2, dt), 2 value]``, one step being the kernel's shortest
+    delay (:func:`step_under_delay`; a start below one step is refused, and
+    :class:`~discovery.calibration.Calibration`'s default step is halved until one step fits under
+    ``value/2``); any other parameter a uniform one over a factor 2 either side. A parameter whose
+    starting value is 0 needs a declared prior.
     """
     value = float(value)
     if value == 0.0:
@@ -170,11 +207,11 @@ def default_prior(name, value, dt=None) -> Prior:
             raise ValueError(f"width {name!r} must be > 0 for a log-uniform prior (got {value})")
         return LogUniform(value / 5.0, value * 5.0)
     if name == "delay":
-        low = value / 2.0 if dt is None else max(value / 2.0, 2.0 * dt)
+        low = value / 2.0 if dt is None else max(value / 2.0, dt)
         if low > value:
             raise ValueError(
-                f"delay starts at {value:.3g} s, below two steps (2 dt = {2.0 * dt:.3g} s), the "
-                "default prior's floor; declare a prior and a start inside it "
+                f"delay starts at {value:.3g} s, below one step (dt = {dt:.3g} s), the kernel's "
+                "shortest delay; declare a prior and a start inside it "
                 "(e.g. --prior delay=0.001:0.01) or a smaller --dt"
             )
         return Uniform(low, 2.0 * value)

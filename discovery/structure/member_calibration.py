@@ -9,13 +9,36 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["calibrate_member", "member_priors", "member_walkers"]
+__all__ = ["MEMBER_DELAY_FLOOR", "calibrate_member", "member_delay_floor", "member_priors",
+           "member_walkers"]
+
+#: The floor (s) of a member's delay prior: one step of the calibration's default 5e-4 s, the
+#: kernel's shortest delay (:func:`discovery.calibration.priors.step_under_delay`), under the
+#: shortest delay a rig has (0.8 ms, the benchmark generator's ``RANGES['wide']``).
+MEMBER_DELAY_FLOOR = 5e-4
 
 
-def member_priors(params, structure, names, delay_floor):
+def member_delay_floor(delay) -> float:
+    """The floor (s) of the delay prior of a member whose fit has ``delay`` (s):
+    ``min(MEMBER_DELAY_FLOOR, delay / 2)``.
+
+    The calibration's step follows the floor, halved until one step fits under it
+    (:func:`discovery.calibration.priors.step_under_delay`), so only a member fitted under
+    1 ms runs at a finer step (2.5e-4 s for a fit down to the structure search's one step of
+    5e-4 s, twice the cost of every simulation); the others keep the default step and a prior
+    that reaches 0.5 ms.
+    """
+    delay = float(delay)
+    if not (math.isfinite(delay) and delay > 0.0):
+        raise ValueError(f"a member's delay must be a finite number > 0 (got {delay!r})")
+    return min(MEMBER_DELAY_FLOOR, 0.5 * delay)
+
+
+def member_priors(params, structure, names, delay_floor=None):
     """Priors of one member's sampled parameters: the structure search's box
     (:data:`discovery.structure.coordinates.BOUNDS`) in natural units, each widened to hold the
-    member's fit."""
+    member's fit; the delay's from ``delay_floor`` (default :func:`member_delay_floor` of the
+    fit's delay, lowered to 0.9 times the fit where that is lower)."""
     from discovery.calibration.priors import LogUniform, Uniform
     from discovery.structure.coordinates import BOUNDS
 
@@ -34,6 +57,8 @@ def member_priors(params, structure, names, delay_floor):
     for name in names:
         value = float(getattr(params, name))
         if name == "delay":
+            if delay_floor is None:
+                delay_floor = member_delay_floor(value)
             priors[name] = Uniform(min(delay_floor, 0.9 * value), max(BOUNDS["delay"][1], 1.5 * value))
         elif name == "friction_offset":
             c = params.dead_zone - params.friction_offset
@@ -58,9 +83,10 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     """MCMC of one member of the set on ``recordings`` (features likelihood, 10 s windows):
     every parameter of ``structure`` but the ``fixed`` ones, the linear block included, within
     :func:`member_priors`; starts at ``params`` (the member's fit, with the cycle's initial
-    state). The sensor noise sd stays at the records' estimate: sampled, it mixes several times
-    slower than the physical parameters, and a misfit beyond the noise is the discrepancy
-    factor's business. Returns ``(posterior, priors, simulated seconds)``: the last a dict,
+    state). The step is the calibration's default 5e-4 s, halved until one step fits under the
+    delay prior's floor (:func:`member_delay_floor`: a fit under 1 ms halves it). The sensor
+    noise sd stays at the records' estimate: sampled, it mixes several times slower than the
+    physical parameters, and a misfit beyond the noise is the discrepancy factor's business. Returns ``(posterior, priors, simulated seconds)``: the last a dict,
     ``start`` (the set-up and the start's searches) and ``sampling`` (this call's steps; a
     resumed chain's earlier steps are not counted again)."""
     import warnings
@@ -71,8 +97,7 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     fixed = fixed or {}
     names = [n for n in structure.parameter_names() if n not in fixed
              and not (n == "bandpass_saturation" and not math.isfinite(params.bandpass_saturation))]
-    # the shortest delay the structure search's 5e-4 s step resolves well
-    priors = member_priors(params, structure, names, 1.2e-3 if params.delay > 1.2e-3 else 6e-4)
+    priors = member_priors(params, structure, names)
     start = {n: min(max(getattr(params, n), priors[n].low * 1.001), priors[n].high * 0.999)
              for n in names}
     sampled = tuple(names) or ("sigma",)

@@ -52,8 +52,9 @@ def register(sub):
     p.add_argument("--keep-transient", action="store_true",
                    help="simulate --transient seconds before the window, never a shorter transient")
     p.add_argument("--dt", type=float, default=None,
-                   help="RK4 step of the likelihood simulations, s (default 5e-4; a record whose solver error "
-                        "the data would see halves it)")
+                   help="RK4 step of the likelihood simulations, s (default 5e-4, halved until one step, the "
+                        "kernel's shortest delay, fits under the delay prior's floor; a record whose solver "
+                        "error the data would see halves it)")
     p.add_argument("--processes", type=int, default=0,
                    help="map walker batches over a multiprocessing pool of this size (0: none; "
                    "the batch kernel already uses every core)")
