@@ -71,6 +71,10 @@ def test_agreement_rule_on_known_bands():
     assert members_agree(lopsided)[1] == [("a", "b", "amplitudes differ")]
     assert not members_agree({"a": band(5, 8), "b": band(5, 8, osc=0.2)})[0]
     assert members_agree({"a": band(5, 8, osc=0.0), "b": band(50, 80, osc=0.1)})[0]
+    # a member the weights decided against (under 5 %) is not counted; at 5 % it is
+    apart = {"a": band(5, 8), "b": band(5, 8), "c": band(9, 8)}
+    assert not members_agree(apart, weights={"a": 0.5, "b": 0.45, "c": 0.05})[0]
+    assert members_agree(apart, weights={"a": 0.5, "b": 0.47, "c": 0.03}) == (True, [])
     with pytest.raises(ValueError, match="no member"):
         predict_cycle_over_set({}, SETTING_A)
 

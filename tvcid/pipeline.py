@@ -559,7 +559,7 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
         cost["simulated_steps"] += run.simulated_steps
         cost["start"] += run.start_seconds
 
-    screened, first_draws = set(), {}
+    screened, first_draws, first_failed = set(), {}, {}
     screen_steps = min(SCREEN_STEPS, cap)
     if n > 1 and screen_steps < cap:
         screening = summary.get("set_screening")
@@ -573,6 +573,8 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
                 account(run)
                 if run.failed is None:
                     first_draws[row["structure"]] = run.draws
+                else:  # not started again below
+                    first_failed[row["structure"]] = run.failed
             weighed = (evidence_weights(first_draws, rows=calibrated, seed=seed)
                        if len(first_draws) > 1 else None)
             screening = {"members": names_now, "steps": screen_steps,
@@ -583,15 +585,18 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
             summary["set_screening"] = screening
             _write(out, summary)  # a resumed run screens the same members
         screened = set(screening["screened"])
-    caps = [screen_steps if r["structure"] in screened else cap for r in calibrated]
+    todo = [r for r in calibrated if r["structure"] not in first_failed]
+    m = len(todo)
+    caps = [screen_steps if r["structure"] in screened else cap for r in todo]
     # a screened member's draws are the first round's where it ran here (its chain has not moved
     # since; on a resumed run they are drawn again, the same draws)
     weigh = [n > 1 and not (r["structure"] in screened and r["structure"] in first_draws)
-             for r in calibrated]
-    runs = executor.map(calibrate_member_task, calibrated, *([x] * n for x in shared), caps,
-                        [show] * n, [out.resolve()] * n, weigh, [False] * n)
-    members, draws, failed = [], {}, []
-    for row, run in zip(calibrated, runs):
+             for r in todo]
+    runs = executor.map(calibrate_member_task, todo, *([x] * m for x in shared), caps,
+                        [show] * m, [out.resolve()] * m, weigh, [False] * m)
+    members, draws = [], {}
+    failed = [{"structure": name, "reason": why} for name, why in first_failed.items()]
+    for row, run in zip(todo, runs):
         if run.failed is not None:
             # the rest of the set still has its posterior; the report names this member
             failed.append({"structure": row["structure"], "reason": run.failed})
