@@ -44,9 +44,9 @@ RULES = ("interval", "allowed", "absent", "lacking")
 #: A width within this relative slack of twice the step error is not narrower: the mixture's
 #: draws are its members' taken at evenly spaced ranks, quantiles to a few parts in 10^4.
 STEP_SLACK = 1e-3
-#: The delay's prior floors :func:`discovery.structure.member_calibration.calibrate_member`
-#: passes to ``member_priors`` (1.2e-3 s for a fit delay above it, else 6e-4 s), each lowered to
-#: 0.9 x the fit where that is lower.
+#: The delay's prior floors of the stored rows' sampling commit (1.2e-3 s for a fit delay above
+#: it, else 6e-4 s, each lowered to 0.9 x the fit where that is lower): those rows hold no prior
+#: bounds, fresh rows store their own (``prior_bounds``).
 DELAY_FLOORS = (1.2e-3, 6e-4)
 #: Per quantity, the prior's floors and ceilings ``member_priors`` sets whatever the fit (the
 #: box of :data:`discovery.structure.coordinates.BOUNDS`; a fit within 1.5x of an edge widens
