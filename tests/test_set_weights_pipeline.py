@@ -29,7 +29,7 @@ MEMBERS = {"truth": TRUTH, "bandpass at 0": TRUTH + "+bandpass",
 
 
 @pytest.mark.slow
-def test_discover_weighs_its_members_by_their_evidence(tmp_path):
+def test_discover_weighs_its_members_by_their_evidence(tmp_path, out=None):
     """discovery.json holds the evidence weights and their rule: the member without the backlash
     near 0 (under 2 %), and screened; the band-pass member at gain 0 within a factor 3 of the
     truth's own (equal models, the importance noise apart); the friction superset comparable
@@ -45,7 +45,7 @@ def test_discover_weighs_its_members_by_their_evidence(tmp_path):
                          RecordingDesign("open", 8.0, 1000.0, waveform="square",
                                          amplitude=0.01, frequency=0.5)),
                         Acquisition(2e-5, 0.0, 0.0), 2024)
-    recs = validate_recordings(write_recordings(scenario, tmp_path / "data"))
+    recs = validate_recordings(write_recordings(scenario, tmp_path / "data", reuse=True))
     # the linear block known (a shorter test); the band-pass loop's gain 0, its saturation free
     fixed = {"gain": truth.gain, "damping": truth.damping, "stiffness": truth.stiffness,
              "feedback_gain": truth.feedback_gain, "bandpass_gain": 0.0}
@@ -57,6 +57,7 @@ def test_discover_weighs_its_members_by_their_evidence(tmp_path):
             params = params.replace(friction_offset=-0.3 * truth.dead_zone,
                                     dead_zone=0.7 * truth.dead_zone)
         rows.append({"structure": name, "params": params.to_dict(), "score": 1.0 + 0.01 * i,
+                     "cost": 1.0, "criterion": "given", "coordinate_sd": {},
                      "margin": None if i == 0 else 0.2, "margin_se": None if i == 0 else 0.1,
                      "indistinguishable_from_best": True, "merged_into": None,
                      "components": s.to_dict()})
@@ -69,7 +70,7 @@ def test_discover_weighs_its_members_by_their_evidence(tmp_path):
                "sensor_noise": {r.path.stem: 2e-5 for r in recs},
                "estimated": {"sensor_offset": "-", "sensor_noise": "-"}}
     out = tmp_path / "run"
-    out.mkdir()
+    out.mkdir(exist_ok=True)
     summary = _calibrate(summary, recs, {}, fixed, seed=1, quick=False, max_steps=400,
                          progress=False, out=out)
     _write(out, summary)
