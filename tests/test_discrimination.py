@@ -125,6 +125,27 @@ def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     assert _next_test_lines(None) == []
 
 
+def test_the_next_test_leaves_out_the_members_the_weights_decided_against(tmp_path):
+    """A member under 5 % of the set's weight is left out of the next test (named with its
+    weight); with one member left there is nothing to split and the summary says so, with no
+    section of candidates."""
+    from models import M002, M001i
+    from tvcid.pipeline import next_test
+    from tvcid.report import _next_test_headline, _next_test_lines
+
+    rows = [{"structure": n, "params": p.to_dict(), "indistinguishable_from_best": True,
+             "merged_into": None} for n, p in (("a", M002()), ("b", M001i()))]
+    summary = {"structures": rows, "sensor_noise": {},
+               "set_posterior": {"members": [{"structure": "a", "weight": 0.97},
+                                             {"structure": "b", "weight": 0.03}]}}
+    nt = next_test(summary, [], 0, tmp_path)
+    assert nt["left_out"] == [{"structure": "b", "weight": 0.03}] and nt["members"] == ["a"]
+    assert _next_test_headline(nt, 2) == ("Next test: none needed: the weights leave one "
+                                          "structure, `a` (the others hold under 5 % of the "
+                                          "weight).")
+    assert _next_test_lines(nt) == []
+
+
 def _dead_zone_draws(base, n=8, seed=0):
     """Draws of ``base`` with its dead zone spread by 5 % (the one sampled parameter)."""
     from discovery.calibration.priors import LogUniform

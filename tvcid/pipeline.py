@@ -19,12 +19,14 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from discovery.speed import cpu_seconds
 from models.strict_json import jsonable, write_json
 
 __all__ = ["DiscoveryResult", "add_recordings", "discover", "next_test", "inputs_hash"]
@@ -239,13 +241,15 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     """
     from discovery.executors import check_dask_address, executor_from
     from discovery.structure import validate_recordings
+    from discovery.threads import one_blas_thread
 
     if dask is not None:
         check_dask_address(dask)  # a bad address, or no Dask: one line before any work
     out = Path(out)
     recs = validate_recordings(files)
     out.mkdir(parents=True, exist_ok=True)
-    with executor_from(dask=dask) as executor:
+    # every stage: the kernels own the cores (discovery.threads; the workers' tasks limit their own)
+    with executor_from(dask=dask) as executor, one_blas_thread():
         return _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search,
                          executor)
 
@@ -273,9 +277,13 @@ def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, 
                              progress, out, executor)
         _write(out, summary)
     if "next_test" not in summary:  # after the weights: it splits the members that carry them
-        t0 = time.perf_counter()
-        summary["next_test"] = next_test(summary, recs, seed, out)
+        t0, c0 = time.perf_counter(), cpu_seconds()
+        spent = {}
+        summary["next_test"] = next_test(summary, recs, seed, out, spent)
         summary["timings"]["next_test"] = time.perf_counter() - t0
+        summary.setdefault("cpu_seconds", {})["next_test"] = cpu_seconds() - c0
+        summary.setdefault("simulated_seconds", {})["next_test"] = spent["simulated_seconds"]
+        summary.setdefault("simulated_steps", {})["next_test"] = spent["simulated_steps"]
     summary["timings"]["discovery"] = t_disc
     _write(out, summary)
     return DiscoveryResult(summary, out)
@@ -376,14 +384,15 @@ def median_sensor_noise(summary) -> float:
     return float(np.median(noises)) if noises else 1e-6
 
 
-def next_test(summary, recs, seed, out):
+def next_test(summary, recs, seed, out, spent=None):
     """The test that would tell apart the structures the recordings cannot
     (:func:`discovery.structure.discrimination.discriminating_tests` on the set's unmerged
     members at their fitted parameters, refitted to the recordings for the best
     candidates; the default menu acquired at the recordings' highest rate, the recordings'
     median noise); writes ``next_test.png``. A calibrated member whose weight is under
     :data:`discovery.structure.set_weights.DECIDING_SHARE` is left out (``left_out``: the data
-    have decided against it); one beyond the calibration's cap stays. ``None`` for a set of one."""
+    have decided against it); one beyond the calibration's cap stays. ``None`` for a set of one.
+    A dict ``spent`` gets what it simulated, ``simulated_seconds`` and ``simulated_steps``."""
     from discovery.structure.discrimination import (
         default_candidates,
         discriminating_tests,
@@ -397,9 +406,11 @@ def next_test(summary, recs, seed, out):
     rows = [s for s in summary["structures"]
             if s["indistinguishable_from_best"] and s["merged_into"] is None]
     left_out = [{"structure": s["structure"], "weight": weight[s["structure"]]} for s in rows
-                if weight.get(s["structure"], 1.0) < DECIDING_SHARE]
+                if weight.get(s.get("structure"), 1.0) < DECIDING_SHARE]
     members = [params_from_dict("custom", s["params"]) for s in rows
-               if weight.get(s["structure"], 1.0) >= DECIDING_SHARE]
+               if weight.get(s.get("structure"), 1.0) >= DECIDING_SHARE]
+    spent = spent if spent is not None else {}
+    spent.update(simulated_seconds=0.0, simulated_steps=0.0)
     if len(members) < 2:  # the weights leave one structure: nothing to split
         return ({"best": None, "tests": [], "left_out": left_out,
                  "members": [s["structure"] for s in rows if s["structure"] not in
@@ -409,6 +420,8 @@ def next_test(summary, recs, seed, out):
     recorded = [make_target(r, 5e-4) for r in recs]  # the targets ignore a constant offset
     ranking = discriminating_tests(members, default_candidates(rate), noise_sd=noise, seed=seed,
                                    recorded=recorded)
+    spent.update(simulated_seconds=ranking.simulated_seconds,
+                 simulated_steps=ranking.simulated_steps)
     from .figures import pyplot
 
     plt = pyplot()
@@ -470,7 +483,9 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None,
         "simulations": disc.n_simulations_,
         "searches": dict(disc.searches_),
         "timings": {**disc.timings_},
+        "cpu_seconds": {**disc.cpu_seconds_, "discovery": disc.cpu_seconds_["total"]},
         "simulated_seconds": {**disc.simulated_seconds_},
+        "simulated_steps": {**disc.simulated_steps_},
         "seed": seed,
         "search": search,
         "inputs": inputs,
@@ -528,7 +543,11 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
     where it calibrates) and ``set_posterior`` (the members', their weights and the combined
     one). Each member's own work is a task of ``executor``
     (:func:`tvcid.members.calibrate_member_task`; default: one after the other in this
-    process), combined here in the members' order."""
+    process), combined here in the members' order; each member's row of
+    ``set_posterior.members`` gets what its tasks cost (``simulated_steps``,
+    ``simulated_seconds``, ``cpu_seconds``, ``wall_seconds``), and the stage's cost goes to
+    ``timings``, ``cpu_seconds``, ``simulated_seconds`` and ``simulated_steps`` (``mcmc``, of
+    which ``mcmc_start`` in seconds and ``mcmc_evidence``)."""
     from discovery.executors import LocalProcesses
     from discovery.structure.ranking_shares import uncalibrated_share
     from discovery.structure.set_posterior import (
@@ -541,7 +560,7 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
 
     from .members import calibrate_member_task
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     rows = [s for s in summary["structures"]
             if s["indistinguishable_from_best"] and s["merged_into"] is None]
     best_score = rows[0]["score"]
@@ -552,12 +571,23 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
     cap = max_steps or (150 if quick else 2000)
     shared = (recs, offsets, fixed, seed, quick)
     show = progress and here  # a worker's bars would garble this terminal
-    cost = {"simulated_seconds": 0.0, "simulated_steps": 0.0, "start": 0.0}
+    cost = {"simulated_seconds": 0.0, "simulated_steps": 0.0, "start": 0.0,
+            "evidence_seconds": 0.0, "evidence_steps": 0.0, "elsewhere_cpu": 0.0,
+            "cpu_at_start": c0}
+    by_member = {}  # both rounds of each member's task
 
     def account(run):
         cost["simulated_seconds"] += run.simulated_seconds
         cost["simulated_steps"] += run.simulated_steps
         cost["start"] += run.start_seconds
+        cost["evidence_seconds"] += run.evidence_seconds
+        cost["evidence_steps"] += run.evidence_steps
+        if run.pid != os.getpid():  # a worker's CPU: not on this process's clock
+            cost["elsewhere_cpu"] += run.cpu_seconds
+        own = by_member.setdefault(run.structure, dict.fromkeys(
+            ("simulated_steps", "simulated_seconds", "cpu_seconds", "wall_seconds"), 0.0))
+        for key in own:
+            own[key] += getattr(run, key)
 
     screened, first_draws, first_failed = set(), {}, {}
     screen_steps = min(SCREEN_STEPS, cap)
@@ -597,11 +627,11 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
     members, draws = [], {}
     failed = [{"structure": name, "reason": why} for name, why in first_failed.items()]
     for row, run in zip(todo, runs):
+        account(run)
         if run.failed is not None:
             # the rest of the set still has its posterior; the report names this member
             failed.append({"structure": row["structure"], "reason": run.failed})
             continue
-        account(run)
         if not members:
             summary["posterior"] = run.kept
             from .figures import write_posterior_figures
@@ -652,17 +682,25 @@ def _calibrate(summary, recs, offsets, fixed, seed, quick, max_steps, progress, 
     combined["not_calibrated_share"] = dropped.share if dropped.names else None
     combined["failed"] = failed
     combined["screened"] = sorted(screened & set(names))
+    for row in combined["members"]:  # what each member's own work cost, both rounds
+        row.update(by_member[row["structure"]])
     summary["set_posterior"] = combined
     _record_cost(summary, t0, cost)
     return summary
 
 
 def _record_cost(summary, t0, cost):
-    """The set stage's wall time, simulated seconds and kernel steps into ``summary``."""
+    """The set stage's wall time, CPU seconds (this process's, its ended children's and its
+    workers'), simulated seconds and kernel steps into ``summary``."""
     summary["timings"]["mcmc"] = time.perf_counter() - t0
+    summary.setdefault("cpu_seconds", {})["mcmc"] = (cpu_seconds() - cost["cpu_at_start"]
+                                                     + cost["elsewhere_cpu"])
     summary.setdefault("simulated_seconds", {})["mcmc"] = cost["simulated_seconds"]
     summary["simulated_seconds"]["mcmc_start"] = cost["start"]  # of which the chains' starts
+    # of which the importance draws of the members' evidence, for the weights
+    summary["simulated_seconds"]["mcmc_evidence"] = cost["evidence_seconds"]
     summary.setdefault("simulated_steps", {})["mcmc"] = cost["simulated_steps"]
+    summary["simulated_steps"]["mcmc_evidence"] = cost["evidence_steps"]
 
 
 def _write(out, summary):
