@@ -186,11 +186,33 @@ ONE_STRUCTURE_RUN = [DATA, *ONE_STRUCTURE, "--quick", "--seed", "2", "--max-step
                      "--no-progress"]
 
 
+def _blas_threads():
+    from threadpoolctl import threadpool_info
+
+    return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+
 @pytest.fixture(scope="module")
 def straight_discover(tmp_path_factory):
-    """The uninterrupted run every interrupted one is compared with (made once)."""
+    """The uninterrupted run every interrupted one is compared with (made once). BLAS's threads
+    outside it (two) and as its next test sees them are written beside it
+    (``blas_threads.json``)."""
+    from threadpoolctl import threadpool_limits
+
+    import tvcid.pipeline as pipeline
+
     out = tmp_path_factory.mktemp("discover") / "straight"
-    assert main(["discover", *ONE_STRUCTURE_RUN, "--out", str(out)]) == 0
+    seen, original = {}, pipeline.next_test
+
+    def next_test(*args, **kwargs):  # a stage outside the structure search's own limit
+        seen["next_test"] = _blas_threads()
+        return original(*args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp, threadpool_limits(limits=2, user_api="blas"):
+        mp.setattr(pipeline, "next_test", next_test)
+        seen["outside"] = _blas_threads()
+        assert main(["discover", *ONE_STRUCTURE_RUN, "--out", str(out)]) == 0
+    (out.parent / "blas_threads.json").write_text(json.dumps(seen))
     return out
 
 
@@ -212,7 +234,8 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
     # the one recording over its settling and window (one run, a few seconds to the record's
     # length), each point of the chain over the features' 10 s window at least
     simulated = straight["simulated_seconds"]
-    assert set(simulated) == {"global", "nested", "ranking", "mcmc", "mcmc_start"}
+    assert set(simulated) == {"global", "nested", "ranking", "mcmc", "mcmc_start",
+                              "mcmc_evidence", "next_test"}
     length = straight["targets"][0]["samples"] / straight["targets"][0]["sample_rate"]
     per_set = (simulated["global"] + simulated["nested"] + simulated["ranking"]) / straight["simulations"]
     assert 3.0 < per_set < length + 10.0
@@ -222,6 +245,56 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
     assert simulated["mcmc"] - simulated["mcmc_start"] >= chain["iterations"] * n_walkers * 10.0
     assert simulated["mcmc_start"] > 0
     assert "Simulated seconds (every run of every recording): global" in report
+
+
+def test_discovery_json_counts_the_work_of_every_stage_and_member(straight_discover):
+    """``discovery.json`` holds, per stage, the kernel steps beside the simulated seconds, the
+    CPU and the wall seconds, and the same of the set's member in its row; the whole run has BLAS
+    on one thread (two outside it)."""
+    summary = json.loads((straight_discover / "discovery.json").read_text())
+    steps, seconds = summary["simulated_steps"], summary["simulated_seconds"]
+    assert set(steps) == set(seconds) - {"mcmc_start"}
+    # one limit cycle, every search and ranking run at the search's 5e-4 s step (one structure:
+    # no nested one to refine)
+    assert steps["global"] > 0 and steps["ranking"] > 0 and steps["nested"] == 0.0
+    for stage in ("global", "nested", "ranking"):
+        assert steps[stage] == pytest.approx(seconds[stage] / 5e-4)
+    # the chain's step is 5e-4 s or a fraction of it (halved under the delay prior's floor)
+    assert steps["mcmc"] >= seconds["mcmc"] / 5e-4 * (1 - 1e-9)
+    # a set of one: no weights to weigh, no next test to simulate
+    assert steps["mcmc_evidence"] == seconds["mcmc_evidence"] == 0.0
+    assert steps["next_test"] == seconds["next_test"] == 0.0
+    cpu, wall = summary["cpu_seconds"], summary["timings"]
+    for stage in ("sindy", "global", "nested", "ranking", "total", "discovery", "mcmc",
+                  "next_test"):
+        assert cpu[stage] >= 0.0 and wall[stage] >= 0.0, stage
+    assert cpu["global"] > 0 and cpu["mcmc"] > 0 and cpu["total"] >= cpu["global"]
+    (member,) = summary["set_posterior"]["members"]
+    assert member["simulated_steps"] == pytest.approx(steps["mcmc"])
+    assert member["simulated_seconds"] == pytest.approx(seconds["mcmc"])
+    assert 0 < member["cpu_seconds"] and 0 < member["wall_seconds"] <= wall["mcmc"]
+    blas = json.loads((straight_discover.parent / "blas_threads.json").read_text())
+    assert blas == {"outside": [2], "next_test": [1]}
+
+
+def test_the_speed_benchmark_records_each_stage_and_member_and_flags_a_busy_run(
+        straight_discover):
+    """The speed benchmark's row of a run: its stages' steps, CPU and wall seconds as
+    ``discovery.json`` has them, each member's, and the idle check on the load average at the
+    start and the kernel references before and after (here 30 % apart: flagged)."""
+    from studies.benchmarks.discover_speed import record
+
+    summary = json.loads((straight_discover / "discovery.json").read_text())
+    row = record(summary, 12.0, (0.1, 0.2, 0.3), 1.0e-7, 1.3e-7)
+    for key in ("simulated_steps", "simulated_seconds", "cpu_seconds"):
+        assert row[key] == summary[key]
+    assert row["stages"] == summary["timings"] and row["wall_seconds"] == 12.0
+    (member,) = summary["set_posterior"]["members"]
+    assert row["members"] == [{k: member[k] for k in ("structure", "simulated_steps",
+                                                      "simulated_seconds", "cpu_seconds",
+                                                      "wall_seconds")}]
+    assert row["kernel_cpu_seconds_per_step"] == {"before": 1.0e-7, "after": 1.3e-7}
+    assert not row["idle_check"]["passed"] and "differ by 30% > 10%" in row["idle_check"]["reason"]
 
 
 def test_discovery_result_reads_saves_reports_and_plots(straight_discover, tmp_path):

@@ -59,6 +59,7 @@ def test_searches_on_a_dask_cluster_give_this_process_ranking(recording, monkeyp
     assert len(here.ranking_) == 4 and here.searches_["global"] >= 4
     assert _ranking(there) == _ranking(here)
     assert there.simulated_seconds_ == pytest.approx(here.simulated_seconds_, rel=1e-12)
+    assert there.simulated_steps_ == pytest.approx(here.simulated_steps_, rel=1e-12)
     assert there.simulated_seconds_["global"] > 0
 
 
@@ -86,10 +87,17 @@ def test_members_calibrated_on_a_dask_cluster_give_this_process_posterior(record
     there = _calibrated(recording, tmp_path / "there", "local:2", monkeypatch)
     members = [m["structure"] for m in here["set_posterior"]["members"]]
     assert len(members) == 2 and not here["set_posterior"]["failed"]
-    for key in ("posterior", "set_posterior"):
-        assert json.dumps(there[key], sort_keys=True) == json.dumps(here[key], sort_keys=True)
-    assert there["simulated_seconds"]["mcmc"] == pytest.approx(here["simulated_seconds"]["mcmc"],
-                                                               rel=1e-12)
+    assert json.dumps(there["posterior"], sort_keys=True) == json.dumps(here["posterior"],
+                                                                        sort_keys=True)
+    assert (json.dumps(_untimed(there["set_posterior"]), sort_keys=True)
+            == json.dumps(_untimed(here["set_posterior"]), sort_keys=True))
+    for key in ("simulated_seconds", "simulated_steps"):
+        assert there[key]["mcmc"] == pytest.approx(here[key]["mcmc"], rel=1e-12)
+    # each member's CPU seconds are its worker's there; the stage's add them to this process's
+    for run in (here, there):
+        rows = run["set_posterior"]["members"]
+        assert all(m["cpu_seconds"] > 0 and m["wall_seconds"] > 0 for m in rows)
+        assert run["cpu_seconds"]["mcmc"] >= sum(m["cpu_seconds"] for m in rows)
     chains = sorted(p.name for p in (tmp_path / "there").glob("chain-*.h5"))
     assert chains == sorted(p.name for p in (tmp_path / "here").glob("chain-*.h5"))
     assert chains == sorted(m["posterior"]["chain"] for m in there["set_posterior"]["members"])
@@ -132,10 +140,18 @@ RUN = ["--fix", f"delay_position={TRUTH.delay_position.value}", "--fix", "fricti
        "--no-progress"]
 
 
+def _untimed(set_posterior):
+    """``set_posterior`` without its members' CPU and wall seconds."""
+    return {**set_posterior, "members": [
+        {k: v for k, v in m.items() if k not in ("cpu_seconds", "wall_seconds")}
+        for m in set_posterior["members"]]}
+
+
 def _without_timings(summary):
     summary = dict(summary)
-    for key in ("timings", "simulated_seconds"):
+    for key in ("timings", "cpu_seconds", "simulated_seconds", "simulated_steps"):
         summary.pop(key)
+    summary["set_posterior"] = _untimed(summary["set_posterior"])
     return json.dumps(summary, sort_keys=True)
 
 
@@ -143,7 +159,8 @@ def _without_timings(summary):
 def test_discover_on_a_dask_cluster_gives_the_local_discovery(recording, tmp_path):
     """The whole ``tvcid discover`` at the default search sizes, with and without ``--dask
     local:2``: the same ``discovery.json`` (the ranking, the set, every member's posterior, the
-    combination), but for the wall times and simulated seconds summed in threads' order."""
+    combination), but for the wall and CPU times and the simulated seconds and steps summed in
+    threads' order."""
     pytest.importorskip("distributed")
     runs = {}
     for where in ("here", "there"):
@@ -151,6 +168,7 @@ def test_discover_on_a_dask_cluster_gives_the_local_discovery(recording, tmp_pat
         assert main(["discover", recording, *RUN, *extra, "--out", str(tmp_path / where)]) == 0
         runs[where] = json.loads((tmp_path / where / "discovery.json").read_text())
     assert _without_timings(runs["there"]) == _without_timings(runs["here"])
-    for stage, seconds in runs["here"]["simulated_seconds"].items():
-        assert runs["there"]["simulated_seconds"][stage] == pytest.approx(seconds, rel=1e-12)
+    for key in ("simulated_seconds", "simulated_steps"):
+        for stage, seconds in runs["here"][key].items():
+            assert runs["there"][key][stage] == pytest.approx(seconds, rel=1e-12)
     assert len(runs["here"]["structures"]) == 4 and runs["here"]["set_posterior"]["members"]

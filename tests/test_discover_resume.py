@@ -56,8 +56,9 @@ class _Ranking:
         self.offsets_ = {"rec": 0.0}
         self.noise_ = {"rec": 2e-5}
         self.n_simulations_ = 1
-        self.timings_ = {"total": 0.0}
+        self.timings_ = self.cpu_seconds_ = {"total": 0.0}
         self.simulated_seconds_ = {"global": 0.0, "nested": 0.0, "ranking": 0.0}
+        self.simulated_steps_ = {"global": 0.0, "nested": 0.0, "ranking": 0.0}
         return self
 
 

@@ -67,6 +67,9 @@ def test_refitted_members_are_weighed_on_the_best_candidates_only(tmp_path):
         assert np.allclose(sep, sep.T) and np.all(sep <= 1.1 * fixed + 0.05), (sep, fixed)
         if not t["refitted"]:
             assert np.array_equal(sep, fixed)
+    # its cost: at least every candidate's record, each run at the discovery's 5e-4 s or finer
+    assert r.simulated_seconds >= sum(c.duration for c in MENU)
+    assert r.simulated_steps >= r.simulated_seconds / 5e-4
 
 
 def test_bad_requests_are_refused():

@@ -11,6 +11,8 @@ combines the runs in the members' order.
 """
 from __future__ import annotations
 
+import os
+import time
 from dataclasses import dataclass, field
 
 __all__ = ["MemberRun", "calibrate_member_task"]
@@ -41,6 +43,13 @@ class MemberRun:
         Kernel steps of the same runs.
     start_seconds : float
         Of which the chain's start.
+    evidence_seconds, evidence_steps : float
+        Of which the importance draws of its evidence, for the weights.
+    cpu_seconds, wall_seconds : float
+        The task's CPU seconds (its process's, every thread) and wall seconds.
+    pid : int
+        The id of the process it ran in: a task run in another process adds its CPU seconds to
+        the stage's (:func:`tvcid.pipeline._calibrate`).
     """
 
     structure: str
@@ -54,6 +63,11 @@ class MemberRun:
     simulated_seconds: float = 0.0
     simulated_steps: float = 0.0
     start_seconds: float = 0.0
+    evidence_seconds: float = 0.0
+    evidence_steps: float = 0.0
+    cpu_seconds: float = 0.0
+    wall_seconds: float = 0.0
+    pid: int = 0
 
 
 def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out,
@@ -84,6 +98,20 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     -------
     MemberRun
     """
+    from discovery.threads import one_blas_thread
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    with one_blas_thread():  # also on a worker: the kernels own its cores
+        run = _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out,
+                           weigh, screen)
+    run.cpu_seconds, run.wall_seconds = time.process_time() - c0, time.perf_counter() - t0
+    run.pid = os.getpid()
+    return run
+
+
+def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out, weigh,
+                 screen):
+    """:func:`calibrate_member_task`'s work, untimed."""
     from discovery.calibration.start import NoFiniteStartError
     from discovery.calibration.step_error import measure_step_error, widen_quantiles
     from discovery.structure.member_evidence import member_importance_draws
@@ -99,16 +127,18 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
         return MemberRun(row["structure"], failed=str(exc))
     simulated = seconds["start"] + seconds["sampling"]
     steps = post.calibration.log_posterior_.simulated_steps  # the chain's, start included
-    draws = None
+    draws, evidence = None, {}
     if weigh:
         draws = member_importance_draws(post, seed=seed)
         simulated += draws.simulated_seconds
         steps += draws.simulated_steps
+        evidence = {"evidence_seconds": draws.simulated_seconds,
+                    "evidence_steps": draws.simulated_steps}
     if screen:
         return MemberRun(row["structure"], kept={"converged": post.report.converged,
                                                  "iterations": int(post.report.iterations)},
                          draws=draws, simulated_seconds=simulated, simulated_steps=steps,
-                         start_seconds=seconds["start"])
+                         start_seconds=seconds["start"], **evidence)
     s = post.summary()
     kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
                               "acceptance", "n_over_tau", "at_prior_bound", "laplace_move",
@@ -129,4 +159,5 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
         quantities=member_quantities(row["params"], samples),
         prior_quantities=prior_quantities(row["params"], priors, seed=seed),
         step_error={n: v["error"] for n, v in step.quantities.items()}, draws=draws,
-        simulated_seconds=simulated, simulated_steps=steps, start_seconds=seconds["start"])
+        simulated_seconds=simulated, simulated_steps=steps, start_seconds=seconds["start"],
+        **evidence)

@@ -278,7 +278,7 @@ def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, 
         _write(out, summary)
     if "next_test" not in summary:  # after the weights: it splits the members that carry them
         t0, c0 = time.perf_counter(), cpu_seconds()
-        spent = {}
+        spent = {"simulated_seconds": 0.0, "simulated_steps": 0.0}
         summary["next_test"] = next_test(summary, recs, seed, out, spent)
         summary["timings"]["next_test"] = time.perf_counter() - t0
         summary.setdefault("cpu_seconds", {})["next_test"] = cpu_seconds() - c0

@@ -95,12 +95,17 @@ class DiscriminationRanking:
         Sensor-noise sd assumed for the new tests (rad).
     decides : float
         The predicted cost difference that decides a pair (``DECIDES``).
+    simulated_seconds, simulated_steps : float
+        What the ranking simulated (the synthetic records, the members' runs on them and the
+        refits), in seconds and kernel steps; not in :meth:`to_dict`.
     """
 
     members: tuple
     tests: tuple
     noise_sd: float
     decides: float = DECIDES
+    simulated_seconds: float = 0.0
+    simulated_steps: float = 0.0
 
     @property
     def n_pairs(self) -> int:
@@ -183,9 +188,11 @@ def discriminating_tests(members, candidates=None, noise_sd=1e-5, dt=5e-4, seed=
     candidates = default_candidates() if candidates is None else list(candidates)
     rng = np.random.default_rng(seed)
     seeds = rng.integers(2**31, size=len(candidates))
+    spent = _Spent()
     with tempfile.TemporaryDirectory() as tmp:
         tests = [_weighed(cand, members, names, noise_sd, dt, int(seeds[i]),
-                          Path(tmp) / f"candidate{i:03d}.csv") for i, cand in enumerate(candidates)]
+                          Path(tmp) / f"candidate{i:03d}.csv", spent)
+                 for i, cand in enumerate(candidates)]
     screened = sorted((t for t in tests if "skipped" not in t),
                       key=lambda t: (-t["pairs_decided"], -t["closest_separation"]))
     if recorded:
@@ -193,21 +200,45 @@ def discriminating_tests(members, candidates=None, noise_sd=1e-5, dt=5e-4, seed=
         with tempfile.TemporaryDirectory() as tmp:
             for t in screened[:n_refit]:
                 cand, s = by_name[t["name"]]
-                _refitted(t, cand, members, names, list(recorded), noise_sd, dt, s, Path(tmp))
+                _refitted(t, cand, members, names, list(recorded), noise_sd, dt, s, Path(tmp),
+                          spent)
     refit = [t for t in screened if t["refitted"]]
     ranked = sorted(refit, key=lambda t: (-t["pairs_decided"], -t["closest_separation"]))
     ranked += [t for t in screened if not t["refitted"]]
     return DiscriminationRanking(tuple(names), tuple(ranked + [t for t in tests if "skipped" in t]),
-                                 float(noise_sd))
+                                 float(noise_sd), simulated_seconds=spent.seconds,
+                                 simulated_steps=spent.steps)
 
 
-def _target_of(params, cand, noise_sd, dt, seed, path):
+class _Spent:
+    """Seconds and kernel steps simulated, summed over runs and objectives."""
+
+    def __init__(self):
+        self.seconds = 0.0
+        self.steps = 0.0
+
+    def run(self, seconds, dt):
+        self.seconds += float(seconds)
+        self.steps += float(seconds) / float(dt)
+
+    def objective(self, objective):
+        """Count what ``objective`` has simulated."""
+        self.seconds += objective.simulated_seconds
+        self.steps += objective.simulated_steps
+
+
+def _target_of(params, cand, noise_sd, dt, seed, path, spent=None):
     """The discovery's target of ``params``' synthetic record of ``cand`` (a closed-loop record
-    after ``CLOSED_LEAD`` s), or the reason there is none (no cycle, a diverging run)."""
-    from models.simulate import SimulationDiverged
+    after ``CLOSED_LEAD`` s), or the reason there is none (no cycle, a diverging run); the
+    record's simulation is counted in ``spent``."""
+    from models.simulate import SimulationDiverged, step_for_rate
     from models.synthetic import synthetic_recording
 
     closed = cand.kind == "closed"
+    if spent is not None:  # at the step synthetic_recording takes; a diverging run at its length
+        spent.run(cand.duration + (CLOSED_LEAD if closed else 0.0),
+                  step_for_rate(cand.sample_rate,
+                                controller_rate=getattr(cand.experiment, "sample_rate", None)))
     try:
         rec = synthetic_recording(params, cand.experiment,
                                   cand.duration + (CLOSED_LEAD if closed else 0.0), noise_sd, seed,
@@ -218,14 +249,18 @@ def _target_of(params, cand, noise_sd, dt, seed, path):
         return str(exc)
 
 
-def _weighed(cand, members, names, noise_sd, dt, seed, path):
-    """One candidate's separation matrix and verdict (or the reason it was skipped)."""
-    target = _target_of(members[0], cand, noise_sd, dt, seed, path)
+def _weighed(cand, members, names, noise_sd, dt, seed, path, spent):
+    """One candidate's separation matrix and verdict (or the reason it was skipped); what it
+    simulates is counted in ``spent``."""
+    from .search import Objective
+
+    target = _target_of(members[0], cand, noise_sd, dt, seed, path, spent)
     if isinstance(target, str):
         return {"name": cand.name, "skipped": f"the best structure: {target}"}
-    sets = [p.replace(**target.initial_conditions(p)) if target.initial_conditions() else p
-            for p in members]
-    res = target.residuals(sets)
+    # the objective starts each member at the target's initial conditions and counts the runs
+    objective = Objective([target])
+    res = objective.residuals(members)
+    spent.objective(objective)
     sep = np.sum((res[:, None, :] - res[None, :, :]) ** 2, axis=2)
     return {"name": cand.name, "kind": cand.kind, "refitted": False,
             **_verdict(sep, names, "_fixed"), **_verdict(sep, names)}
@@ -242,7 +277,7 @@ def _verdict(sep, names, suffix=""):
             f"separation{suffix}": np.round(sep, 6).tolist()}
 
 
-def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp):
+def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp, spent):
     """``test``'s verdict again with the members refitted to every other member's record of it.
 
     Member ``j``'s record of the test is made (one noise realisation for every ``j``); member
@@ -252,18 +287,27 @@ def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp):
     record: the evidence the test would add against ``i`` were ``j`` the truth. A pair's
     separation is the smaller of its two ways round; a pair undecided at fixed parameters is
     not refitted (a refit only lowers the separation). A member whose record of a closed-loop
-    test shows no cycle is told from every member that shows one.
+    test shows no cycle is told from every member that shows one. What it simulates is counted
+    in ``spent``.
     """
     from .coordinates import SearchSpace
     from .search import Objective, refine
 
     k = len(members)
-    targets = [_target_of(p, cand, noise_sd, dt, seed, tmp / f"refit{j:02d}.csv")
+    targets = [_target_of(p, cand, noise_sd, dt, seed, tmp / f"refit{j:02d}.csv", spent)
                for j, p in enumerate(members)]
     targets = [None if isinstance(t, str) else t for t in targets]
-    old_cost = Objective(recorded).costs(members).sum(axis=1)
-    own = [None if t is None else float(Objective([t]).costs([p])[0].sum())
-           for t, p in zip(targets, members)]
+    old = Objective(recorded)
+    old_cost = old.costs(members).sum(axis=1)
+    spent.objective(old)
+    own = []
+    for t, p in zip(targets, members):
+        if t is None:
+            own.append(None)
+            continue
+        objective = Objective([t])
+        own.append(float(objective.costs([p])[0].sum()))
+        spent.objective(objective)
     fixed = np.asarray(test["separation_fixed"])
     sep = np.zeros((k, k))
     for i, j in itertools.permutations(range(k), 2):
@@ -274,8 +318,9 @@ def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp):
             sep[i, j] = fixed[i, j]
             continue
         space = SearchSpace(Structure.of_params(members[i]), members[i], {}, dt)
-        fit = refine(space, Objective(list(recorded) + [targets[j]]),
-                     space.coordinates(members[i]), max_nfev=REFIT_NFEV)
+        objective = Objective(list(recorded) + [targets[j]])
+        fit = refine(space, objective, space.coordinates(members[i]), max_nfev=REFIT_NFEV)
+        spent.objective(objective)
         sep[i, j] = max(fit.cost - old_cost[i] - own[j], 0.0)
     test.update(refitted=True, **_verdict(np.minimum(sep, sep.T), names))
 

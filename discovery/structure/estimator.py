@@ -46,6 +46,7 @@ from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 from models.recording import Recording, load_recording
 from models.structures import Structure, shared_choices, structure_space
 
+from ..speed import cpu_seconds
 from ..threads import one_blas_thread
 from .coordinates import SearchSpace, UnknownParameterError
 from .ranking import rank
@@ -157,9 +158,16 @@ class StructureDiscovery:
         Parameter sets simulated (searches, refinements and the ranking's refits).
     timings_ : dict
         Wall time per stage (s).
+    cpu_seconds_ : dict
+        CPU seconds per stage (``sindy``, ``global`` and ``nested``, or ``refit``; ``ranking``,
+        ``total``): this process's and its ended children's
+        (:func:`discovery.speed.cpu_seconds`), with those of the global searches that ran in
+        other processes.
     simulated_seconds_ : dict
         Seconds simulated per stage (``global`` and ``nested``, or ``refit``; ``ranking``), each
         parameter set's run over every recording it was scored on.
+    simulated_steps_ : dict
+        Kernel steps of the same runs per stage (each run's ``t_end / dt``).
     searches_ : dict
         Independent searches run per stage (``open_loop``, ``global``;
         :func:`.structure_search.best_of_restarts`).
@@ -190,8 +198,8 @@ class StructureDiscovery:
             return self._fit(recordings, previous)
 
     def _fit(self, recordings, previous=None):
-        t_start = time.perf_counter()
-        timings = {}
+        t_start, c_start = time.perf_counter(), cpu_seconds()
+        timings, cpu = {}, {}
         if self.search not in SEARCHES:
             raise ValueError(f"unknown search size {self.search!r}; choose one of "
                              f"{', '.join(SEARCHES)}")
@@ -216,7 +224,7 @@ class StructureDiscovery:
         self.targets_ = targets
         objective = Objective(targets)
         rng = np.random.default_rng(self.seed)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), cpu_seconds()
         if previous:
             sindy, sindy_error = {}, "not run: the earlier run's optima seed the searches"
         elif not self.use_sindy:
@@ -225,25 +233,34 @@ class StructureDiscovery:
             sindy, sindy_error = self._sindy_seeds(recs)
         self.sindy_ = {"proposals": {k: [p.to_dict() for p in v] for k, v in sindy.items()},
                        "error": sindy_error}
-        timings["sindy"] = time.perf_counter() - t0
+        timings["sindy"], cpu["sindy"] = time.perf_counter() - t0, cpu_seconds() - c0
 
         spaces = {s: SearchSpace(s, base, _fixed_for(s, fixed), self.dt) for s in kept}
         search = StructureSearch(objective, self.sizes_, rng, spaces, self.progress, self.executor)
-        simulated = {}
-        t0, s0 = time.perf_counter(), objective.simulated_seconds
+        simulated, steps = {}, {}
+        clock = [0.0, 0.0, 0.0, 0.0, 0.0]
+
+        def start():
+            clock[:] = (time.perf_counter(), cpu_seconds(), search.worker_cpu_seconds,
+                        objective.simulated_seconds, objective.simulated_steps)
+
+        def stop(stage):
+            timings[stage] = time.perf_counter() - clock[0]
+            cpu[stage] = cpu_seconds() - clock[1] + search.worker_cpu_seconds - clock[2]
+            simulated[stage] = objective.simulated_seconds - clock[3]
+            steps[stage] = objective.simulated_steps - clock[4]
+
+        start()
         if previous:
             fits, self.repaired_ = search.refit_from(kept, previous)
-            timings["refit"] = time.perf_counter() - t0
-            simulated["refit"] = objective.simulated_seconds - s0
+            stop("refit")
         else:
             fits = search.search_classes(kept, sindy)
-            timings["global"] = time.perf_counter() - t0
+            stop("global")
             timings["global_open_loop_stage"] = search.open_loop_seconds
-            simulated["global"] = objective.simulated_seconds - s0
-            t0, s0 = time.perf_counter(), objective.simulated_seconds
+            start()
             self.repaired_ = search.fit_nested(kept, fits, sindy)
-            timings["nested"] = time.perf_counter() - t0
-            simulated["nested"] = objective.simulated_seconds - s0
+            stop("nested")
 
         best_fit = min(fits.values(), key=lambda f: f.cost)
         if best_fit.cost >= NO_FIT_COST * len(targets):
@@ -252,10 +269,10 @@ class StructureDiscovery:
                 f"oscillating or missed them by over 100 units rms (best {best_fit.structure.name}, "
                 f"cost {best_fit.cost:.3g}); check the "
                 "fixed parameters and the sidecars' controller settings")
-        t0 = time.perf_counter()
-        ranked, rank_evaluations, simulated["ranking"] = rank(
+        t0, c0 = time.perf_counter(), cpu_seconds()
+        ranked, rank_evaluations, simulated["ranking"], steps["ranking"] = rank(
             fits, spaces, targets, self.dt, self.sizes_.rank_nfev, self.max_ranked, self.progress)
-        timings["ranking"] = time.perf_counter() - t0
+        timings["ranking"], cpu["ranking"] = time.perf_counter() - t0, cpu_seconds() - c0
         best = ranked[0]
         for f in [g for g in ranked if g.indistinguishable_from_best]:
             sd = local_sd(spaces[f.structure], objective, f.theta)
@@ -271,8 +288,11 @@ class StructureDiscovery:
         self.fixed_ = dict(self.fixed or {})
         self.n_simulations_ = objective.n_evaluations + rank_evaluations
         timings["total"] = time.perf_counter() - t_start
+        cpu["total"] = cpu_seconds() - c_start + search.worker_cpu_seconds
         self.timings_ = timings
+        self.cpu_seconds_ = cpu
         self.simulated_seconds_ = simulated
+        self.simulated_steps_ = steps
         self.searches_ = dict(search.searches)
         return self
 

@@ -150,6 +150,8 @@ def rank(fits, spaces, targets, dt, rank_nfev, max_ranked, progress=False):
         Parameter sets the refits simulated.
     simulated_seconds : float
         Seconds those runs simulated (:class:`.search.Objective`).
+    simulated_steps : float
+        Kernel steps of those runs.
     """
     order = sorted(fits.values(), key=lambda f: f.cost)
     targets = [make_target(t.recording, dt / RANK_OPEN_LOOP_REFINEMENT)
@@ -179,7 +181,7 @@ def rank(fits, spaces, targets, dt, rank_nfev, max_ranked, progress=False):
                        "scored on the other; mean of both ways)")
     ranked = indistinguishable_set(sorted(order, key=lambda f: (f.score, f.cost)), len(targets),
                                    floors=margin_floors(targets))
-    return ranked, objective.n_evaluations, objective.simulated_seconds
+    return ranked, objective.n_evaluations, objective.simulated_seconds, objective.simulated_steps
 
 
 def ranked_candidates(order, max_ranked, n_recordings):

@@ -53,13 +53,18 @@ class Objective:
         Parameter sets evaluated so far.
     simulated_seconds : float
         Seconds simulated so far: each valid set runs each target asked for over that target's
-        run length (settling and window of a limit cycle, the whole record in open loop).
+        run length (settling and window of a limit cycle, the whole record in open loop), and
+        again where a limit cycle is simulated from its second start.
+    simulated_steps : float
+        Kernel steps of the same runs, each run's ``t_end / dt`` of the simulator it used (as
+        :attr:`discovery.calibration.log_posterior.LogPosterior.simulated_steps` counts them).
     """
 
     def __init__(self, targets):
         self.targets = list(targets)
         self.n_evaluations = 0
         self.simulated_seconds = 0.0
+        self.simulated_steps = 0.0
         self._lock = threading.Lock()
         self._coarse = None
 
@@ -84,17 +89,27 @@ class Objective:
         n_valid = sum(p is not None for p in param_sets)
         with self._lock:
             self.n_evaluations += n_valid
-            self.simulated_seconds += n_valid * sum(float(t.simulator.t_end) for t in targets)
+            for t in targets:
+                self._count(t, n_valid)
 
         def block(target):
             sets = self._sets_for(target, param_sets)
-            r = target.residuals(sets)
+            r, again = target.residuals_counted(sets)
+            if again:
+                with self._lock:
+                    self._count(target, again)
             bad = np.array([p is None for p in sets])
             if bad.any():
                 r[bad] = PENALTY / math.sqrt(r.shape[1])
             return r
 
         return thread_map("targets", TARGET_THREADS, block, targets)
+
+    def _count(self, target, n_runs):
+        """Count ``n_runs`` runs of ``target``'s simulator (the caller holds the lock)."""
+        t_end, dt = float(target.simulator.t_end), float(target.simulator.dt)
+        self.simulated_seconds += n_runs * t_end
+        self.simulated_steps += n_runs * t_end / dt
 
     def costs(self, param_sets, targets=None):
         """Cost per target, ``(n, n_targets)``: sum of squared residuals (one unit ~ 1 % error)."""

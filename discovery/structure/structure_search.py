@@ -126,6 +126,8 @@ class StructureSearch:
         Independent searches run per stage (``open_loop``, ``global``; :func:`best_of_restarts`).
     open_loop_seconds : float
         Wall time of the open-loop stages (s).
+    worker_cpu_seconds : float
+        CPU seconds of the searches run in other processes (:func:`.tasks.fit_tops`).
     """
 
     def __init__(self, objective, sizes, rng, spaces=None, progress=False, executor=None):
@@ -137,6 +139,7 @@ class StructureSearch:
         self.executor = executor
         self.searches = {"open_loop": 0, "global": 0}
         self.open_loop_seconds = 0.0
+        self.worker_cpu_seconds = 0.0
 
     # -- the stages ----------------------------------------------------------------------------
     def search_classes(self, structures, sindy):

@@ -125,6 +125,11 @@ class _Target:
         delta, ok = self.simulator.run(param_sets)
         return self.residuals_of_runs(delta, ok)
 
+    def residuals_counted(self, param_sets):
+        """:meth:`residuals` and the runs simulated beyond one per set (second starts), for the
+        cost :class:`.search.Objective` counts."""
+        return self.residuals(param_sets), 0
+
     def halves(self):
         """Two targets on complementary halves of the record (the ranking's two folds).
 
@@ -296,7 +301,14 @@ class CycleTarget(_Target):
         """
         return self._simulated(param_sets)[2]
 
+    def residuals_counted(self, param_sets):
+        """:meth:`residuals` and the runs simulated again from the second start."""
+        _, _, res, again = self._simulated(param_sets)
+        return res, again
+
     def _simulated(self, param_sets):
+        """Outputs, success flags and residuals of ``param_sets`` (the better of the two starts
+        where the first misses), and the runs simulated again from the second start."""
         delta, ok = self.simulator.run(param_sets)
         res = self.residuals_of_runs(delta, ok)
         cost = np.sum(res * res, axis=1)
@@ -310,7 +322,7 @@ class CycleTarget(_Target):
             delta[rows], ok[rows], res[rows] = d2[better], ok2[better], r2[better]
         with _COUNT_LOCK:  # concurrent refinements share the target
             self.second_starts += len(redo)
-        return delta, ok, res
+        return delta, ok, res, len(redo)
 
     def residuals_of_runs(self, delta, ok):
         """Residuals ``(n, n_residuals)`` of simulated outputs ``delta`` (rows) on this target."""
@@ -374,7 +386,7 @@ class CycleTarget(_Target):
 
     def offset(self, param_sets):
         """Mean of the record minus the simulated cycle's mean (a sensor offset), per set."""
-        delta, ok, _ = self._simulated(param_sets)
+        delta, ok, _, _ = self._simulated(param_sets)
         after = self.simulator.t >= TRANSIENT
         return np.where(ok, self.mean - np.nanmean(delta[:, after], axis=1), np.nan)
 

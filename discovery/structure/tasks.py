@@ -13,6 +13,8 @@ spent (:class:`TopFit`), which :func:`fit_tops` adds to the search's objective a
 from __future__ import annotations
 
 import copy
+import os
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +36,12 @@ class TopFit:
         Parameter sets simulated.
     simulated_seconds : float
         Seconds simulated (:attr:`.search.Objective.simulated_seconds`).
+    simulated_steps : float
+        Kernel steps of the same runs (:attr:`.search.Objective.simulated_steps`).
+    cpu_seconds : float
+        CPU seconds of the process that ran the search, while it ran.
+    pid : int
+        That process's id: a search run in another process adds its CPU seconds to the stage's.
     second_starts : list of int
         Runs each target simulated again from its second start (0 for an open-loop target).
     searches : dict
@@ -48,6 +56,9 @@ class TopFit:
     second_starts: list
     searches: dict
     open_loop_seconds: float
+    simulated_steps: float = 0.0
+    cpu_seconds: float = 0.0
+    pid: int = 0
 
 
 def fit_top(targets, sizes, space, starts, seed):
@@ -72,6 +83,7 @@ def fit_top(targets, sizes, space, starts, seed):
     """
     from .structure_search import StructureSearch
 
+    cpu0 = time.process_time()
     own = [copy.copy(t) for t in targets]
     for t in own:
         if hasattr(t, "second_starts"):
@@ -84,14 +96,17 @@ def fit_top(targets, sizes, space, starts, seed):
     return TopFit(fit=fit, evaluations=objective.n_evaluations,
                   simulated_seconds=objective.simulated_seconds,
                   second_starts=[getattr(t, "second_starts", 0) for t in own],
-                  searches=dict(search.searches), open_loop_seconds=search.open_loop_seconds)
+                  searches=dict(search.searches), open_loop_seconds=search.open_loop_seconds,
+                  simulated_steps=objective.simulated_steps,
+                  cpu_seconds=time.process_time() - cpu0, pid=os.getpid())
 
 
 def fit_tops(search, structures, starts, seeds):
     """:func:`fit_top` of each of ``structures`` through ``search.executor``; yields each
     structure's :class:`.search.FitResult` in order, once its spending is added to ``search``
-    (its objective's evaluations and simulated seconds, its targets' second starts, its
-    ``searches`` and ``open_loop_seconds``).
+    (its objective's evaluations, simulated seconds and steps, its targets' second starts, its
+    ``searches`` and ``open_loop_seconds``, and, where it ran in another process, its CPU
+    seconds to ``worker_cpu_seconds``).
 
     Parameters
     ----------
@@ -113,6 +128,9 @@ def fit_tops(search, structures, starts, seeds):
         objective = search.objective
         objective.n_evaluations += result.evaluations
         objective.simulated_seconds += result.simulated_seconds
+        objective.simulated_steps += result.simulated_steps
+        if result.pid != os.getpid():  # this process's clock did not see it
+            search.worker_cpu_seconds += result.cpu_seconds
         for t, k in zip(targets, result.second_starts):
             if k:
                 t.second_starts += k

@@ -257,7 +257,8 @@ def set_coverage(records):
 
 def discover_speed(records):
     """The whole ``tvcid discover`` on the speed benchmark's four recordings: its goal, judged in
-    kernel-reference seconds measured in the same run, and where the time went."""
+    kernel-reference seconds measured in the same run, and where the time went; a run its idle
+    check flagged (``idle_check``) is shown as flagged, its goal not judged."""
     from .discover_speed import GOAL_SECONDS
     from .goals import Goal
 
@@ -266,11 +267,16 @@ def discover_speed(records):
     goal = Goal.speed("wall time on 2 cores", r["wall_seconds"],
                       r["kernel_seconds_per_simulated_second"], GOAL_SECONDS)
     search = stages["sindy"] + stages["global"] + stages["nested"] + stages["ranking"]
-    text = (_goals_text([goal]) + f"; structure search and ranking {search:.0f} s, next test "
+    flag = r.get("idle_check")
+    judged = (_goals_text([goal]) if not flag or flag["passed"] else
+              f"flagged, not the speed ({flag['reason']}): goal {goal.what}: "
+              f"{goal.value_text()} ({goal.target_text()}) not judged")
+    text = (judged + f"; structure search and ranking {search:.0f} s, next test "
             f"{stages['next_test']:.0f} s, the set's calibration {stages['mcmc']:.0f} s "
             f"({'converged' if r['converged'] else 'not converged'}, {r['mcmc_steps']} steps)")
     if simulated:
-        searched = sum(v for k, v in simulated.items() if not k.startswith("mcmc"))
+        searched = sum(v for k, v in simulated.items()
+                       if k in ("global", "nested", "refit", "ranking"))
         text += (f"; simulated {searched / 1e6:.2g} million seconds in the search, "
                  f"{simulated['mcmc'] / 1e6:.2g} million in the chains")
     return text

@@ -1,0 +1,97 @@
+"""What a run's work is counted in (discovery.speed, the search's Objective, the members' tasks)
+and when a timed run counts as the speed (the idle check of the speed benchmark)."""
+import json
+import math
+from pathlib import Path
+
+import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
+
+from discovery.speed import MAX_LOAD, MAX_REFERENCE_DRIFT, idle_check, kernel_reference
+from discovery.structure.search import Objective
+from discovery.structure.targets import make_target
+from models import hypothesis
+from models.recording import load_recording
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "m000_closed_A.csv"
+RECORDS = Path(__file__).resolve().parents[1] / "studies" / "benchmarks" / "records"
+
+
+def _blas_threads():
+    return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+
+def test_idle_check_flags_a_loaded_start_or_a_kernel_that_changed_speed():
+    """Passed at an idle start with references 5 % apart; flagged, with every reason, above
+    0.5 load average or beyond 10 % between the references (either way round)."""
+    assert (MAX_LOAD, MAX_REFERENCE_DRIFT) == (0.5, 0.10)
+    ok = idle_check(0.2, 1.0e-7, 1.05e-7)
+    assert ok["passed"] and ok["reason"] is None
+    assert ok["reference_drift"] == pytest.approx(0.05)
+    loaded = idle_check(0.8, 1.0e-7, 1.0e-7)
+    assert not loaded["passed"] and loaded["reason"] == "load average 0.80 at the start > 0.5"
+    slower = idle_check(0.1, 1.0e-7, 1.2e-7)
+    assert not slower["passed"] and "differ by 20% > 10%" in slower["reason"]
+    assert not idle_check(0.1, 1.2e-7, 1.0e-7)["passed"]  # faster after: 17 % of the first
+    both = idle_check(1.5, 1.0e-7, 2.0e-7)
+    assert not both["passed"] and both["reason"].count(";") == 1
+    assert idle_check(0.5, 10.0, 11.0)["passed"]  # the limits themselves pass
+
+
+def test_kernel_reference_is_cpu_seconds_per_step_of_one_run():
+    """The reference is a CPU time per kernel step: far under a microsecond and finite (the
+    kernel takes tens of nanoseconds of CPU per RK4 step of one run)."""
+    ref = kernel_reference(repeats=1)
+    assert math.isfinite(ref) and 1e-9 < ref < 1e-5
+
+
+def test_the_objective_counts_steps_and_second_starts():
+    """Each run is counted at its simulator's ``t_end / dt``, a limit cycle simulated again from
+    its second start included: a set far from the record (gain doubled) misses it by more than
+    the second start's cost and runs twice."""
+    target = make_target(load_recording(DATA), 5e-4)
+    far = hypothesis("M000").replace(gain=2 * hypothesis("M000").gain)
+    objective = Objective([target])
+    objective.costs([hypothesis("M000"), far, None])
+    runs = 2 + target.second_starts
+    assert target.second_starts >= 1
+    assert objective.simulated_seconds == pytest.approx(runs * target.simulator.t_end)
+    assert objective.simulated_steps == pytest.approx(
+        runs * target.simulator.t_end / target.simulator.dt)
+
+
+def test_a_members_task_runs_blas_on_one_thread_and_reports_its_cpu(monkeypatch, tmp_path):
+    """The member's task limits BLAS itself (a worker process is outside ``discover``'s own
+    limit) and reports the CPU and wall seconds of its process and its id."""
+    import os
+
+    import tvcid.members as members
+
+    seen = {}
+
+    def work(row, *args):
+        seen["blas"] = _blas_threads()
+        return members.MemberRun(row["structure"])
+
+    monkeypatch.setattr(members, "_member_task", work)
+    with threadpool_limits(limits=2, user_api="blas"):
+        outside = _blas_threads()
+        run = members.calibrate_member_task({"structure": "s"}, [], {}, None, 0, True, 10, False,
+                                            tmp_path, False)
+    assert outside == {2} and seen["blas"] == {1}
+    assert run.pid == os.getpid() and run.cpu_seconds >= 0.0 and run.wall_seconds > 0.0
+
+
+def test_a_flagged_speed_run_is_shown_flagged_and_not_judged():
+    """The stored speed run with a failed idle check: the results table says it is flagged and
+    why, and does not judge its goal."""
+    from studies.benchmarks.results_table import discover_speed
+
+    record = json.loads((RECORDS / "bench_discover_speed.json").read_text())
+    flag = idle_check(1.08, 1.0e-7, 1.0e-7)
+    text = discover_speed({"bench_discover_speed": {**record, "idle_check": flag}})
+    assert text.startswith("flagged, not the speed (load average 1.08 at the start > 0.5): ")
+    assert "not judged" in text and " met" not in text.split(";")[0]
+    passed = discover_speed({"bench_discover_speed": {**record,
+                                                      "idle_check": idle_check(0.1, 1.0, 1.0)}})
+    assert passed == discover_speed({"bench_discover_speed": record})
