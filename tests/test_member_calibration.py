@@ -94,24 +94,33 @@ def test_a_start_at_the_shortest_delay_is_accepted_and_its_likelihood_peaks_ther
 LINEAR_BLOCK = ("gain", "damping", "stiffness", "feedback_gain")
 
 
+#: The drawn truths of the slow test (each its own truth and noise, :func:`_scenario`).
+SEEDS = (8, 9, 10, 11)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("rate", [2000.0])
-def test_a_drawn_truth_at_the_shortest_delay_lies_in_its_member_interval(tmp_path, rate):
-    """The truth above, its records made by the plain-Python reference path (at 1e-4 s: 8 steps
-    under the delay) and acquired at ``rate``, calibrated as a set member
-    (:func:`calibrate_member`, its own structure, the linear block held at the truth, 300 steps)
-    from the truth with the dead zone and backlash perturbed by 5 % and the delay by 10 %
-    (lognormal sd): the true delay lies inside its 90 % interval (measured: 215 s). The same
-    records acquired at 200 Hz give an interval of 0.698-0.79993 ms, which ends under the truth
-    although its prior runs from 0.4 ms, so that rate is not asserted here."""
-    scenario, rng = _scenario(rate)
-    truth = scenario.truth
-    paths = write_recordings(scenario, tmp_path, dt=1e-4)
-    sampled = [n for n in STRUCTURE.parameter_names() if n not in LINEAR_BLOCK]
-    start = truth.replace(**{n: getattr(truth, n) * float(np.exp(
-        (0.1 if n == "delay" else 0.05) * rng.standard_normal())) for n in sampled})
-    post, priors, _ = calibrate_member(start, STRUCTURE, paths, seed=0, max_steps=300,
-                                       fixed={n: getattr(truth, n) for n in LINEAR_BLOCK})
-    lo, hi = post.interval("delay", 0.90)
-    assert priors["delay"].low < SHORTEST
-    assert lo < truth.delay < hi, (lo, hi)
+@pytest.mark.parametrize("rate", [200.0, 2000.0])
+def test_drawn_truths_at_the_shortest_delay_lie_in_their_member_intervals(tmp_path, rate):
+    """Four truths drawn as above (seeds 8-11), their records made by the plain-Python reference
+    path (at 1e-4 s: 8 steps under the delay) and acquired at ``rate``, each calibrated as a set
+    member (:func:`calibrate_member`, its own structure, the linear block held at the truth, to
+    convergence or 1500 steps) from the truth with the dead zone and backlash perturbed by 5 %
+    and the delay by 10 % (lognormal sd): the true delay lies inside its 90 % interval in at
+    least 3 of the 4 (a calibrated 90 % interval does so with probability 0.95), and every
+    member's delay prior reaches below it. Measured: at 200 Hz 3 of 4 (seed 8's interval,
+    0.698-0.79993 ms, ends 7e-8 s under the truth; seed 11's reaches down to 0.47 ms), at 2 kHz
+    4 of 4; each chain converges in 90-730 steps (about 2-4 minutes a truth)."""
+    inside = {}
+    for seed in SEEDS:
+        scenario, rng = _scenario(rate, seed=seed)
+        truth = scenario.truth
+        paths = write_recordings(scenario, tmp_path / str(seed), dt=1e-4)
+        sampled = [n for n in STRUCTURE.parameter_names() if n not in LINEAR_BLOCK]
+        start = truth.replace(**{n: getattr(truth, n) * float(np.exp(
+            (0.1 if n == "delay" else 0.05) * rng.standard_normal())) for n in sampled})
+        post, priors, _ = calibrate_member(start, STRUCTURE, paths, seed=0, max_steps=1500,
+                                           fixed={n: getattr(truth, n) for n in LINEAR_BLOCK})
+        assert priors["delay"].low < SHORTEST
+        lo, hi = post.interval("delay", 0.90)
+        inside[seed] = (lo < truth.delay < hi, lo, hi)
+    assert sum(v[0] for v in inside.values()) >= 3, inside
