@@ -1,5 +1,5 @@
 """The set's weights on the pipeline: ``tvcid discover``'s set stage
-(:func:`tvcid.pipeline._calibrate`) calibrates four members on recordings of a drawn truth and
+(:func:`tvcid.set_stage.calibrate_set`) calibrates four members on recordings of a drawn truth and
 weighs them by their evidence. The truth (dead zone on the velocity signal, delay at the output,
 a backlash; the linear block and thresholds drawn by the shared generator) is recorded by the
 plain-Python reference path and read back as measured recordings: a limit cycle and an open-loop
@@ -36,7 +36,7 @@ def test_discover_weighs_its_members_by_their_evidence(tmp_path, out=None):
     (over 5 %). The next test leaves out the screened member, and the summary never calls the
     backlash both present-or-absent and decided."""
     from discovery.structure import validate_recordings
-    from tvcid.pipeline import _calibrate, _write
+    from tvcid.set_stage import _write, calibrate_set
 
     rng = np.random.default_rng(2024)
     truth = draw_truth(rng, Structure.parse(TRUTH), ranges="papers").replace(backlash=4e-4)
@@ -71,7 +71,7 @@ def test_discover_weighs_its_members_by_their_evidence(tmp_path, out=None):
                "estimated": {"sensor_offset": "-", "sensor_noise": "-"}}
     out = tmp_path / "run"
     out.mkdir(exist_ok=True)
-    summary = _calibrate(summary, recs, {}, fixed, seed=1, quick=False, max_steps=400,
+    summary = calibrate_set(summary, recs, {}, fixed, seed=1, quick=False, max_steps=400,
                          progress=False, out=out)
     _write(out, summary)
     sp = json.loads((out / "discovery.json").read_text())["set_posterior"]

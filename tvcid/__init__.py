@@ -21,7 +21,7 @@ import importlib
 _EXPORTS = {
     # the end-to-end pipeline and its result
     "discover": "tvcid.pipeline",
-    "DiscoveryResult": "tvcid.pipeline",
+    "DiscoveryResult": "tvcid.result",
     "add_recordings": "tvcid.pipeline",
     # models: hypotheses, experiments, simulation, recordings
     "hypothesis": "models.hypotheses",

@@ -1,19 +1,23 @@
 """The set's members calibrated as independent tasks of an executor (:mod:`discovery.executors`).
 
 :func:`calibrate_member_task` does all of one member's own work: its chain
-(:func:`tvcid.pipeline._calibrate_member`, checkpointed in ``chain-<tag>.h5`` of the output
+(:func:`member_chain`, checkpointed in ``chain-<tag>.h5`` of the output
 directory), its summary, its step error and the importance draws of its evidence for the weights
 (:func:`discovery.structure.member_evidence.member_importance_draws`); or, screening, the chain
 and the draws alone. It
 gets everything as arguments and hands back a :class:`MemberRun`, both of which pickle, so it
-runs the same in this process (the default) or on a Dask worker; :func:`tvcid.pipeline._calibrate`
+runs the same in this process (the default) or on a Dask worker; :func:`tvcid.set_stage.calibrate_set`
 combines the runs in the members' order.
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import time
 from dataclasses import dataclass, field
+
+from models.strict_json import jsonable
 
 __all__ = ["MemberRun", "calibrate_member_task"]
 
@@ -49,7 +53,7 @@ class MemberRun:
         The task's CPU seconds (its process's, every thread) and wall seconds.
     pid : int
         The id of the process it ran in: a task run in another process adds its CPU seconds to
-        the stage's (:func:`tvcid.pipeline._calibrate`).
+        the stage's (:func:`tvcid.set_stage.calibrate_set`).
     """
 
     structure: str
@@ -92,7 +96,7 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
         Draw the importance points of its evidence for the members' weights.
     screen : bool
         The chain (to ``max_steps``) and the importance draws only: what the screening of the
-        set's members by weight needs (:func:`tvcid.pipeline._calibrate`).
+        set's members by weight needs (:func:`tvcid.set_stage.calibrate_set`).
 
     Returns
     -------
@@ -117,11 +121,10 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     from discovery.structure.member_evidence import member_importance_draws
     from discovery.structure.set_posterior import member_quantities, not_pinned, prior_quantities
 
-    from .pipeline import _calibrate_member
 
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
     try:
-        post, priors, seconds, chain = _calibrate_member(row, recs, offsets, fixed, seed,
+        post, priors, seconds, chain = member_chain(row, recs, offsets, fixed, seed,
                                                          quick, max_steps, progress, out)
     except NoFiniteStartError as exc:
         return MemberRun(row["structure"], failed=str(exc))
@@ -161,3 +164,41 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
         step_error={n: v["error"] for n, v in step.quantities.items()}, draws=draws,
         simulated_seconds=simulated, simulated_steps=steps, start_seconds=seconds["start"],
         **evidence)
+
+
+def _corrected(recordings, offsets):
+    """The recordings with their estimated sensor offset removed from ``delta``."""
+    from models.recording import Recording
+
+    out = []
+    for r in recordings:
+        name = r.path.stem if r.path else "recording"
+        cols = dict(r.columns)
+        cols["delta"] = r.delta - offsets.get(name, 0.0)
+        out.append(Recording(columns=cols, meta=r.meta, path=r.path))
+    return out
+
+
+def member_chain(row, recs, offsets, fixed, seed, quick, max_steps, progress, out):
+    """MCMC of one member of the set
+    (:func:`discovery.structure.member_calibration.calibrate_member`) on all recordings with
+    their offsets removed, checkpointed in ``out``. Returns ``(posterior, priors, simulated
+    seconds of the start and of the sampling, chain file name)``.
+
+    The chain's file is named by a hash of the member's parameters as strict JSON
+    (:func:`models.strict_json.jsonable` of the rebuilt :class:`models.ActuatorParams`): the
+    ranking of a fresh run holds an open saturation as infinity, the same ranking read back from
+    ``discovery.json`` as ``null``, and both must name the same chain for a rerun to resume it.
+    """
+    from discovery.structure.member_calibration import calibrate_member
+    from models import params_from_dict
+    from models.structures import Structure
+
+    p = params_from_dict("custom", row["params"])
+    tag = hashlib.sha256(json.dumps([jsonable(p.to_dict()), "set member", quick, seed],
+                                    sort_keys=True, allow_nan=False).encode()).hexdigest()[:10]
+    post, priors, simulated = calibrate_member(
+        p, Structure.parse(row["structure"]), _corrected(recs, offsets), fixed=fixed, seed=seed,
+        max_steps=max_steps or (150 if quick else 2000), backend=out / f"chain-{tag}.h5",
+        progress=progress)
+    return post, priors, simulated, f"chain-{tag}.h5"

@@ -1,0 +1,212 @@
+"""The set stage of ``tvcid discover``: the members of the set the recordings leave open,
+calibrated, screened by their weight, weighed and combined (:func:`calibrate_set`).
+
+Each member's own work is :func:`tvcid.members.calibrate_member_task`, a task of an executor
+(this process, or a Dask cluster); this module runs the two rounds, weighs the members by their
+evidence (:mod:`discovery.structure.set_weights`), decides every structural choice by one rule
+and mixes the members (:func:`discovery.structure.set_posterior.combine`).
+"""
+from __future__ import annotations
+
+import os
+import time
+
+from discovery.speed import cpu_seconds
+
+from .result import DiscoveryResult
+
+__all__ = ["calibrate_set", "MAX_MEMBERS", "SCREEN_STEPS"]
+
+#: Distinct members of the set calibrated at most (best score first); the rest are listed in
+#: ``set_posterior.not_calibrated`` with their share of the weight by the ranking.
+MAX_MEMBERS = 6
+#: Steps of every member's chain before the members are weighed and those under the deciding
+#: share are screened (:func:`calibrate_set`).
+SCREEN_STEPS = 300
+
+
+def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progress, out,
+               executor=None):
+    """The posterior over the set: every distinct member calibrated (:func:`tvcid.members.member_chain`,
+    at most :data:`MAX_MEMBERS`, best score first), and the richer structure of each component
+    the set leaves open that no distinct member has
+    (:func:`discovery.structure.set_posterior.richer_members`).
+
+    A set of several members is calibrated in two rounds. First every member's chain runs
+    :data:`SCREEN_STEPS` steps and the members are weighed by their evidence
+    (:func:`discovery.structure.set_weights.evidence_weights`); a member whose weight stays under
+    :data:`discovery.structure.set_weights.DECIDING_SHARE` even at its estimate's allowance is
+    *screened*: its chain stops there and its short chain gives its ranges (the report says so).
+    Then the others' chains continue to the cap. The screening is stored in ``discovery.json``
+    (``set_screening``), so a resumed run screens the same members. Each member's step error is
+    measured (:func:`discovery.calibration.step_error.measure_step_error`) and its evidence
+    estimated again from its final chain; the members are combined by those weights
+    (:func:`discovery.structure.set_posterior.combine`), and the members beyond the cap named
+    with their share of the weight by the ranking. A member whose chain cannot start (no point
+    about its fit where every recording's likelihood is finite) is left out and named in
+    ``set_posterior.failed``. Adds ``posterior`` (the first calibrated member's, the winner's
+    where it calibrates) and ``set_posterior`` (the members', their weights and the combined
+    one). Each member's own work is a task of ``executor``
+    (:func:`tvcid.members.calibrate_member_task`; default: one after the other in this
+    process), combined here in the members' order; each member's row of
+    ``set_posterior.members`` gets what its tasks cost (``simulated_steps``,
+    ``simulated_seconds``, ``cpu_seconds``, ``wall_seconds``), and the stage's cost goes to
+    ``timings``, ``cpu_seconds``, ``simulated_seconds`` and ``simulated_steps`` (``mcmc``, of
+    which ``mcmc_start`` in seconds and ``mcmc_evidence``)."""
+    from discovery.executors import LocalProcesses
+    from discovery.structure.ranking_shares import uncalibrated_share
+    from discovery.structure.set_posterior import (
+        MemberPosterior,
+        combine,
+        left_open_quantities,
+        richer_members,
+    )
+    from discovery.structure.set_weights import DECIDING_SHARE, evidence_weights, weighed_choices
+
+    from .members import calibrate_member_task
+
+    t0, c0 = time.perf_counter(), cpu_seconds()
+    rows = [s for s in summary["structures"]
+            if s["indistinguishable_from_best"] and s["merged_into"] is None]
+    best_score = rows[0]["score"]
+    calibrated = rows[:MAX_MEMBERS] + richer_members(summary["structures"], summary["decided"])
+    executor = executor if executor is not None else LocalProcesses(1)
+    here = isinstance(executor, LocalProcesses) and executor.jobs == 1
+    n = len(calibrated)
+    cap = max_steps or (150 if quick else 2000)
+    shared = (recs, offsets, fixed, seed, quick)
+    show = progress and here  # a worker's bars would garble this terminal
+    cost = {"simulated_seconds": 0.0, "simulated_steps": 0.0, "start": 0.0,
+            "evidence_seconds": 0.0, "evidence_steps": 0.0, "elsewhere_cpu": 0.0,
+            "cpu_at_start": c0}
+    by_member = {}  # both rounds of each member's task
+
+    def account(run):
+        cost["simulated_seconds"] += run.simulated_seconds
+        cost["simulated_steps"] += run.simulated_steps
+        cost["start"] += run.start_seconds
+        cost["evidence_seconds"] += run.evidence_seconds
+        cost["evidence_steps"] += run.evidence_steps
+        if run.pid != os.getpid():  # a worker's CPU: not on this process's clock
+            cost["elsewhere_cpu"] += run.cpu_seconds
+        own = by_member.setdefault(run.structure, dict.fromkeys(
+            ("simulated_steps", "simulated_seconds", "cpu_seconds", "wall_seconds"), 0.0))
+        for key in own:
+            own[key] += getattr(run, key)
+
+    screened, first_draws, first_failed = set(), {}, {}
+    screen_steps = min(SCREEN_STEPS, cap)
+    if n > 1 and screen_steps < cap:
+        screening = summary.get("set_screening")
+        names_now = [r["structure"] for r in calibrated]
+        if not screening or screening.get("members") != names_now \
+                or screening.get("steps") != screen_steps:
+            runs = executor.map(calibrate_member_task, calibrated, *([x] * n for x in shared),
+                                [screen_steps] * n, [show] * n, [out.resolve()] * n, [True] * n,
+                                [True] * n)
+            for row, run in zip(calibrated, runs):
+                account(run)
+                if run.failed is None:
+                    first_draws[row["structure"]] = run.draws
+                else:  # not started again below
+                    first_failed[row["structure"]] = run.failed
+            weighed = (evidence_weights(first_draws, rows=calibrated, seed=seed)
+                       if len(first_draws) > 1 else None)
+            screening = {"members": names_now, "steps": screen_steps,
+                         "share": DECIDING_SHARE,
+                         "weights": None if weighed is None else weighed.weights,
+                         "upper": None if weighed is None else weighed.upper,
+                         "screened": [] if weighed is None else weighed.screened()}
+            summary["set_screening"] = screening
+            _write(out, summary)  # a resumed run screens the same members
+        screened = set(screening["screened"])
+    todo = [r for r in calibrated if r["structure"] not in first_failed]
+    m = len(todo)
+    caps = [screen_steps if r["structure"] in screened else cap for r in todo]
+    # a screened member's draws are the first round's where it ran here (its chain has not moved
+    # since; on a resumed run they are drawn again, the same draws)
+    weigh = [n > 1 and not (r["structure"] in screened and r["structure"] in first_draws)
+             for r in todo]
+    runs = executor.map(calibrate_member_task, todo, *([x] * m for x in shared), caps,
+                        [show] * m, [out.resolve()] * m, weigh, [False] * m)
+    members, draws = [], {}
+    failed = [{"structure": name, "reason": why} for name, why in first_failed.items()]
+    for row, run in zip(todo, runs):
+        account(run)
+        if run.failed is not None:
+            # the rest of the set still has its posterior; the report names this member
+            failed.append({"structure": row["structure"], "reason": run.failed})
+            continue
+        if not members:
+            summary["posterior"] = run.kept
+            from .figures import write_posterior_figures
+
+            write_posterior_figures(run.posterior, out, seed=seed)
+        margin = row.get("margin")
+        ratio = (row["score"] - best_score) / margin if margin else 0.0
+        kept = run.kept
+        if row["structure"] in screened:
+            kept = {**kept, "screened": {"steps": screen_steps, "share": DECIDING_SHARE,
+                                         "upper_weight": summary["set_screening"]["upper"][
+                                             row["structure"]]}}
+        members.append(MemberPosterior(
+            row["structure"], run.quantities, kept, float(ratio),
+            log_prob=run.posterior.log_prob, prior_quantities=run.prior_quantities,
+            step_error=run.step_error))
+        d = run.draws if run.draws is not None else first_draws.get(row["structure"])
+        if d is not None:
+            draws[row["structure"]] = d
+    names = [m.structure for m in members]
+    if not members:
+        summary["set_posterior"] = {"criterion": "no member calibrated", "quantities": {},
+                                    "members": [], "failed": failed,
+                                    "not_calibrated": [r["structure"] for r in rows[MAX_MEMBERS:]]}
+        _record_cost(summary, t0, cost)
+        return summary
+    if len(members) > 1:
+        weighting = evidence_weights({m: draws[m] for m in names},
+                                     rows=[r for r in calibrated if r["structure"] in names],
+                                     seed=seed)
+        weights = weighting.weights
+    else:
+        weighting, weights = None, {names[0]: 1.0}
+    choices = weighed_choices(summary["decided"], weights, summary["indistinguishable"])
+    # a component whose other side only uncalibrated members hold prints "present or absent"
+    left_open = left_open_quantities({c: None if v["by"] == "open" and None in v["weights"].values()
+                                      else True for c, v in choices.items()})
+    if weighting is not None:
+        combined = combine(members, weights=weighting.of(names), seed=seed,
+                           criterion=weighting.rule, left_open=left_open).to_dict()
+        combined["weighting"] = weighting.to_dict()
+    else:
+        combined = combine(members, seed=seed, criterion="one structure",
+                           left_open=left_open).to_dict()
+    combined["choices"] = choices
+    dropped = uncalibrated_share(rows + [r for r in calibrated if r not in rows], names, seed=seed)
+    combined["not_calibrated"] = dropped.names
+    combined["not_calibrated_share"] = dropped.share if dropped.names else None
+    combined["failed"] = failed
+    combined["screened"] = sorted(screened & set(names))
+    for row in combined["members"]:  # what each member's own work cost, both rounds
+        row.update(by_member[row["structure"]])
+    summary["set_posterior"] = combined
+    _record_cost(summary, t0, cost)
+    return summary
+
+
+def _record_cost(summary, t0, cost):
+    """The set stage's wall time, CPU seconds (this process's, its ended children's and its
+    workers'), simulated seconds and kernel steps into ``summary``."""
+    summary["timings"]["mcmc"] = time.perf_counter() - t0
+    summary.setdefault("cpu_seconds", {})["mcmc"] = (cpu_seconds() - cost["cpu_at_start"]
+                                                     + cost["elsewhere_cpu"])
+    summary.setdefault("simulated_seconds", {})["mcmc"] = cost["simulated_seconds"]
+    summary["simulated_seconds"]["mcmc_start"] = cost["start"]  # of which the chains' starts
+    # of which the importance draws of the members' evidence, for the weights
+    summary["simulated_seconds"]["mcmc_evidence"] = cost["evidence_seconds"]
+    summary.setdefault("simulated_steps", {})["mcmc"] = cost["simulated_steps"]
+    summary["simulated_steps"]["mcmc_evidence"] = cost["evidence_steps"]
+
+
+def _write(out, summary):
+    DiscoveryResult(summary, out).save()
