@@ -181,6 +181,18 @@ def discovery_fresh(records):
             f"{round(o['ceiling_set_le3'] * n)} of {n}")
 
 
+def discovery_short(records):
+    """The set rule on short sessions (the ``short`` ranges): the draws finished so far, their
+    sets derived by the rule named in each row's ``set_rule_check``."""
+    rows = records["bench_discovery_short"]["rows"]
+    o, n, text = _discovery_rates(rows)
+    seeds = sorted(r["seed"] for r in rows)
+    rules = sorted({r["set_rule_check"].split("'s rule")[0].split()[-1] for r in rows
+                    if r.get("set_rule_check")})
+    return (f"{n} draws finished (seeds {seeds[0]}-{seeds[-1]}), their sets derived by the set "
+            f"rule at {', '.join(rules) or 'the commit of each row'}: " + text)
+
+
 def next_test(records):
     rows = records["bench_next_test"]["rows"]
     cells, hits, kept = [], 0, 0
@@ -355,6 +367,14 @@ CLAIMS = (
           "bench_discovery_fresh",
           "tests/test_bench_discovery.py::"
           "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
+    Claim("the set rule on short sessions (records of 5-15 s, 200 Hz to 2 kHz): the truth's "
+          "structure in the reported set, and the set's median size",
+          discovery_short, lambda r: r["bench_discovery_short"]["rows"],
+          "python -m studies.benchmarks.discovery --quick --ranges short --seed 4000 --draws 40 "
+          "--jobs 2, then --rederive",
+          "bench_discovery_short",
+          "tests/test_discover.py::"
+          "test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature"),
     Claim("the next test `tvcid discover` names, recorded from the truth, on the discovery "
           "benchmark's misses: the set after the discovery runs again",
           next_test, lambda r: r["bench_next_test"]["rows"],
