@@ -121,11 +121,10 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     from discovery.structure.member_evidence import member_importance_draws
     from discovery.structure.set_posterior import member_quantities, not_pinned, prior_quantities
 
-
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
     try:
-        post, priors, seconds, chain = member_chain(row, recs, offsets, fixed, seed,
-                                                         quick, max_steps, progress, out)
+        post, priors, seconds, chain = member_chain(row, recs, offsets, fixed, seed, quick,
+                                                    max_steps, progress, out)
     except NoFiniteStartError as exc:
         return MemberRun(row["structure"], failed=str(exc))
     simulated = seconds["start"] + seconds["sampling"]

@@ -94,7 +94,7 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
         for key in own:
             own[key] += getattr(run, key)
 
-    screened, first_draws, first_failed = set(), {}, {}
+    screened, first_draws, first_failed, first_converged = set(), {}, {}, set()
     screen_steps = min(SCREEN_STEPS, cap)
     if n > 1 and screen_steps < cap:
         screening = summary.get("set_screening")
@@ -108,6 +108,8 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
                 account(run)
                 if run.failed is None:
                     first_draws[row["structure"]] = run.draws
+                    if run.kept.get("converged"):  # its chain stops here whatever its cap
+                        first_converged.add(row["structure"])
                 else:  # not started again below
                     first_failed[row["structure"]] = run.failed
             weighed = (evidence_weights(first_draws, rows=calibrated, seed=seed)
@@ -123,10 +125,10 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     todo = [r for r in calibrated if r["structure"] not in first_failed]
     m = len(todo)
     caps = [screen_steps if r["structure"] in screened else cap for r in todo]
-    # a screened member's draws are the first round's where it ran here (its chain has not moved
-    # since; on a resumed run they are drawn again, the same draws)
-    weigh = [n > 1 and not (r["structure"] in screened and r["structure"] in first_draws)
-             for r in todo]
+    # a screened or converged member's draws are the first round's where it ran here (its chain
+    # does not move again; on a resumed run they are drawn again, the same draws)
+    settled = (screened | first_converged) & set(first_draws)
+    weigh = [n > 1 and r["structure"] not in settled for r in todo]
     runs = executor.map(calibrate_member_task, todo, *([x] * m for x in shared), caps,
                         [show] * m, [out.resolve()] * m, weigh, [False] * m)
     members, draws = [], {}
