@@ -282,9 +282,8 @@ def _decided_line(summary, best) -> str:
                            "of the weight)")
         else:
             seen = v["weights"] or {s: None for s in _seen(summary, c)}
-            seen = dict(sorted(seen.items(), key=lambda kv: -1.0 if kv[1] is None else -kv[1]))
-            seen = {k: w for k, w in seen.items() if w is not None} | {
-                k: w for k, w in seen.items() if w is None}  # shares first, largest first
+            # the largest share first, the values without a weight last
+            seen = dict(sorted(seen.items(), key=lambda kv: (kv[1] is None, -(kv[1] or 0.0))))
             open_.append(f"{CHOICE_LABELS[c]} " + " or ".join(
                 f"{value} ({'uncalibrated' if w is None else f'{100 * w:.0f} %'})"
                 if v["weights"] else value for value, w in seen.items()))
