@@ -182,7 +182,7 @@ def discovery_fresh(records):
 
 
 def discovery_short(records):
-    """The set rule on short sessions (the ``short`` ranges): the draws finished so far, their
+    """The set rule on short recordings (the ``short`` ranges): the draws finished so far, their
     sets derived by the rule named in each row's ``set_rule_check``."""
     rows = records["bench_discovery_short"]["rows"]
     o, n, text = _discovery_rates(rows)
@@ -367,7 +367,7 @@ CLAIMS = (
           "bench_discovery_fresh",
           "tests/test_bench_discovery.py::"
           "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
-    Claim("the set rule on short sessions (records of 5-15 s, 200 Hz to 2 kHz): the truth's "
+    Claim("the set rule on short recordings (5-15 s each, 200 Hz to 2 kHz): the truth's "
           "structure in the reported set, and the set's median size",
           discovery_short, lambda r: r["bench_discovery_short"]["rows"],
           "python -m studies.benchmarks.discovery --quick --ranges short --seed 4000 --draws 40 "

@@ -19,7 +19,7 @@ sets of ranges (:data:`RANGES`); ``wide``, the default, is what a user's actuato
   acquisition at 200, 500, 1000 or 2000 Hz (``wide``) or 200 or 1000 Hz; controller held at
   200 Hz or continuous; sensor noise 1e-5 to 1e-4 rad; offset 0 or U(-3e-4, 3e-4) rad;
   quantisation 0 or 5e-6 to 3e-5 rad;
-* ``short``: ``wide`` with every record 5-15 s long (a short session at the rig).
+* ``short``: ``wide`` with every record 5-15 s long (short recordings at the rig).
 
 Truths are redrawn until they oscillate at every closed-loop setting of the design. The recordings
 are made by the plain-Python reference path (:func:`models.reference.simulate_reference`, a second
@@ -138,7 +138,7 @@ class Ranges:
 
 
 #: ``wide``: thresholds and delays over a decade, 200 Hz to 2 kHz, staircases among the commands
-#: (a user's actuator and rig); ``short``: ``wide`` in sessions of short records (5-15 s each);
+#: (a user's actuator and rig); ``short``: ``wide`` with every record 5-15 s long;
 #: ``papers``: within a factor 2.5 of the papers' thresholds.
 RANGES = {
     "wide": Ranges(math.sqrt(10.0), (0.8e-3, 8e-3), (200.0, 500.0, 1000.0, 2000.0),
