@@ -178,8 +178,7 @@ class ImportanceDraws:
             return np.array([-np.inf if x is None else x for x in np.ravel(v)],
                             dtype=float).reshape(np.shape(v))
         return cls(tuple(d["records"]), arr(d["log_prior"]), arr(d["log_proposal"]),
-                   np.array([[-np.inf if x is None else x for x in row] for row in d["log_lik"]],
-                            dtype=float).reshape(len(d["log_lik"]), len(d["records"])),
+                   arr(d["log_lik"]).reshape(len(d["log_lik"]), len(d["records"])),
                    tuple(d["inflation"]), int(d["n_parameters"]),
                    float(d.get("simulated_seconds", 0.0)), float(d.get("simulated_steps", 0.0)))
 
