@@ -6,6 +6,8 @@ machine was idle enough for a timing to count as the speed.
 * :func:`kernel_reference` -- CPU seconds per kernel step of a small fixed closed-loop batch: the
   unit a run's CPU seconds over its ``simulated_steps`` are compared with, measured before and
   after a timed run (``python -m studies.benchmarks.discover_speed``).
+* :func:`evaluation_steps` -- the kernel steps one evaluated point of a likelihood costs,
+  record by record and part by part.
 * :func:`idle_check` -- whether such a run counts as the speed: the 1-minute load average at its
   start at most :data:`MAX_LOAD`, and its two references within :data:`MAX_REFERENCE_DRIFT`.
 """
@@ -15,7 +17,7 @@ import os
 import resource
 import time
 
-__all__ = ["cpu_seconds", "kernel_reference", "idle_check", "load_average", "MAX_LOAD", "MAX_REFERENCE_DRIFT",
+__all__ = ["cpu_seconds", "kernel_reference", "evaluation_steps", "idle_check", "load_average", "MAX_LOAD", "MAX_REFERENCE_DRIFT",
            "REFERENCE_RUNS", "REFERENCE_SECONDS", "REFERENCE_DT"]
 
 #: 1-minute load average at a timed run's start above which the run is flagged, not the speed.
@@ -67,6 +69,47 @@ def kernel_reference(repeats=3) -> float:
         simulate_batch(sets, CONTROLLER_A, REFERENCE_SECONDS, dt=REFERENCE_DT, rate=None)
         best = min(best, (time.process_time() - t0) / steps)
     return best
+
+
+def evaluation_steps(terms) -> list:
+    """Kernel steps one evaluated point costs, per likelihood term, split by what they simulate.
+
+    Parameters
+    ----------
+    terms : list
+        Likelihood terms (:mod:`discovery.calibration.likelihood`) after their set-up.
+
+    Returns
+    -------
+    list of dict
+        Per term with a simulator: ``name``, ``kind`` (``cycle`` for a closed-loop record,
+        ``open`` for an open-loop one), ``dt`` (the step its runs take, s), ``seconds`` (a run's
+        length), ``steps`` and ``parts``: a cycle's ``settle`` (the transient before the
+        compared window), ``window`` and ``beyond`` (what a run simulates past the window); an
+        open-loop record's ``record``, and, where its edges or solver check divided the step,
+        ``refined``: the steps beyond what the term's given step would take. A term that reads
+        its cycle short (:meth:`~discovery.calibration.likelihood.features.FeatureTerm.read_short`)
+        is listed at its whole window: what a point costs without the short read.
+    """
+    rows = []
+    for term in terms:
+        sim = getattr(term, "simulator", None)
+        if sim is None:
+            continue
+        dt, end = float(sim.dt), float(sim.t_end)
+        if getattr(term.recording, "kind", "") == "closed":
+            span = float(term.tau[-1])
+            settle = float(term.transient)
+            parts = {"settle": settle / dt, "window": span / dt,
+                     "beyond": max(end - settle - span, 0.0) / dt}
+            kind = "cycle"
+        else:
+            coarse = end / float(term.dt)
+            parts = {"record": coarse, "refined": end / dt - coarse}
+            kind = "open"
+        rows.append({"name": term.name, "kind": kind, "dt": dt, "seconds": end,
+                     "steps": end / dt, "parts": parts})
+    return rows
 
 
 def idle_check(load_average, before, after, max_load=MAX_LOAD,

@@ -95,3 +95,29 @@ def test_a_flagged_speed_run_is_shown_flagged_and_not_judged():
     passed = discover_speed({"bench_discover_speed": {**record,
                                                       "idle_check": idle_check(0.1, 1.0, 1.0)}})
     assert passed == discover_speed({"bench_discover_speed": record})
+
+
+def test_evaluation_steps_split_a_points_cost_by_record_and_part(tmp_path):
+    """One point of M000's features likelihood on its cycle A and its open-loop square: the
+    cycle's settling (6 s) and window (10 s) at 5e-4 s, nothing simulated beyond the window; the
+    square's whole record at the step its edges and solver check chose, the steps that choice
+    added apart. The parts add up to the steps."""
+    from discovery.calibration.likelihood import FeatureTerm, OpenLoopTerm
+    from discovery.speed import evaluation_steps
+
+    truth = hypothesis("M000")
+    cycle = FeatureTerm(load_recording(DATA), 10.0, 6.0, 5e-4).setup(truth)
+    square = OpenLoopTerm(load_recording(DATA.with_name("m000_open_square.csv")), None, 0.0,
+                          5e-4).setup(truth)
+    rows = {r["kind"]: r for r in evaluation_steps([cycle, square])}
+    c, o = rows["cycle"], rows["open"]
+    assert c["parts"]["settle"] == pytest.approx(6.0 / 5e-4)
+    assert c["parts"]["window"] == pytest.approx(cycle.tau[-1] / 5e-4)
+    assert c["parts"]["beyond"] < 5
+    assert o["parts"]["record"] == pytest.approx(square.tau[-1] / 5e-4)
+    # M000's square needs a finer step than 5e-4 s (its solver load 184 there)
+    assert square.sim_dt < 5e-4 and o["parts"]["refined"] > 0
+    assert o["parts"]["refined"] == pytest.approx(square.tau[-1] / square.sim_dt
+                                                  - square.tau[-1] / 5e-4)
+    for r in (c, o):
+        assert sum(r["parts"].values()) == pytest.approx(r["steps"])

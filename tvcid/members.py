@@ -45,8 +45,8 @@ class MemberRun:
         Seconds simulated: the chain (start included), the step error, the importance draws.
     simulated_steps : float
         Kernel steps of the same runs.
-    start_seconds : float
-        Of which the chain's start.
+    start_seconds, start_steps : float
+        Of which the chain's start (its optimisation and curvature).
     evidence_seconds, evidence_steps : float
         Of which the importance draws of its evidence, for the weights.
     cpu_seconds, wall_seconds : float
@@ -67,6 +67,7 @@ class MemberRun:
     simulated_seconds: float = 0.0
     simulated_steps: float = 0.0
     start_seconds: float = 0.0
+    start_steps: float = 0.0
     evidence_seconds: float = 0.0
     evidence_steps: float = 0.0
     cpu_seconds: float = 0.0
@@ -140,7 +141,8 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
         return MemberRun(row["structure"], kept={"converged": post.report.converged,
                                                  "iterations": int(post.report.iterations)},
                          draws=draws, simulated_seconds=simulated, simulated_steps=steps,
-                         start_seconds=seconds["start"], **evidence)
+                         start_seconds=seconds["start"],
+                         start_steps=seconds.get("start_steps", 0.0), **evidence)
     s = post.summary()
     kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
                               "acceptance", "n_over_tau", "at_prior_bound", "laplace_move",
@@ -162,7 +164,7 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
         prior_quantities=prior_quantities(row["params"], priors, seed=seed),
         step_error={n: v["error"] for n, v in step.quantities.items()}, draws=draws,
         simulated_seconds=simulated, simulated_steps=steps, start_seconds=seconds["start"],
-        **evidence)
+        start_steps=seconds.get("start_steps", 0.0), **evidence)
 
 
 def _corrected(recordings, offsets):

@@ -76,7 +76,7 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     cap = max_steps or (150 if quick else 2000)
     shared = (recs, offsets, fixed, seed, quick)
     show = progress and here  # a worker's bars would garble this terminal
-    cost = {"simulated_seconds": 0.0, "simulated_steps": 0.0, "start": 0.0,
+    cost = {"simulated_seconds": 0.0, "simulated_steps": 0.0, "start": 0.0, "start_steps": 0.0,
             "evidence_seconds": 0.0, "evidence_steps": 0.0, "elsewhere_cpu": 0.0,
             "cpu_at_start": c0}
     by_member = {}  # both rounds of each member's task
@@ -85,6 +85,7 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
         cost["simulated_seconds"] += run.simulated_seconds
         cost["simulated_steps"] += run.simulated_steps
         cost["start"] += run.start_seconds
+        cost["start_steps"] += run.start_steps
         cost["evidence_seconds"] += run.evidence_seconds
         cost["evidence_steps"] += run.evidence_steps
         if run.pid != os.getpid():  # a worker's CPU: not on this process's clock
@@ -207,6 +208,7 @@ def _record_cost(summary, t0, cost):
     # of which the importance draws of the members' evidence, for the weights
     summary["simulated_seconds"]["mcmc_evidence"] = cost["evidence_seconds"]
     summary.setdefault("simulated_steps", {})["mcmc"] = cost["simulated_steps"]
+    summary["simulated_steps"]["mcmc_start"] = cost["start_steps"]
     summary["simulated_steps"]["mcmc_evidence"] = cost["evidence_steps"]
 
 

@@ -579,6 +579,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
                     f.require_group(H5_GROUP).attrs["laplace"] = json.dumps(self.laplace_)
         # what finding the start cost (optimisation, curvature), beside the sampling
         self.start_simulated_seconds_ = float(self.log_posterior_.simulated_seconds)
+        self.start_simulated_steps_ = float(self.log_posterior_.simulated_steps)
         self.sampler_, self.report_ = run_ensemble(
             self.log_posterior_, initial, self.n_walkers, len(self.names_),
             self.max_steps, seed=self.seed, backend=backend, moves=self._moves(), pool=self.pool,

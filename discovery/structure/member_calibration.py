@@ -109,4 +109,5 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
                           global_search=False).fit(recordings)
     start = cal.start_simulated_seconds_
     return cal.posterior_, priors, {"start": start,
-                                    "sampling": cal.log_posterior_.simulated_seconds - start}
+                                    "sampling": cal.log_posterior_.simulated_seconds - start,
+                                    "start_steps": cal.start_simulated_steps_}

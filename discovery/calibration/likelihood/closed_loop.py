@@ -92,11 +92,16 @@ class _ClosedLoopTerm(LikelihoodTerm):
         self.experiment = self.cycle_state.experiment(recording.experiment())
         self.data_rate = float(recording.sample_rate)
         self.n = self.tau.size
-        self.sim_t_end = self.transient + span + 2.5 * self.period + 0.2
+        self.sim_t_end = self._run_end()
         self.simulator = None
         #: :class:`models.batch.Continuation` of the runs, or ``None`` (every run from the shared
         #: start)
         self.continuation = None
+
+    def _run_end(self) -> float:
+        """Length (s) of a run: the transient, the window, and two and a half periods beyond it
+        (the waveform's phase alignment reads past the window's end)."""
+        return self.transient + float(self.tau[-1]) + 2.5 * self.period + 0.2
 
     @property
     def cycle_rms(self) -> float:
@@ -134,7 +139,7 @@ class _ClosedLoopTerm(LikelihoodTerm):
         """Simulate ``transient`` seconds before the compared window from now on (the simulator
         rebuilt at its present step, with its warm start). Returns ``self``."""
         self.transient = float(transient)
-        self.sim_t_end = self.transient + float(self.tau[-1]) + 2.5 * self.period + 0.2
+        self.sim_t_end = self._run_end()
         old = self.simulator
         if old is not None:
             self.simulator = BatchSimulator(self.experiment, self.sim_t_end, old.dt,

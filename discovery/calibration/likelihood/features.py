@@ -19,8 +19,8 @@ import numpy as np
 from models.batch import CONTINUATION_RADIUS, BatchSimulator
 from models.features import (
     InsufficientPeriodsError,
-    fourier_harmonics,
     limit_cycle_features,
+    whole_period_harmonics,
 )
 
 from .base import _LOG_2PI, features_inflation, tempered
@@ -60,11 +60,10 @@ def cycle_features(t, x, names=DEFAULT_FEATURES):
         return None
     period = (c[-1] - c[0]) / (c.size - 1)
     w0 = 2 * math.pi / period
-    sel = (t >= c[0]) & (t < c[-1])
     ks = [int(n[1:]) for n in names if n.startswith("H")]
     harm = {}
     if ks:
-        coeffs = np.abs(fourier_harmonics(t[sel], x[sel], w0, max(ks)))
+        coeffs = np.abs(whole_period_harmonics(t, x, c[0], c[-1], c.size - 1, max(ks)))
         harm = {f"H{k}": float(coeffs[k - 1]) for k in ks}
     out = []
     for n in names:
@@ -193,6 +192,10 @@ class FeatureTerm(_ClosedLoopTerm):
         self._start_rms = None
         self._piece_simulator = None
 
+    def _run_end(self) -> float:
+        """Length (s) of a run: the transient and the window (features read nothing beyond)."""
+        return self.transient + float(self.tau[-1]) + 2.0 / self.data_rate
+
     @property
     def start_rms(self) -> float:
         if self.record_start is None:
@@ -222,22 +225,19 @@ class FeatureTerm(_ClosedLoopTerm):
     def _record_start(self, n_segments, n_noise=24):
         """Where runs start when the whole record shows its cycle still settling.
 
-        A cycle that settles slowly (coverage draw 15: a ~4.5 s time constant; H1 1.4063, 1.4646,
-        1.4711, 1.4718, 1.4720 e-2 rad over successive 10 s) is still about 8 noise sd under its
-        settled size in the record's last 10 s, while the window's own pieces show no clear trend
-        (:meth:`_wander_variance`), and a run started at the window's size settles within the
-        transient: the right model's discrepancy factor would be 1.7-2.8 and its dead zone and
-        friction offset intervals 1.8x as wide. The record is cut, back from its end, into pieces
-        as long as the window's (at least three periods); where their frequency or size (H1 or
-        amplitude) follows an exponential approach (:func:`settling_gain` at least
-        :data:`SETTLING_FIT_GAIN`), a run starts at the size of the record's first piece (sensor
-        noise removed; the start's size is then matched at set-up, :meth:`_build_simulator`), as
-        many seconds before the window as the record has before it: it then approaches its cycle as
-        the record does, each from its own matched size (:meth:`simulate`). Those runs do not
-        continue each other (:meth:`continue_runs`) and carry no start imprint
-        (:meth:`transient_variance`): the imprint is the record's. Draw 15 then has factors 1.0,
-        every truth inside, intervals 0.92-0.98x as wide as without the discrepancy term. ``None``
-        for a record that does not settle (runs start at the window's size).
+        The record is cut, back from its end, into pieces as long as the window's (at least
+        three periods); where their frequency or size (H1 or amplitude) follows an exponential
+        approach (:func:`settling_gain` at least :data:`SETTLING_FIT_GAIN`), a run starts at the
+        size of the record's first piece (sensor noise removed; the start's size is then matched
+        at set-up, :meth:`_build_simulator`), as many seconds before the window as the record has
+        before it, and approaches its cycle as the record does (:meth:`simulate`). Such runs do
+        not continue each other (:meth:`continue_runs`) and carry no start imprint
+        (:meth:`transient_variance`): the imprint is the record's. A run started at the window's
+        size instead has settled by the window, which the record has not
+        (``tests/test_calibration_features.py``, coverage draw 15's settling record).
+
+        Returns ``(rms, seconds, piece)``, or ``None`` for a record that does not settle (runs
+        start at the window's size).
         """
         t = np.asarray(self.recording.t, dtype=float)
         d = np.asarray(self.recording.delta, dtype=float)
@@ -524,16 +524,22 @@ class FeatureTerm(_ClosedLoopTerm):
                 out.append(f.harmonics[int(n[1:]) - 1])
         return np.asarray(out)
 
+    def _read(self, t, m):
+        """Features of one simulated stretch; ``None`` under the recorded cycle's size (not
+        oscillating) or under two whole periods."""
+        if 0.5 * (np.max(m) - np.min(m)) < MIN_AMPLITUDE_RATIO * self.amplitude:
+            return None
+        return cycle_features(t, m, self.features)
+
     def model_features(self, param_sets):
+        """Each run's features over the window; NaN rows for runs that fail or do not
+        oscillate."""
         delta, ok = self.simulate(param_sets)
         t = self.simulator.t
         sel = (t >= self.transient) & (t <= self.transient + self.tau[-1])
         out = np.full((len(param_sets), len(self.features)), np.nan)
         for i in np.flatnonzero(ok):
-            m = delta[i, sel]
-            if 0.5 * (np.max(m) - np.min(m)) < MIN_AMPLITUDE_RATIO * self.amplitude:
-                continue
-            f = cycle_features(t[sel], m, self.features)
+            f = self._read(t[sel], delta[i, sel])
             if f is not None:
                 out[i] = f
         return out
