@@ -225,6 +225,11 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
     move = straight["posterior"]["laplace_move"]  # fitted to the chain at step 50 of 60
     assert move["adapted_at"] == 50 and 0.0 <= move["share"] <= 1.0
     assert {"dead_zone", "delay"} <= set(straight["posterior"]["parameters"])
+    # the map of what the draws pin: every sampled parameter in a pinned direction or a free one
+    pm = straight["posterior"]["pinned"]
+    assert len(pm["shrinkages"]) == len(straight["posterior"]["parameters"])
+    assert pm["free"] + len(pm["pinned"]) == len(pm["shrinkages"])
+    assert all(c["text"] and c["low"] <= c["median"] <= c["high"] for c in pm["pinned"])
     only = Structure.parse(straight["structures"][0]["structure"])
     assert straight["decided"] == shared_choices([only])
     assert only.bandpass and None not in straight["decided"].values()

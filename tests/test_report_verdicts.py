@@ -111,3 +111,24 @@ def test_where_equal_weights_print_another_interval_both_are_printed_with_their_
         if printed:
             e = sp["quantities"]["delay"]["equal_weights"]
             assert f"delay [{e['q05']:.4g}, {e['q95']:.4g}] s (by weight [" in line[0]
+
+
+def test_pinned_combinations_are_printed_per_member_with_the_free_directions():
+    from tvcid.report import _pinned_lines
+
+    members = [
+        {"structure": "a", "posterior": {"pinned": {"free": 2, "pinned": [
+            {"terms": {"dead_zone": 1.0, "backlash": 0.62},
+             "text": "dead_zone * backlash^0.62 = 1.0e-05 (90 % 9.9e-06 to 1.01e-05; 0.001 of the "
+                     "prior's sd)"},
+            {"terms": {"delay": 1.0}, "text": "delay = 0.005 (...)"}]}}},
+        {"structure": "b", "posterior": {"pinned": {"free": 0, "pinned": [
+            {"terms": {"delay": 1.0}, "text": "delay = 0.005 (...)"}]}}},
+        {"structure": "c", "posterior": {}},
+    ]
+    (blank, line) = _pinned_lines(members)
+    assert blank == "" and line.startswith("Pinned together")
+    assert "`a`: dead_zone * backlash^0.62 = 1.0e-05" in line
+    assert "2 direction(s) free within the prior" in line
+    assert "`b`" not in line and "delay = " not in line  # one parameter alone: the table's row
+    assert _pinned_lines(members[1:]) == []

@@ -121,3 +121,24 @@ def test_evaluation_steps_split_a_points_cost_by_record_and_part(tmp_path):
                                                   - square.tau[-1] / 5e-4)
     for r in (c, o):
         assert sum(r["parts"].values()) == pytest.approx(r["steps"])
+
+
+def test_stored_evaluation_cost_record_is_its_rows_summary():
+    """The evaluation-cost record's table is what its rows give; the parts' shares add to one;
+    every cycle record's settling and window are counted, and a run's features, read over exact
+    whole periods, move from one window to the next by less than the data's sd in the median
+    where the record does not settle."""
+    from studies.benchmarks.evaluation_cost import summarise
+
+    record = json.loads((RECORDS / "bench_evaluation_cost.json").read_text())
+    rows = record["rows"]
+    assert len(rows) >= 10 and all(r["commit"] for r in rows)
+    table = summarise(rows)
+    assert json.loads(json.dumps(table)) == record["table"]
+    assert sum(table["share_by_part"].values()) == pytest.approx(1.0)
+    for r in rows:
+        for rec in r["records"]:
+            assert sum(rec["parts"].values()) == pytest.approx(rec["steps"])
+            if rec["kind"] == "cycle":
+                assert rec["parts"]["settle"] > 0 and rec["parts"]["window"] > 0
+    assert table["next_window_sd"]["median"] < 1.0

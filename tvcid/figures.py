@@ -29,3 +29,63 @@ def write_posterior_figures(post, out_dir, seed=0, n_draws=30):
     fig.tight_layout()
     fig.savefig(out_dir / "predictive.png", dpi=90)
     plt.close(fig)
+
+
+def write_pinned_figure(post, pinned, path, recordings=(), params=None):
+    """The draws of one member over the parameters its pinned combinations join, pair by pair
+    (``pinned``: :class:`discovery.calibration.pinned.PinnedMap` as a dict), with paper 002's
+    describing-function family (:func:`discovery.calibration.ridge.df_family`) on the
+    backlash / dead-zone pair, placed by the first limit cycle of ``recordings``. Writes ``path``
+    and returns it, or ``None`` where no combination joins two parameters."""
+    import itertools
+    import textwrap
+
+    import numpy as np
+
+    from discovery.calibration.ridge import df_family, robust_amplitude
+    from models.features import InsufficientPeriodsError, limit_cycle_features
+
+    joined = []
+    for c in pinned["pinned"]:
+        if len(c["terms"]) > 1:
+            joined += [n for n in c["terms"] if n not in joined]
+    if len(joined) < 2:
+        return None
+    logs = {n: all(c["logs"].get(n, True) for c in pinned["pinned"] if n in c["terms"])
+            for n in joined}
+    pairs = list(itertools.combinations(joined, 2))
+    plt = pyplot()
+    cols = min(len(pairs), 3)
+    rows = -(-len(pairs) // cols)
+    fig, axs = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.8 * rows), squeeze=False)
+    rng = np.random.default_rng(0)
+    s = post.samples
+    if s.shape[0] > 3000:
+        s = s[rng.choice(s.shape[0], 3000, replace=False)]
+    cycle = next((r for r in recordings if r.kind == "closed"), None)
+    for ax, (a, b) in zip(axs.ravel(), pairs):
+        x, y = s[:, post.names.index(a)], s[:, post.names.index(b)]
+        ax.plot(x, y, ".", ms=1.5, alpha=0.35, color="C0", label="draws")
+        if {a, b} == {"backlash", "dead_zone"} and cycle is not None:
+            try:
+                amplitude = robust_amplitude(cycle.t, cycle.delta)
+                frequency = limit_cycle_features(cycle.t, cycle.delta).frequency
+                f, zm, source = df_family(amplitude, frequency, cycle.experiment(), params)
+                fx, fy = (f, zm) if a == "backlash" else (zm, f)
+                ax.plot(fx, fy, "k--", lw=1.2, label="DF family (paper 002)")
+                ax.text(0.02, 0.02, source, transform=ax.transAxes, fontsize=5)
+            except (InsufficientPeriodsError, ValueError):
+                pass
+        ax.set_xscale("log" if logs[a] else "linear")
+        ax.set_yscale("log" if logs[b] else "linear")
+        ax.set_xlabel(a)
+        ax.set_ylabel(b)
+        ax.legend(fontsize=6)
+    for ax in axs.ravel()[len(pairs):]:
+        ax.set_visible(False)
+    texts = [c["text"] for c in pinned["pinned"] if len(c["terms"]) > 1]
+    fig.suptitle("\n".join(textwrap.wrap("pinned: " + "; ".join(texts), 60 * cols)), fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

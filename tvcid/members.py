@@ -120,6 +120,7 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     from discovery.calibration.start import NoFiniteStartError
     from discovery.calibration.step_error import measure_step_error, widen_quantiles
     from discovery.structure.member_evidence import member_importance_draws
+    from discovery.calibration.pinned import pinned_combinations
     from discovery.structure.set_posterior import member_quantities, not_pinned, prior_quantities
 
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
@@ -148,6 +149,7 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
                               "acceptance", "n_over_tau", "at_prior_bound", "laplace_move",
                               "interval_drift")}
     kept["not_pinned"] = not_pinned(post, priors)
+    kept["pinned"] = pinned_combinations(post.samples, post.names, priors).to_dict()
     step = measure_step_error(post, seed=seed, params=row["params"])
     simulated += step.simulated_seconds
     steps += step.simulated_steps

@@ -196,6 +196,7 @@ def _members_lines(sp) -> list:
             f"its draws' own spread, {m['posterior']['step_error']['log_prob_sd']:.3g})"
             for m in unresolved) + ": the half step reorders its draws rather than moving them, "
             "and its step errors, which widen its own intervals only, hold that noise."]
+    lines += _pinned_lines(sp["members"])
     bounds = [(m["structure"], m["posterior"].get("at_prior_bound") or [])
               for m in sp["members"]]
     bounds = [(s, b) for s, b in bounds if b]
@@ -203,6 +204,27 @@ def _members_lines(sp) -> list:
         lines += ["", "At a prior bound (a tenth of the draws or more within a tenth of the prior "
                   "from it): " + "; ".join(f"`{s}`: {', '.join(b)}" for s, b in bounds) + "."]
     return lines
+
+
+def _pinned_lines(members) -> list:
+    """Per member, the combinations of parameters its draws pin beyond any one parameter, and
+    how many directions they leave free (:mod:`discovery.calibration.pinned`)."""
+    rows, figures = [], []
+    for m in members:
+        pm = m["posterior"].get("pinned")
+        if not pm:
+            continue
+        combos = [c["text"] for c in pm["pinned"] if len(c["terms"]) > 1]
+        if combos:
+            rows.append(f"`{m['structure']}`: " + "; ".join(combos)
+                        + f"; {pm['free']} direction(s) free within the prior")
+        if m["posterior"].get("pinned_figure"):
+            figures.append(f"![pinned, {m['structure']}]({m['posterior']['pinned_figure']})")
+    if not rows:
+        return []
+    return ["", "Pinned together (directions of the draws that join several parameters and "
+            "spread under a tenth of the prior's sd, in the coordinates the prior is flat in): "
+            + " | ".join(rows) + "."] + (["", *figures] if figures else [])
 
 
 def summary_lines(summary) -> list:

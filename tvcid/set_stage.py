@@ -152,6 +152,12 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
             kept = {**kept, "screened": {"steps": screen_steps, "share": DECIDING_SHARE,
                                          "upper_weight": summary["set_screening"]["upper"][
                                              row["structure"]]}}
+        from .figures import write_pinned_figure
+
+        figure = write_pinned_figure(run.posterior, kept.get("pinned") or {"pinned": []},
+                                     out / f"pinned-{len(members)}.png", recs, row["params"])
+        if figure is not None:
+            kept = {**kept, "pinned_figure": figure.name}
         members.append(MemberPosterior(
             row["structure"], run.quantities, kept, float(ratio),
             log_prob=run.posterior.log_prob, prior_quantities=run.prior_quantities,

@@ -137,8 +137,8 @@ def summarise(rows) -> dict:
     total = sum(parts.values()) or 1.0
     reads = [x for r in rows for x in r["reads"]]
 
-    def spread(key):
-        values = [x[key]["any"] for x in reads if x[key] is not None]
+    def spread(key, settles):
+        values = [x[key]["any"] for x in reads if x[key] is not None and x["settles"] == settles]
         return None if not values else {"median": float(np.median(values)),
                                         "largest": float(np.max(values)), "records": len(values)}
 
@@ -146,8 +146,11 @@ def summarise(rows) -> dict:
         "draws": len(rows),
         "steps_by_part": parts,
         "share_by_part": {k: v / total for k, v in parts.items()},
-        "next_window_sd": spread("next_window_sd"),
-        "six_periods_sd": spread("six_periods_sd"),
+        # cycles started on the recorded cycle's state, and records that settle over their
+        # length (their runs start where the record does, and approach their cycle throughout)
+        "next_window_sd": spread("next_window_sd", False),
+        "six_periods_sd": spread("six_periods_sd", False),
+        "next_window_sd_settling": spread("next_window_sd", True),
     }
 
 

@@ -192,6 +192,33 @@ def discovery_short(records):
             "again by the set rule each row's `set_rule_check` names: " + text)
 
 
+def evaluation_cost(records):
+    """Where one point of a member's posterior spends its kernel steps, and how far a simulated
+    cycle's features move with the stretch they are read from."""
+    from .evaluation_cost import summarise
+
+    t = summarise(records["bench_evaluation_cost"]["rows"])
+    share = t["share_by_part"]
+    nxt, few, settling = t["next_window_sd"], t["six_periods_sd"], t["next_window_sd_settling"]
+    text = (f"{t['draws']} draws: a point's kernel steps go {_pct(share.get('cycle:settle', 0))} to "
+            f"the limit cycles' settling before their windows, "
+            f"{_pct(share.get('cycle:window', 0))} to their 10 s windows, "
+            f"{_pct(share.get('open:record', 0) + share.get('open:refined', 0))} to open-loop "
+            f"records (of which {_pct(share.get('open:refined', 0))} the finer steps their edges "
+            "and solver checks chose)")
+    if nxt:
+        text += (f"; at points 3 % from the truth, a run's features move from one 10 s window "
+                 f"to the next by a median {nxt['median']:.2g} of the data's sd (largest "
+                 f"{nxt['largest']:.2g}, {nxt['records']} cycle records)")
+    if few:
+        text += (f", and from the window to its first six periods by a median "
+                 f"{few['median']:.2g} (largest {few['largest']:.2g})")
+    if settling:
+        text += (f"; records that settle over their length (runs started where the record "
+                 f"starts): a median {settling['median']:.2g} ({settling['records']} records)")
+    return text
+
+
 def next_test(records):
     rows = records["bench_next_test"]["rows"]
     cells, hits, kept = [], 0, 0
@@ -374,6 +401,14 @@ CLAIMS = (
           "bench_discovery_short",
           "tests/test_discover.py::"
           "test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature"),
+    Claim("one point of a member's posterior (features likelihood, 10 s windows, the truth's "
+          "structure, seeded draws over the generator's ranges): its kernel steps by record "
+          "and part, and how far a simulated cycle's features move with the stretch they are "
+          "read from",
+          evaluation_cost, lambda r: r["bench_evaluation_cost"]["rows"],
+          "python -m studies.benchmarks.evaluation_cost --draws 12 --points 12",
+          "bench_evaluation_cost",
+          "tests/test_work_counts.py::test_stored_evaluation_cost_record_is_its_rows_summary"),
     Claim("the next test `tvcid discover` names, recorded from the truth, on the discovery "
           "benchmark's misses: the set after the discovery runs again",
           next_test, lambda r: r["bench_next_test"]["rows"],
