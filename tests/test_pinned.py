@@ -75,7 +75,7 @@ def test_a_members_pinned_figure_draws_its_joined_pairs_over_the_df_family(tmp_p
     pinned = pinned_combinations(draws, names, PRIORS).to_dict()
     post = SimpleNamespace(samples=draws, names=names)
     rec = load_recording(Path(__file__).resolve().parents[1] / "data" / "m000_closed_A.csv")
-    path = write_pinned_figure(post, pinned, tmp_path / "pinned-0.png", [rec], hypothesis("M000"))
+    path = write_pinned_figure(post, pinned, tmp_path / "pinned-0.png", [rec], hypothesis("M002"))
     assert path == tmp_path / "pinned-0.png" and path.stat().st_size > 10_000
     alone = {"pinned": [c for c in pinned["pinned"] if len(c["terms"]) == 1], "free": 2}
     assert write_pinned_figure(post, alone, tmp_path / "none.png") is None

@@ -31,29 +31,35 @@ def write_posterior_figures(post, out_dir, seed=0, n_draws=30):
     plt.close(fig)
 
 
-def write_pinned_figure(post, pinned, path, recordings=(), params=None):
+def write_pinned_figure(post, pinned, path, recordings=(), params=None, max_panels=6):
     """The draws of one member over the parameters its pinned combinations join, pair by pair
-    (``pinned``: :class:`discovery.calibration.pinned.PinnedMap` as a dict), with paper 002's
-    describing-function family (:func:`discovery.calibration.ridge.df_family`) on the
-    backlash / dead-zone pair, placed by the first limit cycle of ``recordings``. Writes ``path``
-    and returns it, or ``None`` where no combination joins two parameters."""
-    import itertools
+    (``pinned``: :class:`discovery.calibration.pinned.PinnedMap` as a dict): each combination's
+    leading term against its next two, at most ``max_panels`` panels. Where the dead zone acts on
+    the error (paper 002's structure, ``params``), the backlash / dead-zone pair carries paper
+    002's describing-function family (:func:`discovery.calibration.ridge.df_family`), placed by
+    the first limit cycle of ``recordings``. Writes ``path`` and returns it, or ``None`` where no
+    combination joins two parameters."""
     import textwrap
 
     import numpy as np
+    from matplotlib.ticker import NullFormatter
 
     from discovery.calibration.ridge import df_family, robust_amplitude
     from models.features import InsufficientPeriodsError, limit_cycle_features
 
-    joined = []
-    for c in pinned["pinned"]:
-        if len(c["terms"]) > 1:
-            joined += [n for n in c["terms"] if n not in joined]
-    if len(joined) < 2:
+    combos = [c for c in pinned["pinned"] if len(c["terms"]) > 1]
+    pairs = []
+    for c in combos:
+        names = list(c["terms"])
+        pairs += [(names[0], n) for n in names[1:3] if (names[0], n) not in pairs]
+    on_error = params is not None and str(getattr(params.dead_zone_position, "value", "")) == "error"
+    family = on_error and any({"backlash", "dead_zone"} <= set(c["terms"]) for c in combos)
+    if family and not {("backlash", "dead_zone"), ("dead_zone", "backlash")} & set(pairs):
+        pairs.insert(0, ("backlash", "dead_zone"))
+    pairs = pairs[:max_panels]
+    if not pairs:
         return None
-    logs = {n: all(c["logs"].get(n, True) for c in pinned["pinned"] if n in c["terms"])
-            for n in joined}
-    pairs = list(itertools.combinations(joined, 2))
+    logs = {n: v for c in pinned["pinned"] for n, v in c["logs"].items()}
     plt = pyplot()
     cols = min(len(pairs), 3)
     rows = -(-len(pairs) // cols)
@@ -66,7 +72,7 @@ def write_pinned_figure(post, pinned, path, recordings=(), params=None):
     for ax, (a, b) in zip(axs.ravel(), pairs):
         x, y = s[:, post.names.index(a)], s[:, post.names.index(b)]
         ax.plot(x, y, ".", ms=1.5, alpha=0.35, color="C0", label="draws")
-        if {a, b} == {"backlash", "dead_zone"} and cycle is not None:
+        if family and {a, b} == {"backlash", "dead_zone"} and cycle is not None:
             try:
                 amplitude = robust_amplitude(cycle.t, cycle.delta)
                 frequency = limit_cycle_features(cycle.t, cycle.delta).frequency
@@ -76,14 +82,17 @@ def write_pinned_figure(post, pinned, path, recordings=(), params=None):
                 ax.text(0.02, 0.02, source, transform=ax.transAxes, fontsize=5)
             except (InsufficientPeriodsError, ValueError):
                 pass
-        ax.set_xscale("log" if logs[a] else "linear")
-        ax.set_yscale("log" if logs[b] else "linear")
+        ax.set_xscale("log" if logs.get(a, True) else "linear")
+        ax.set_yscale("log" if logs.get(b, True) else "linear")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_minor_formatter(NullFormatter())
+        ax.tick_params(labelsize=7)
         ax.set_xlabel(a)
         ax.set_ylabel(b)
         ax.legend(fontsize=6)
     for ax in axs.ravel()[len(pairs):]:
         ax.set_visible(False)
-    texts = [c["text"] for c in pinned["pinned"] if len(c["terms"]) > 1]
+    texts = [c["text"] for c in combos]
     fig.suptitle("\n".join(textwrap.wrap("pinned: " + "; ".join(texts), 60 * cols)), fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=90)

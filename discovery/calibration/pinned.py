@@ -33,7 +33,7 @@ __all__ = ["PinnedCombination", "PinnedMap", "pinned_combinations", "PINNED_SHRI
 PINNED_SHRINKAGE = 0.1
 #: Terms of a pinned direction under this fraction of its largest (in prior-sd units) are left
 #: out of its combination.
-TERM_FLOOR = 0.05
+TERM_FLOOR = 0.1
 #: The interval printed for a combination.
 LEVEL = 0.90
 
