@@ -13,7 +13,8 @@ before the window, its window and any run beyond it; an open-loop record's whole
 step its edges and solver check chose, and the steps that choice added).
 
 Then ``P`` points about the truth (each sampled parameter moved by a factor
-``exp(0.03 N(0, 1))``: where a chain goes) are run over the settling and four windows; per cycle
+``exp(s N(0, 1))``, ``s = --spread``, 0.003 by default: about a pinned parameter's 90 % interval)
+are run over the settling and four windows; per cycle
 record the row holds, in the data's sd (largest over the points and the features, and each
 feature's largest), how far the features read over the window move when read over the next
 window (``next_window_sd``) and over the window's first six periods (``six_periods_sd``): what
@@ -45,18 +46,18 @@ from .scenarios import draw_scenario, write_recordings
 
 OUT = Path("results/bench_evaluation_cost")
 FIRST_SEED = 5000
-SPREAD = 0.03
+SPREAD = 0.003
 #: Periods of the short stretch the features are also read from.
 SHORT_PERIODS = 6
 #: Windows each run is simulated over after its settling.
 WINDOWS = 4
 
 
-def points_about(truth, names, n, rng):
-    """``n`` parameter sets about ``truth``: each of ``names`` times ``exp(SPREAD N(0, 1))``."""
+def points_about(truth, names, n, rng, spread=SPREAD):
+    """``n`` parameter sets about ``truth``: each of ``names`` times ``exp(spread N(0, 1))``."""
     out = []
     for _ in range(n):
-        moved = {k: getattr(truth, k) * math.exp(SPREAD * rng.standard_normal()) for k in names}
+        moved = {k: getattr(truth, k) * math.exp(spread * rng.standard_normal()) for k in names}
         try:
             out.append(truth.replace(**moved))
         except ValueError:
@@ -64,7 +65,7 @@ def points_about(truth, names, n, rng):
     return out
 
 
-def measure_draw(seed, out_dir, n_points) -> dict:
+def measure_draw(seed, out_dir, n_points, spread=SPREAD) -> dict:
     """One draw's row (see the module's docstring)."""
     scenario = draw_scenario(seed, ranges="wide")
     truth, structure = scenario.truth, scenario.structure
@@ -76,8 +77,8 @@ def measure_draw(seed, out_dir, n_points) -> dict:
                       window=10.0, seed=seed, global_search=False,
                       n_walkers=max(2 * len(names) + 2, 8)).setup(paths)
     row = {"seed": seed, "structure": structure.name, "design": scenario.to_dict(),
-           "commit": code_commit(), "records": evaluation_steps(cal.terms_)}
-    points = [p for p in points_about(truth, names, n_points, np.random.default_rng(seed))
+           "commit": code_commit(), "spread": spread, "records": evaluation_steps(cal.terms_)}
+    points = [p for p in points_about(truth, names, n_points, np.random.default_rng(seed), spread)
               if p is not None]
     row["reads"] = [reads_of(term, points) for term in cal.terms_
                     if getattr(term, "kind", "") == "features"]
@@ -159,6 +160,8 @@ def main(argv=None) -> int:
     parser.add_argument("--draws", type=int, default=12)
     parser.add_argument("--seed", type=int, default=FIRST_SEED)
     parser.add_argument("--points", type=int, default=24)
+    parser.add_argument("--spread", type=float, default=SPREAD,
+                        help="relative spread of the points about the truth, each parameter")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
     out = args.out
@@ -169,7 +172,7 @@ def main(argv=None) -> int:
     for seed in range(args.seed, args.seed + args.draws):
         if seed in done:
             continue
-        rows.append(measure_draw(seed, out, args.points))
+        rows.append(measure_draw(seed, out, args.points, args.spread))
         rows.sort(key=lambda r: r["seed"])
         write_json(path, {"quick": False, "rows": rows, "table": summarise(rows)})
         row = next(r for r in rows if r["seed"] == seed)

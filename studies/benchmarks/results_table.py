@@ -192,6 +192,14 @@ def discovery_short(records):
             "again by the set rule each row's `set_rule_check` names: " + text)
 
 
+def rows_spread(records) -> float:
+    """The evaluation-cost rows' spread of their points about the truth (one value)."""
+    spreads = {r["spread"] for r in records["bench_evaluation_cost"]["rows"]}
+    if len(spreads) != 1:
+        raise ValueError(f"evaluation-cost rows at several spreads: {sorted(spreads)}")
+    return spreads.pop()
+
+
 def evaluation_cost(records):
     """Where one point of a member's posterior spends its kernel steps, and how far a simulated
     cycle's features move with the stretch they are read from."""
@@ -207,7 +215,7 @@ def evaluation_cost(records):
             f"records (of which {_pct(share.get('open:refined', 0))} the finer steps their edges "
             "and solver checks chose)")
     if nxt:
-        text += (f"; at points 3 % from the truth, a run's features move from one 10 s window "
+        text += (f"; at points {100 * rows_spread(records):.2g} % from the truth, a run's features move from one 10 s window "
                  f"to the next by a median {nxt['median']:.2g} of the data's sd (largest "
                  f"{nxt['largest']:.2g}, {nxt['records']} cycle records)")
     if few:
