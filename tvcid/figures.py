@@ -14,7 +14,7 @@ def pyplot():
 
 def write_posterior_figures(post, out_dir, seed=0, n_draws=30):
     """``corner.png``, ``traces.png`` and ``predictive.png`` (one panel per recording) of a
-    :class:`discovery.calibration.Posterior` into ``out_dir``."""
+    :class:`tvcid.discovery.calibration.Posterior` into ``out_dir``."""
     plt = pyplot()
     fig = post.plot_corner()
     fig.savefig(out_dir / "corner.png", dpi=90)
