@@ -15,8 +15,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from models import CONTROLLER_A, CONTROLLER_B, OpenLoop, hypothesis, simulate
-from models.recording import recording_from_trajectory, save_recording
+from tvcid.models import CONTROLLER_A, CONTROLLER_B, OpenLoop, hypothesis, simulate
+from tvcid.models.recording import recording_from_trajectory, save_recording
 
 HERE = Path(__file__).resolve().parent
 

@@ -2,7 +2,7 @@
 on this machine, or a Dask cluster.
 
 :func:`executor_from` is what the command lines call: ``executor_from(jobs)`` runs the calls in
-this process (``jobs=1``) or in ``jobs`` spawned processes (:func:`discovery.parallel.process_pool`,
+this process (``jobs=1``) or in ``jobs`` spawned processes (:func:`tvcid.discovery.parallel.process_pool`,
 whose workers end with this process); ``executor_from(dask=ADDRESS)`` runs them on the Dask
 scheduler at ``ADDRESS`` (``tcp://HOST:8786``), or on a ``LocalCluster`` of ``N`` one-thread
 worker processes for ``local:N``. Each call's randomness comes from the seed among its
@@ -74,10 +74,10 @@ class Executor:
 
 
 class LocalProcesses(Executor):
-    """``jobs`` spawned processes on this machine (:func:`discovery.parallel.process_pool`), or,
+    """``jobs`` spawned processes on this machine (:func:`tvcid.discovery.parallel.process_pool`), or,
     for ``jobs=1``, the calls one after the other in this process.
 
-    As a ``with`` block it is the pool's: SIGTERM raises :class:`discovery.parallel.Terminated`
+    As a ``with`` block it is the pool's: SIGTERM raises :class:`tvcid.discovery.parallel.Terminated`
     within it; Ctrl-C or SIGTERM stop the workers at once, another exception cancels the queued
     calls and lets the running ones end.
 

@@ -5,7 +5,7 @@ machine was idle enough for a timing to count as the speed.
   ``tvcid discover`` records per stage (``cpu_seconds`` in ``discovery.json``).
 * :func:`kernel_reference` -- CPU seconds per kernel step of a small fixed closed-loop batch: the
   unit a run's CPU seconds over its ``simulated_steps`` are compared with, measured before and
-  after a timed run (``python -m studies.benchmarks.discover_speed``).
+  after a timed run (``python -m tvcid.studies.benchmarks.discover_speed``).
 * :func:`evaluation_steps` -- the kernel steps one evaluated point of a likelihood costs,
   record by record and part by part.
 * :func:`idle_check` -- whether such a run counts as the speed: the 1-minute load average at its
@@ -57,7 +57,7 @@ def kernel_reference(repeats=3) -> float:
     float
         Seconds of CPU per step of one run.
     """
-    from models import CONTROLLER_A, hypothesis, simulate_batch
+    from tvcid.models import CONTROLLER_A, hypothesis, simulate_batch
 
     sets = [hypothesis("M000").replace(backlash=1e-4 * (1 + 0.01 * i))
             for i in range(REFERENCE_RUNS)]
@@ -77,7 +77,7 @@ def evaluation_steps(terms) -> list:
     Parameters
     ----------
     terms : list
-        Likelihood terms (:mod:`discovery.calibration.likelihood`) after their set-up.
+        Likelihood terms (:mod:`tvcid.discovery.calibration.likelihood`) after their set-up.
 
     Returns
     -------
@@ -88,7 +88,7 @@ def evaluation_steps(terms) -> list:
         compared window), ``window`` and ``beyond`` (what a run simulates past the window); an
         open-loop record's ``record``, and, where its edges or solver check divided the step,
         ``refined``: the steps beyond what the term's given step would take. A term that reads
-        its cycle short (:meth:`~discovery.calibration.likelihood.features.FeatureTerm.read_short`)
+        its cycle short (:meth:`~tvcid.discovery.calibration.likelihood.features.FeatureTerm.read_short`)
         is listed at its whole window: what a point costs without the short read.
     """
     rows = []

@@ -1,8 +1,8 @@
 """Thread budget of the fitting stages: the simulation kernels own the cores, BLAS gets one thread,
 and independent simulations run in Python threads on top (:func:`thread_map`).
 
-The batch kernel (:func:`models.kernel.simulate_batch_kernel`) runs on every core through numba's
-OpenMP layer, and the searches (:mod:`discovery.structure.search`) run recordings and refinements
+The batch kernel (:func:`tvcid.models.kernel.simulate_batch_kernel`) runs on every core through numba's
+OpenMP layer, and the searches (:mod:`tvcid.discovery.structure.search`) run recordings and refinements
 in Python threads on top. The linear algebra between simulations is small (least squares on a
 Jacobian of a few columns, 2 x 2 edge-timing systems), yet a multi-threaded OpenBLAS wakes its own
 threads for it, and they spin against the kernel's: one structure's staged search on the speed
@@ -11,8 +11,8 @@ benchmark's four recordings took 69-70 s with OpenBLAS on 2 threads and 47 s on 
 
 The kernel releases the GIL and numba's OpenMP layer accepts calls from several threads, so
 simulations of different recordings can run at once: the search's recordings and refinements
-(:mod:`discovery.structure.search`) and the calibration's likelihood terms
-(:class:`discovery.calibration.log_posterior.LogPosterior`). Every evaluation is deterministic and
+(:mod:`tvcid.discovery.structure.search`) and the calibration's likelihood terms
+(:class:`tvcid.discovery.calibration.log_posterior.LogPosterior`). Every evaluation is deterministic and
 the results are combined in order, so they do not depend on the threads' order
 (``tests/test_threads.py``).
 """

@@ -1,6 +1,6 @@
 """tvcid.models: the actuator hypotheses of the papers as fast closed- and open-loop simulators.
 
-This package never fits anything; :mod:`discovery` does.
+This package never fits anything; :mod:`tvcid.discovery` does.
 """
 from .controllers import BendingMode, TransferFunction
 from .experiments import CONTROLLER_A, CONTROLLER_B, ClosedLoop, OpenLoop

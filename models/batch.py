@@ -1,10 +1,10 @@
 """Batch simulation for the sampler: the experiment packed once, warm starts on the cycle.
 
-:func:`models.simulate_batch` packs the experiment and builds every parameter set per call; an
+:func:`tvcid.models.simulate_batch` packs the experiment and builds every parameter set per call; an
 MCMC step calls it thousands of times with the same experiment, so :class:`BatchSimulator` packs the
-experiment, the command and the time grid once and calls :func:`models.kernel.simulate_batch_kernel`
-directly. Each row still goes through :meth:`models.ActuatorParams.replace` and the models' own
-packing, so every check and convention of :mod:`models` applies (nothing is re-implemented here).
+experiment, the command and the time grid once and calls :func:`tvcid.models.kernel.simulate_batch_kernel`
+directly. Each row still goes through :meth:`tvcid.models.ActuatorParams.replace` and the models' own
+packing, so every check and convention of :mod:`tvcid.models` applies (nothing is re-implemented here).
 
 Warm start: the dead zone, the play operator and the linear parts are positively homogeneous, so a
 cycle state taken from one reference run and scaled lands a walker's run near its own cycle and a
@@ -21,7 +21,7 @@ Continuation: :class:`Continuation` keeps the cycle state each run ended on, key
 parameters; a later run whose parameters are within a small relative distance of a stored run's
 starts from that run's state instead of the shared reference cycle, so a sampler's proposal starts
 near its own cycle. It cuts the worst transient errors but not the typical one (a nearby cycle is
-approached slowly), so it is off by default (:class:`discovery.calibration.Calibration`'s
+approached slowly), so it is off by default (:class:`tvcid.discovery.calibration.Calibration`'s
 ``continuation``).
 """
 from __future__ import annotations
@@ -31,10 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models import kernel as K
-from models.experiments import ClosedLoop, OpenLoop
-from models.hypotheses import ActuatorParams
-from models.simulate import (
+from tvcid.models import kernel as K
+from tvcid.models.experiments import ClosedLoop, OpenLoop
+from tvcid.models.hypotheses import ActuatorParams
+from tvcid.models.simulate import (
     DEFAULT_BOUND,
     SimulationDiverged,
     _check_grid,

@@ -80,7 +80,7 @@ class RecordedCycleState:
                    theta_mean_command=mean - exp.kd * thetad)
 
     def experiment(self, experiment, attitude="mean command"):
-        """``experiment`` (a :class:`models.experiments.ClosedLoop`) with the vehicle at this state.
+        """``experiment`` (a :class:`tvcid.models.experiments.ClosedLoop`) with the vehicle at this state.
 
         ``attitude``: ``"mean command"``, :attr:`theta_mean_command`, where every closed-loop
         comparison starts, or ``"cycle"``, the cycle's own. A run from the cycle's attitude
@@ -98,7 +98,7 @@ class RecordedCycleState:
         return dataclasses.replace(experiment, theta0=theta, thetad0=self.thetad)
 
     def initial_conditions(self, params=None):
-        """Actuator initial conditions (fields of :class:`models.ActuatorParams`) of a run of
+        """Actuator initial conditions (fields of :class:`tvcid.models.ActuatorParams`) of a run of
         ``params`` from this state.
 
         ``x' = FRIC(DZ(y + p))`` (docs/models.md#m001f): while the actuator moves, the velocity

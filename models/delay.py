@@ -49,7 +49,7 @@ class DelayLine:
     cycle 2 % small at 5e-4 s). ``read(t, share)`` also averages the jump over ``[t - share,
     t + share]``, an RK4 stage's share of the step (``dt/6`` at a node, ``dt/3`` at the midpoint),
     so that the integral of the delayed jump is exact wherever it falls in the step (as
-    :meth:`models.experiments.OpenLoop.solver_command` does for a command's edges).
+    :meth:`tvcid.models.experiments.OpenLoop.solver_command` does for a command's edges).
     """
 
     def __init__(self, delay, dt):

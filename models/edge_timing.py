@@ -3,7 +3,7 @@
 A square wave (or a step) recorded at 200 Hz says only that each edge lies between the last sample
 at the old level and the first at the new one: a window of 5 ms, the size of the delay being
 identified. Over several edges of a regular square the common phase and the half period are narrowed
-(:func:`models.commands._edge_polygon`), but rarely below a fraction of a sample. In open loop that
+(:func:`tvcid.models.commands._edge_polygon`), but rarely below a fraction of a sample. In open loop that
 timing trades one for one with the delay, so any single replay (the samples, the hold, the centre)
 biases the delay, and a Gaussian approximation of the response's spread over the timings still pulls
 a drawn truth's delay by 10-17 us, 2.4 nats (coverage draw 1). Here the timing is what it is, a
@@ -35,8 +35,8 @@ import math
 import numpy as np
 from numba import njit
 
-from models.commands import _edge_polygon, is_piecewise_constant, regular_edge_times
-from models.experiments import OpenLoop
+from tvcid.models.commands import _edge_polygon, is_piecewise_constant, regular_edge_times
+from tvcid.models.experiments import OpenLoop
 
 __all__ = ["EdgeTiming", "edge_timing_for"]
 

@@ -4,7 +4,7 @@ The HWIL loop (paper 002 section 3, Fig. 2): vehicle ``theta'' = mu * delta``, P
 null reference ``u = -Kp*(theta + Kd*theta')``. The HWIL ran vehicle and controller at 200 Hz;
 ``sample_rate`` holds the controller output between samples (zero-order hold), off by default.
 A compensator ``F(s)`` in series with the PD and a bending mode of the vehicle are optional
-(:mod:`models.controllers`).
+(:mod:`tvcid.models.controllers`).
 """
 from __future__ import annotations
 
@@ -55,10 +55,10 @@ class ClosedLoop:
         Controller rate (Hz) for a zero-order hold of ``u``; ``None`` (default) is continuous.
     theta0, thetad0 : float
         Initial attitude (rad) and rate (rad/s).
-    compensator : models.controllers.TransferFunction or None
+    compensator : tvcid.models.controllers.TransferFunction or None
         Proper ``F(s)`` after the PD (lead/lag, notch, or any controller given as a transfer
         function with ``kp=1, kd=0``). Held at ``sample_rate`` it runs as its Tustin realisation.
-    bending : models.controllers.BendingMode or None
+    bending : tvcid.models.controllers.BendingMode or None
         Bending mode added to the sensed attitude.
     """
 
@@ -253,7 +253,7 @@ class OpenLoop:
         ``u = levels[0]`` before the first edge and ``levels[-1]`` after the last; at an edge time
         the new level holds (as :meth:`square` and :meth:`step`). Square waves of any phase, steps
         and staircases known only as samples are replayed this way
-        (:func:`models.commands.command_from_samples`), with no ramp between samples.
+        (:func:`tvcid.models.commands.command_from_samples`), with no ramp between samples.
         """
         return cls("piecewise", t_samples=edges, u_samples=levels)
 
@@ -287,7 +287,7 @@ class OpenLoop:
         at 5e-4 s, several noise units of a square-wave response); averaged, the input's
         integral is exact and the edge's effect lands within a small fraction of a step of its
         time. The average is the command's integral over the share, exact.
-        Both the kernel (:mod:`models.simulate`) and the reference path use this.
+        Both the kernel (:mod:`tvcid.models.simulate`) and the reference path use this.
         """
         t = np.asarray(t, dtype=float)
         if self.waveform not in ("step", "square", "piecewise"):

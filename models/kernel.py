@@ -1,6 +1,6 @@
 """The fixed-step numba kernel: classic RK4 with an exact transport delay and a play operator.
 
-The kernel is a pure function of packed arrays; :mod:`models.simulate` packs the dataclasses and
+The kernel is a pure function of packed arrays; :mod:`tvcid.models.simulate` packs the dataclasses and
 unpacks the result. Conventions are those of ``docs/models.md#conventions``:
 
 * the transport delay outputs 0 before ``t = Td - dt`` and interpolates its stored input linearly
@@ -11,7 +11,7 @@ unpacks the result. Conventions are those of ``docs/models.md#conventions``:
   step start to their own ``x`` (the rate-independent operator evaluated along the stage);
 * ``sign(0) = 0`` in the friction offset, whose jump is located inside the step: RK4's weighted
   mean of the offset over the stages is replaced by its mean with the switching signal linear
-  between the first and last stages (:func:`models.nonlinearities.sign_switch_average`), so the
+  between the first and last stages (:func:`tvcid.models.nonlinearities.sign_switch_average`), so the
   cycle does not lock to the step grid;
 * closed loop, ``u = -(C x_c + D v)`` with ``v = Kp (theta_m + Kd theta_m')``: the compensator's
   output for the input ``v`` (``D = 1`` and no states without a compensator, which is bit for bit
@@ -22,7 +22,7 @@ unpacks the result. Conventions are those of ``docs/models.md#conventions``:
   bending states start at 0. The output row ``theta`` is the rigid attitude, not ``theta_m``.
 
 The slots of the packed vectors are named by the module constants below; nothing outside this
-module and :mod:`models.simulate` should index them.
+module and :mod:`tvcid.models.simulate` should index them.
 """
 from __future__ import annotations
 
@@ -106,7 +106,7 @@ def _fraction_above(a, b, c):
 
 @njit(cache=True)
 def _sign_switch_average(q_start, q_end, z):
-    """The kernel's :func:`models.nonlinearities.sign_switch_average`."""
+    """The kernel's :func:`tvcid.models.nonlinearities.sign_switch_average`."""
     return _fraction_above(q_start, q_end, z) - _fraction_above(-q_start, -q_end, z)
 
 
@@ -206,7 +206,7 @@ def _integrate(p, ctrl, bp_a, bp_b, bp_c, u_cmd, noise, dt, n_steps, decimation,
     hist = np.zeros(hist_len)
     # a held command jumps at nodes; before the first integrator the line keeps each node's value
     # just before the jump too, jumps at the node's delayed time and averages the jump over the
-    # stage's share of the step (models.delay.DelayLine)
+    # stage's share of the step (tvcid.models.delay.DelayLine)
     jumps = closed and hold > 0 and where == DELAY_BEFORE_FIRST_INTEGRATOR
     hist_left = np.zeros(hist_len)
     share = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 6.0)  # of a step, by half-step index

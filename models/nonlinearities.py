@@ -3,7 +3,7 @@
 Every width is a *half* width. Paper 002 printed its backlash as the full width of a Simulink
 "deadband" block; :func:`backlash_half_width_from_full` converts it. These numpy versions are the
 vocabulary of the reference simulator, the describing functions and the SINDy library; the numba
-kernel in :mod:`models.kernel` inlines the same formulas.
+kernel in :mod:`tvcid.models.kernel` inlines the same formulas.
 """
 from __future__ import annotations
 

@@ -3,8 +3,8 @@
 Format (documented in ``data/README.md``): ``NAME.csv`` with a header row naming at least the
 columns ``t, u, delta`` (s, rad, rad; more columns allowed) and ``NAME.json`` beside it with at least
 ``{"kind": "closed" | "open"}``; closed-loop recordings also need ``kp``, ``kd``, ``mu``, and may
-give a ``compensator`` (:meth:`models.controllers.TransferFunction.from_dict`) and a ``bending`` mode
-(:meth:`models.controllers.BendingMode.from_dict`). Every other part of tvcid reads recordings
+give a ``compensator`` (:meth:`tvcid.models.controllers.TransferFunction.from_dict`) and a ``bending`` mode
+(:meth:`tvcid.models.controllers.BendingMode.from_dict`). Every other part of tvcid reads recordings
 through :func:`load_recording`.
 """
 from __future__ import annotations
@@ -124,7 +124,7 @@ class Recording:
         starts at t = 0 and the command reproduces every sample of ``u``; square edges then stay
         where they were, where replaying the samples linearly puts each edge half a sample early
         (0.5 ms at 1 kHz, enough to bias an identified delay). Otherwise the command replayed from
-        its samples as what it is (:func:`models.commands.command_from_samples`: a sampled square
+        its samples as what it is (:func:`tvcid.models.commands.command_from_samples`: a sampled square
         wave as a square wave with sub-sample edges, a smooth command interpolated).
         """
         from .commands import command_from_samples

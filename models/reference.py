@@ -1,13 +1,13 @@
 """Reference simulator in plain Python, written apart from the numba kernel to cross-check it.
 
-It composes the element functions of :mod:`models.nonlinearities`, a :class:`models.delay.DelayLine` and
+It composes the element functions of :mod:`tvcid.models.nonlinearities`, a :class:`tvcid.models.delay.DelayLine` and
 a generic RK4 stepper over a state dictionary, where the kernel fuses everything into one loop over
 packed arrays. Both discretise the same way (RK4 on a fixed grid, the delay line interpolated
 linearly between grid points, the play memory updated once per step, the friction offset's jump
-located inside the step by :func:`models.nonlinearities.sign_switch_average`), so they agree to
+located inside the step by :func:`tvcid.models.nonlinearities.sign_switch_average`), so they agree to
 round-off on periodic cycles; it is ~500x slower and meant for tests and the benchmark only.
 
-The compensator is realised here independently of :mod:`models.controllers`' own realisations:
+The compensator is realised here independently of :mod:`tvcid.models.controllers`' own realisations:
 continuous, in observable canonical form built from ``num``/``den``; held, as the difference
 equation of its Tustin transform (polynomials in ``z`` from the substitution
 ``s = 2/h (z - 1)/(z + 1)``). So the cross-check also covers ``state_space`` and ``discretise``.
@@ -98,7 +98,7 @@ def simulate_reference(
     rate: float | None = None,
     bound: float = DEFAULT_BOUND,
 ) -> Trajectory:
-    """Plain-Python counterpart of :func:`models.simulate.simulate` (same arguments and output)."""
+    """Plain-Python counterpart of :func:`tvcid.models.simulate.simulate` (same arguments and output)."""
     n_steps, decimation = _check_grid(t_end, dt, rate)
     closed = isinstance(experiment, ClosedLoop)
     if not closed and not isinstance(experiment, OpenLoop):

@@ -130,7 +130,7 @@ class BatchResult:
     ----------
     t : ndarray, shape (n_out,)
     signals : ndarray, shape (n_sets, N_SIGNALS, n_out)
-        Rows in the order of :data:`models.kernel.SIGNALS`; samples after a divergence are NaN.
+        Rows in the order of :data:`tvcid.models.kernel.SIGNALS`; samples after a divergence are NaN.
     status : ndarray of str, shape (n_sets,)
         ``"ok"``, ``"non-finite"`` or ``"out of bound"``.
     stop_time : ndarray, shape (n_sets,)
@@ -267,7 +267,7 @@ def _initial_conditions(p, experiment):
 
 
 def _pack_experiment(experiment, dt, n_steps, bound):
-    """Packed experiment vector (layout in :mod:`models.kernel`) and the open-loop command.
+    """Packed experiment vector (layout in :mod:`tvcid.models.kernel`) and the open-loop command.
 
     A closed loop's compensator is packed as its controllable canonical form, or as its Tustin
     realisation at ``sample_rate`` when the controller is held; its length is

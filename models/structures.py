@@ -1,6 +1,6 @@
 """The grammar of actuator structures: every combination of the model's named structural choices.
 
-The general model (:class:`models.ActuatorParams`, ``docs/models.md#the-actuator``) has five
+The general model (:class:`tvcid.models.ActuatorParams`, ``docs/models.md#the-actuator``) has five
 structural choices:
 
 * where the dead zone acts: on the error ``e`` or on the velocity-level signal (``DeadZonePosition``);
@@ -22,10 +22,10 @@ each one pruned, the reason. One rule prunes (12 combinations, 36 kept):
 
 Structures are nested: a structure without backlash (friction, band-pass loop) is the one with it at
 ``backlash = 0`` (``friction_offset = 0``, ``bandpass_gain = 0``). Nested structures that fit alike
-are merged by the discovery (:mod:`discovery.structure`), which states it in its output.
+are merged by the discovery (:mod:`tvcid.discovery.structure`), which states it in its output.
 
-Every structure maps to ``models`` exactly: :meth:`Structure.to_params` returns the
-:class:`~models.ActuatorParams` with the structural enums set and the absent components zeroed, and
+Every structure maps to ``tvcid.models`` exactly: :meth:`Structure.to_params` returns the
+:class:`~tvcid.models.ActuatorParams` with the structural enums set and the absent components zeroed, and
 :meth:`Structure.of_params` reads the structure of any parameter object.
 """
 from __future__ import annotations
@@ -142,7 +142,7 @@ class Structure:
         return tuple(names)
 
     def absent_fields(self) -> dict:
-        """Values of the fields of absent components (what 'off' means in ``models``)."""
+        """Values of the fields of absent components (what 'off' means in ``tvcid.models``)."""
         out = {}
         if not self.friction:
             out["friction_offset"] = 0.0

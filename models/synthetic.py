@@ -2,9 +2,9 @@
 
 :class:`Acquisition` is the sensor model: white noise, a constant offset and quantisation applied
 to the simulated ``delta``. :func:`synthetic_recording` simulates a hypothesis with
-:func:`models.simulate` (no in-loop noise), measures it with a white-noise sensor drawn from a
-seeded ``numpy.random.Generator``, writes it with :func:`models.recording.save_recording` and reads
-it back with :func:`models.recording.load_recording` (the only way tvcid reads recordings).
+:func:`tvcid.models.simulate` (no in-loop noise), measures it with a white-noise sensor drawn from a
+seeded ``numpy.random.Generator``, writes it with :func:`tvcid.models.recording.save_recording` and reads
+it back with :func:`tvcid.models.recording.load_recording` (the only way tvcid reads recordings).
 """
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models import simulate
-from models.recording import load_recording, recording_from_trajectory, save_recording
+from tvcid.models import simulate
+from tvcid.models.recording import load_recording, recording_from_trajectory, save_recording
 
 __all__ = ["Acquisition", "synthetic_recording"]
 
@@ -42,7 +42,7 @@ def synthetic_recording(params, experiment, t_end, noise, seed, path, keep_last=
 
     Parameters
     ----------
-    params : models.ActuatorParams
+    params : tvcid.models.ActuatorParams
         The truth (its own ``noise_power`` is ignored: set to 0).
     experiment : ClosedLoop or OpenLoop
     t_end : float
@@ -56,7 +56,7 @@ def synthetic_recording(params, experiment, t_end, noise, seed, path, keep_last=
     keep_last : float or None
         Keep only the last ``keep_last`` seconds (a limit-cycle record without its transient).
     dt : float or None
-        Simulation step (s); ``None``: :func:`models.simulate.step_for_rate` of ``rate`` and a held
+        Simulation step (s); ``None``: :func:`tvcid.models.simulate.step_for_rate` of ``rate`` and a held
         controller's rate.
     rate : float
         Acquisition rate (Hz).

@@ -28,17 +28,18 @@ import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from models.recording import load_recording
-from models.strict_json import write_json
-from models.structures import Structure
-
+from tvcid.data import path as bundled_path
+from tvcid.models.recording import load_recording
+from tvcid.models.strict_json import write_json
+from tvcid.models.structures import Structure
 from tvcid.pipeline import discover
+
 from .common import study_main
 
 NAME = "discover"
 #: Started first by ``tvcid study all --jobs N`` (the structure search takes most of the time).
 LONG_RUNNING = True
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = bundled_path()
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
     result = discover(files, out_dir, seed=seed, quick=config.quick, max_steps=config.max_steps,
                       progress=False).summary
     truth = load_recording(files[0]).meta["parameters"]
-    from models import params_from_dict
+    from tvcid.models import params_from_dict
 
     true_params = params_from_dict("custom", truth)
     true_structure = Structure.of_params(true_params)

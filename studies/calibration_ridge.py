@@ -18,7 +18,7 @@ Deciding figures: ``ridge.png`` (samples in (f, zm) over the DF family), ``compa
 Ridge chains are run to a step cap and reported as ridges, not tested for convergence.
 
 Run by ``h1_deadzone_backlash`` (outputs under ``results/h1_deadzone_backlash/mcmc_ridge/``), or
-alone: ``python -m studies.calibration_ridge [--quick] [--seed N] [--out DIR]``.
+alone: ``python -m tvcid.studies.calibration_ridge [--quick] [--seed N] [--out DIR]``.
 """
 from __future__ import annotations
 
@@ -28,13 +28,13 @@ import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from discovery.calibration import Calibration, compare
-from discovery.calibration.ridge import RidgeAnalysis, robust_amplitude
-from discovery.calibration.runner import ConvergenceWarning
-from models import CONTROLLER_A, CONTROLLER_B, M002, OpenLoop
-from models.strict_json import write_json
-from models.synthetic import synthetic_recording
+from tvcid.discovery.calibration import Calibration, compare
+from tvcid.discovery.calibration.ridge import RidgeAnalysis, robust_amplitude
+from tvcid.discovery.calibration.runner import ConvergenceWarning
 from tvcid.figures import pyplot
+from tvcid.models import CONTROLLER_A, CONTROLLER_B, M002, OpenLoop
+from tvcid.models.strict_json import write_json
+from tvcid.models.synthetic import synthetic_recording
 
 from .common import study_main
 

@@ -50,7 +50,7 @@ def run(args) -> int:
     if args.jobs > 1 and len(names) > 1:
         from concurrent.futures import as_completed
 
-        from discovery.parallel import process_pool
+        from tvcid.discovery.parallel import process_pool
 
         # the long studies first, so that the short ones fill the other processes meanwhile
         names.sort(key=lambda n: not getattr(STUDIES[n], "LONG_RUNNING", False))

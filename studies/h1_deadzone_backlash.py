@@ -23,13 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.describing import (
+from tvcid.discovery.describing import (
     NoHarmonicBalanceSolution,
     compare_with_simulation,
     paper002_family,
     solve_backlash_and_dead_zone,
 )
-from models import (
+from tvcid.figures import pyplot
+from tvcid.models import (
     CONTROLLER_A,
     CONTROLLER_B,
     M002,
@@ -37,8 +38,7 @@ from models import (
     limit_cycle_features,
     simulate_batch,
 )
-from models.strict_json import write_json
-from tvcid.figures import pyplot
+from tvcid.models.strict_json import write_json
 
 from . import calibration_ridge
 from .common import study_main

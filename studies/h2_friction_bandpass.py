@@ -21,20 +21,21 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.spectral import (
+from tvcid.data import path as bundled_path
+from tvcid.discovery.spectral import (
     amplitude_spectrum,
     harmonic_table,
     lowpass_reconstruction,
 )
-from models import CONTROLLER_A, hypothesis, simulate
-from models.recording import load_recording
-from models.strict_json import write_json
 from tvcid.figures import pyplot
+from tvcid.models import CONTROLLER_A, hypothesis, simulate
+from tvcid.models.recording import load_recording
+from tvcid.models.strict_json import write_json
 
 from .common import study_main
 
 NAME = "h2_friction_bandpass"
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = bundled_path()
 MODELS_COMPARED = ("M002", "M001i", "M001f")
 
 
@@ -91,7 +92,7 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
         "band_9_10_hz_ratio": band,
         "paper_numbers": {
             "p001_lowpass_cutoff": {"value": config.cutoff_hz,
-                                    "how": "cut-off of the IFFT reconstruction (discovery.spectral default)"},
+                                    "how": "cut-off of the IFFT reconstruction (tvcid.discovery.spectral default)"},
         },
     }
     out_dir.mkdir(parents=True, exist_ok=True)

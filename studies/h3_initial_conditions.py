@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from models import CONTROLLER_A, hypothesis, simulate, simulate_batch
-from models.strict_json import write_json
 from tvcid.figures import pyplot
+from tvcid.models import CONTROLLER_A, hypothesis, simulate, simulate_batch
+from tvcid.models.strict_json import write_json
 
 from .common import study_main
 

@@ -19,22 +19,23 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.spectral import lowpass_reconstruction, noise_floor
-from models import (
+from tvcid.data import path as bundled_path
+from tvcid.discovery.spectral import lowpass_reconstruction, noise_floor
+from tvcid.figures import pyplot
+from tvcid.models import (
     DelayPosition,
     InsufficientPeriodsError,
     hypothesis,
     limit_cycle_features,
     simulate_batch,
 )
-from models.recording import load_recording
-from models.strict_json import write_json
-from tvcid.figures import pyplot
+from tvcid.models.recording import load_recording
+from tvcid.models.strict_json import write_json
 
 from .common import study_main
 
 NAME = "h4_delay_position"
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = bundled_path()
 
 
 @dataclass(frozen=True)

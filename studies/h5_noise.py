@@ -23,18 +23,19 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.describing.inverse import paper002_family
-from discovery.spectral import noise_floor
-from models import CONTROLLER_A, hypothesis, limit_cycle_features, simulate_batch
-from models.noise import noise_std
-from models.recording import load_recording
-from models.strict_json import write_json
+from tvcid.data import path as bundled_path
+from tvcid.discovery.describing.inverse import paper002_family
+from tvcid.discovery.spectral import noise_floor
 from tvcid.figures import pyplot
+from tvcid.models import CONTROLLER_A, hypothesis, limit_cycle_features, simulate_batch
+from tvcid.models.noise import noise_std
+from tvcid.models.recording import load_recording
+from tvcid.models.strict_json import write_json
 
 from .common import study_main
 
 NAME = "h5_noise"
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = bundled_path()
 RECORDINGS = ("m000_closed_A", "m000_closed_B", "m000_open_square", "m000_open_sine")
 
 
@@ -125,9 +126,9 @@ def run(config: Config, seed: int, out_dir: Path) -> dict:
                                  for k, v in ident.items()},
         "true_dead_zone_m002": m002.dead_zone,
         "paper_numbers": {
-            "p000_noise_band_low": {"value": 20.0, "how": "floor band used by discovery.spectral.noise_floor (power recovered within "
+            "p000_noise_band_low": {"value": 20.0, "how": "floor band used by tvcid.discovery.spectral.noise_floor (power recovered within "
                                     f"{max(abs(r['error_pct']) for r in floors):.1f} % on the bundled data)"},
-            "p000_noise_band_high": {"value": 100.0, "how": "floor band used by discovery.spectral.noise_floor"},
+            "p000_noise_band_high": {"value": 100.0, "how": "floor band used by tvcid.discovery.spectral.noise_floor"},
         },
     }
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -9,16 +9,16 @@ below turn a prediction into the summary's numbers (band widths, the stability b
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
-from discovery.prediction import ControllerSetting, PredictionConfig, simulate_cycles
-from models import limit_cycle_features, simulate
-from models.hypotheses import params_from_dict
-from models.recording import load_recording
+from tvcid.data import path as bundled_path
+from tvcid.discovery.prediction import ControllerSetting, PredictionConfig, simulate_cycles
+from tvcid.models import limit_cycle_features, simulate
+from tvcid.models.hypotheses import params_from_dict
+from tvcid.models.recording import load_recording
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = bundled_path()
 RECORDINGS = ("m000_closed_A", "m000_closed_B", "m000_open_square", "m000_open_sine")
 #: Controller A (paper 002): the vehicle every map and example uses.
 SETTING_A = ControllerSetting(kp=5.84, kd=0.062, mu=12.3)
@@ -140,7 +140,7 @@ def _band(d):
 
 
 def prediction_summary(pred):
-    """A :class:`discovery.prediction.CyclePrediction` as the summary holds it: bands, fractions,
+    """A :class:`tvcid.discovery.prediction.CyclePrediction` as the summary holds it: bands, fractions,
     the describing function of the median model and the setting."""
     d = pred.to_dict()
     return {**_band(d), "fraction_oscillating": d["fraction_oscillating"],
@@ -164,7 +164,7 @@ def boundary_of_map(cmap):
 
     Parameters
     ----------
-    cmap : discovery.prediction.CycleMap
+    cmap : tvcid.discovery.prediction.CycleMap
         Keys ``("kp", "kd")``.
 
     Returns
@@ -189,7 +189,7 @@ def check_map(cmap, seconds):
 
     Parameters
     ----------
-    cmap : discovery.prediction.CycleMap
+    cmap : tvcid.discovery.prediction.CycleMap
         Keys ``("kp", "kd")``.
     seconds : float
         Length of each of the generating model's runs (s).

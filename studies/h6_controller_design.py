@@ -4,7 +4,7 @@ Hypothesis (paper 002, section 1): the VLS attitude loop is designed around the 
 actuator, so the designer asks "with this controller, what cycle will I get, and how sure are
 we?" and the experimenter "which test should I run next?". A model calibrated on the bundled
 records answers both: (1) its posterior, pushed through closed-loop simulations of every draw
-(:mod:`discovery.prediction`), maps the cycle's amplitude and frequency with a 90 % band over
+(:mod:`tvcid.discovery.prediction`), maps the cycle's amplitude and frequency with a 90 % band over
 Kp x Kd and locates the stability boundary where the generating model's own long runs put it;
 (2) a lead filter raises the cycle's frequency and lowers its amplitude, and a lightly damped
 bending mode that makes the plain PD loop diverge is tamed by a notch at its frequency, at the
@@ -15,12 +15,12 @@ a tested one.
 Set-up: M000's structure calibrated on the four bundled records (synthetic, M000 with in-loop
 noise: ``data/README.md``) with the features likelihood; dead zone, backlash, delay and the
 sensor-noise sd sampled, the in-loop noise power fixed at the open-loop square record's noise
-floor (:func:`discovery.spectral.noise_floor`), every other value M000's. The examples at
+floor (:func:`tvcid.discovery.spectral.noise_floor`), every other value M000's. The examples at
 controller A: a lead ``(1 + s/5)/(1 + s/p)``, ``p`` swept from 6 to 60 rad/s; a bending mode at
 60 rad/s (damping 0.02, gain 0.01) and a notch at its frequency (depth 0.1), the notch's damping
 swept from 0.02 to 0.5. Every prediction is set against the generating model (the records' own
 parameters, from their sidecars) run for 120 s at the records' step, and against how much that
-model's own cycle moves between 4 s windows (:mod:`studies.h6_checks`).
+model's own cycle moves between 4 s windows (:mod:`tvcid.studies.h6_checks`).
 
 Deciding figures: ``map.png`` (median amplitude, band width, median frequency and fraction of
 draws diverging over Kp x Kd at mu 12.3, with the stability boundary and the settings where the
@@ -30,7 +30,7 @@ band, with the generating model's long runs); ``boundary.png`` (the boundary alo
 controller A's Kp) and ``design.png`` (the ranked menu) beside them.
 
 Run: ``tvcid study h6_controller_design [--quick] [--seed N]`` or
-``python -m studies.h6_controller_design [--quick] [--seed N] [--out DIR]``. Outputs under
+``python -m tvcid.studies.h6_controller_design [--quick] [--seed N] [--out DIR]``. Outputs under
 ``results/h6_controller_design/``: ``summary.json`` (every number, also in the report),
 ``map.json``/``map.csv``/``maps.npz`` (the maps), ``design.json`` (the ranking), the figures, and
 the chain checkpointed in ``fit/chain.h5`` (a rerun resumes it; quick and full runs share its
@@ -46,14 +46,14 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.calibration import Calibration
-from discovery.calibration.runner import ConvergenceWarning
-from discovery.prediction import PredictionConfig, cycle_map, load_posterior_draws, predict_cycle
-from discovery.prediction.design import load_candidates, rank_experiments
-from discovery.spectral import noise_floor
-from models.controllers import BendingMode
-from models.recording import load_recording
-from models.strict_json import write_json
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.calibration.runner import ConvergenceWarning
+from tvcid.discovery.prediction import PredictionConfig, cycle_map, load_posterior_draws, predict_cycle
+from tvcid.discovery.prediction.design import load_candidates, rank_experiments
+from tvcid.discovery.spectral import noise_floor
+from tvcid.models.controllers import BendingMode
+from tvcid.models.recording import load_recording
+from tvcid.models.strict_json import write_json
 
 from .common import study_main
 from .h6_checks import (
@@ -155,7 +155,7 @@ def calibrate(config, seed, out_dir):
 
     Returns
     -------
-    cal : discovery.calibration.Calibration
+    cal : tvcid.discovery.calibration.Calibration
         The fitted calibration (``posterior_``, ``report_``).
     info : dict
         The fit's set-up, convergence and every parameter's median, 90 % interval, width and

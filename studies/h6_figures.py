@@ -104,7 +104,7 @@ def plot_boundary(summary, path):
 
 
 def plot_map(cmap, disagreements, draws, path):
-    """The Kp x Kd map (:meth:`discovery.prediction.CycleMap.plot`) with controller A starred and
+    """The Kp x Kd map (:meth:`tvcid.discovery.prediction.CycleMap.plot`) with controller A starred and
     the settings where the draws' majority outcome differs from the generating model's crossed."""
     plt = pyplot()
     axes = cmap.plot()
@@ -121,7 +121,7 @@ def plot_map(cmap, disagreements, draws, path):
 
 
 def plot_design(ranking, path):
-    """The experiment menu ranked (:meth:`discovery.prediction.design.DesignRanking.plot`)."""
+    """The experiment menu ranked (:meth:`tvcid.discovery.prediction.design.DesignRanking.plot`)."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 0.55 * len(ranking.rows) + 1.8), constrained_layout=True)
     ranking.plot(ax)

@@ -1,4 +1,4 @@
-"""The README's figure: what tvcid works from. ``python -m studies.overview_figure [--out PNG]``.
+"""The README's figure: what tvcid works from. ``python -m tvcid.studies.overview_figure [--out PNG]``.
 
 Left, the limit cycle the HWIL loop shows at controller A (the bundled M000 recording, its last
 3 s); right, an open-loop square test of the same actuator, where the dead zone, backlash and delay
@@ -10,8 +10,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from models.recording import load_recording
+from tvcid.data import path as bundled_path
 from tvcid.figures import pyplot
+from tvcid.models.recording import load_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "figures" / "overview.png"
@@ -20,8 +21,8 @@ OUT = ROOT / "docs" / "figures" / "overview.png"
 def draw(path=OUT) -> Path:
     """Draw the figure from the bundled recordings into ``path``."""
     plt = pyplot()
-    cycle = load_recording(ROOT / "data" / "m000_closed_A.csv")
-    square = load_recording(ROOT / "data" / "m000_open_square.csv")
+    cycle = load_recording(bundled_path("m000_closed_A.csv"))
+    square = load_recording(bundled_path("m000_open_square.csv"))
     fig, (left, right) = plt.subplots(1, 2, figsize=(9, 2.8))
     keep = cycle.t >= cycle.t[-1] - 3.0
     left.plot(cycle.t[keep], 1e3 * cycle.delta[keep], lw=0.8)

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models import (
+from tvcid.figures import pyplot
+from tvcid.models import (
     CONTROLLER_A,
     CONTROLLER_B,
     HYPOTHESES,
@@ -30,9 +31,8 @@ from models import (
     hypothesis,
     simulate,
 )
-from models.hypotheses import gains_from_abc
-from models.strict_json import write_json
-from tvcid.figures import pyplot
+from tvcid.models.hypotheses import gains_from_abc
+from tvcid.models.strict_json import write_json
 
 from .common import study_main
 

@@ -15,11 +15,12 @@ import json
 import math
 from pathlib import Path
 
-from models import CONTROLLER_A, CONTROLLER_B, hypothesis
+from tvcid.data import path as bundled_path
+from tvcid.models import CONTROLLER_A, CONTROLLER_B, hypothesis
 
 from .registry import STUDIES
 
-PAPERS_JSON = Path(__file__).resolve().parents[1] / "data" / "papers.json"
+PAPERS_JSON = bundled_path("papers.json")
 _CONTROLLERS = {"A": CONTROLLER_A, "B": CONTROLLER_B}
 
 

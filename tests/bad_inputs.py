@@ -41,7 +41,7 @@ class GoodRecords:
 
 def good_records() -> GoodRecords:
     """The unbroken records every case starts from (simulated once, sidecars without provenance)."""
-    from models import CONTROLLER_A, OpenLoop, hypothesis, simulate
+    from tvcid.models import CONTROLLER_A, OpenLoop, hypothesis, simulate
 
     params = hypothesis("M002", noise_power=1e-12)
     cl = simulate(params, CONTROLLER_A, GOOD_SECONDS, rate=GOOD_RATE)
@@ -197,7 +197,7 @@ _PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(range(256)) * 4
 
 
 def _huge(good, directory):
-    from models.recording import MAX_RECORDING_BYTES
+    from tvcid.models.recording import MAX_RECORDING_BYTES
 
     path = Path(directory) / "bad.csv"
     with open(path, "wb") as fh:  # sparse: the size is what the reader must refuse on

@@ -11,7 +11,7 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
 
 import pytest  # noqa: E402
 
-from models import CONTROLLER_A, hypothesis, simulate  # noqa: E402
+from tvcid.models import CONTROLLER_A, hypothesis, simulate  # noqa: E402
 
 #: Seconds each of the default suite's longest files takes on one worker (from ``--durations``).
 #: Files are handed out longest first, so that no long file starts last and runs alone at the

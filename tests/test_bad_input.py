@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from models import (
+from tvcid.models import (
     CONTROLLER_A,
     ClosedLoop,
     OpenLoop,

@@ -57,7 +57,7 @@ def test_declared_degrees_are_converted_not_refused(good, tmp_path):
     reads back the radians."""
     import numpy as np
 
-    from models.recording import load_recording
+    from tvcid.models.recording import load_recording
 
     path = cat._degrees(good, tmp_path)
     path.with_suffix(".json").write_text('{"kind": "open", "units": {"u": "deg", "delta": "deg"}}')

@@ -1,4 +1,4 @@
-"""The coverage benchmark (studies.benchmarks.coverage): its quick run on a bundled draw, its summary,
+"""The coverage benchmark (tvcid.studies.benchmarks.coverage): its quick run on a bundled draw, its summary,
 its command line and its stored record.
 
 Draw 0 of the quick config is bundled under ``data/bench/coverage_draw000`` as the benchmark
@@ -32,13 +32,13 @@ def no_reference_path(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("the bundled recordings were made again")
 
-    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", refuse)
+    monkeypatch.setattr("tvcid.studies.benchmarks.scenarios.simulate_reference", refuse)
 
 
 def test_bundled_quick_draw_is_the_generators_own():
     """The bundled provenance is what the generator draws for the quick config's draw 0 today."""
-    from studies.benchmarks.coverage import QUICK, QUICK_WAVEFORM, coverage_scenario
-    from studies.benchmarks.scenarios import provenance
+    from tvcid.studies.benchmarks.coverage import QUICK, QUICK_WAVEFORM, coverage_scenario
+    from tvcid.studies.benchmarks.scenarios import provenance
 
     stored = json.loads((BUNDLED / "truth" / "scenario.json").read_text())
     for config in (QUICK, QUICK_WAVEFORM):
@@ -48,8 +48,8 @@ def test_bundled_quick_draw_is_the_generators_own():
 @pytest.mark.slow
 def test_bundled_quick_draw_is_rebuilt_byte_for_byte(tmp_path):
     """The reference path remakes the bundled recordings exactly (about two minutes)."""
-    from studies.benchmarks.coverage import QUICK, coverage_scenario
-    from studies.benchmarks.scenarios import write_recordings
+    from tvcid.studies.benchmarks.coverage import QUICK, coverage_scenario
+    from tvcid.studies.benchmarks.scenarios import write_recordings
 
     for p in write_recordings(coverage_scenario(0, QUICK), tmp_path):
         for q in (p, p.with_suffix(".json")):
@@ -61,8 +61,8 @@ def _check_row_is_the_draws(row, config, index=0):
     """The row calibrates draw ``index``'s truth: the parameters its structure has, each with the truth's
     value and the widened generator range as prior, the draw's design, a chain of the config's
     length, and a finite 90 % interval inside the prior."""
-    from models.structures import Structure
-    from studies.benchmarks.coverage import SAMPLED, coverage_scenario, priors_for
+    from tvcid.models.structures import Structure
+    from tvcid.studies.benchmarks.coverage import SAMPLED, coverage_scenario, priors_for
 
     scenario = coverage_scenario(index, config)
     priors = priors_for(Structure.of_params(scenario.truth))
@@ -79,10 +79,10 @@ def _check_row_is_the_draws(row, config, index=0):
 
 
 def test_quick_run_on_the_bundled_draw_calibrates_the_draws_truth(quick_dir, no_reference_path):
-    """``python -m studies.benchmarks.coverage --quick --draws 1`` on the bundled recordings: one row
+    """``python -m tvcid.studies.benchmarks.coverage --quick --draws 1`` on the bundled recordings: one row
     for draw 0 (see :func:`_check_row_is_the_draws`), its summary and the rank figure."""
-    from studies.benchmarks.coverage import QUICK
-    from studies.benchmarks.coverage import main as bench_main
+    from tvcid.studies.benchmarks.coverage import QUICK
+    from tvcid.studies.benchmarks.coverage import main as bench_main
 
     assert bench_main(["--quick", "--draws", "1", "--out", str(quick_dir)]) == 0
     report = json.loads((quick_dir / "bench.json").read_text())
@@ -99,8 +99,8 @@ def test_quick_run_with_the_waveform_likelihood_enters_each_record_its_own_way(t
     recordings made here): the closed-loop record enters by its waveform or, fallen back, its
     features, the open-loop ones by their output error, and the noise sd is sampled; draws with
     the band-pass loop are skipped, not run."""
-    from studies.benchmarks.coverage import QUICK_WAVEFORM, coverage_scenario, runs_with
-    from studies.benchmarks.coverage import main as bench_main
+    from tvcid.studies.benchmarks.coverage import QUICK_WAVEFORM, coverage_scenario, runs_with
+    from tvcid.studies.benchmarks.coverage import main as bench_main
 
     assert bench_main(["--quick", "--likelihood", "waveform", "--draws", "4", "--indices", "3",
                        "--out", str(tmp_path)]) == 0
@@ -121,7 +121,7 @@ def test_summary_counts_coverage_ranks_and_inflation_of_known_rows():
     """Ten rows with one rank in each decile and the truth outside the interval in the first:
     coverage 0.9 and a flat rank histogram; a parameter some rows lack is counted over the rows
     that have it; inflation factors are pooled over records."""
-    from studies.benchmarks.coverage import RANK_BINS, summarise
+    from tvcid.studies.benchmarks.coverage import RANK_BINS, summarise
 
     rows = []
     for i in range(10):
@@ -149,7 +149,7 @@ def test_stored_record_covers_the_truth_80_to_97_percent_per_parameter():
     """The benchmark's claim on its stored record (``studies/benchmarks/records/bench_coverage.json``, the
     default config over 30 draws): every chain converged, and per parameter the 90 % intervals
     hold the truth in 80-97 % of the draws that sample it; the stored summary is the rows'."""
-    from studies.benchmarks.coverage import Config, summarise
+    from tvcid.studies.benchmarks.coverage import Config, summarise
 
     record = json.loads(RECORD.read_text())
     assert record["config"] == json.loads(json.dumps(Config().__dict__))
@@ -181,7 +181,7 @@ def test_stored_misses_and_all_but_one_discrepancy_are_in_draws_with_held_contro
 def test_a_stored_draw_rerun_gives_its_stored_interval(tmp_path):
     """The record is what the code gives: its shortest draw (22, about a minute of calibration
     after its recordings are made) calibrated again reproduces the stored quantiles."""
-    from studies.benchmarks.coverage import Config, run_draw
+    from tvcid.studies.benchmarks.coverage import Config, run_draw
 
     stored = next(r for r in json.loads(RECORD.read_text())["rows"] if r["index"] == 22)
     row = run_draw(22, Config(), tmp_path)
@@ -194,7 +194,7 @@ def test_a_stored_draw_rerun_gives_its_stored_interval(tmp_path):
 def test_bench_coverage_indices_select_draws_and_reject_bad_text():
     """``--indices 10,14-29`` selects those draws (ranges inclusive); text that is not N or N-M
     is refused with a message naming it."""
-    from studies.benchmarks.coverage import parse_indices
+    from tvcid.studies.benchmarks.coverage import parse_indices
 
     assert parse_indices("10,14-16") == {10, 14, 15, 16}
     assert parse_indices("3") == {3}
@@ -203,12 +203,12 @@ def test_bench_coverage_indices_select_draws_and_reject_bad_text():
 
 
 def test_oracle_gain_of_a_known_quadratic_and_bad_arguments(capsys):
-    """``studies.benchmarks.coverage_oracle``'s maximiser returns the drop from the truth (z = 0) to the
+    """``tvcid.studies.benchmarks.coverage_oracle``'s maximiser returns the drop from the truth (z = 0) to the
     optimum of a known quadratic, and where it is; a negative index is refused."""
     import numpy as np
 
-    from studies.benchmarks.coverage_oracle import _maximise
-    from studies.benchmarks.coverage_oracle import main as oracle_main
+    from tvcid.studies.benchmarks.coverage_oracle import _maximise
+    from tvcid.studies.benchmarks.coverage_oracle import main as oracle_main
 
     centre = np.array([0.02, -0.05, 0.01])
     gain, move = _maximise(lambda z: 0.5 * float(np.sum(((z - centre) / 0.01) ** 2)) + 3.0, 3)
@@ -223,11 +223,11 @@ def test_oracle_replay_chi_square_sees_a_sines_chords(capsys):
     """A 2.6 Hz, 23 mrad sine sampled at 200 Hz (coverage draw 17's design) on M002, noise 4e-5
     rad: read by its chords the replay adds a chi-square of several noise units at the truth over
     4 s, as replayed (a spline) none; several draws need ``--replay-only``."""
-    from models import OpenLoop, hypothesis, simulate
-    from models.recording import Recording
-    from studies.benchmarks.coverage_oracle import main as oracle_main
-    from studies.benchmarks.coverage_oracle import replay_chi_square
-    from studies.benchmarks.scenarios import RecordingDesign
+    from tvcid.models import OpenLoop, hypothesis, simulate
+    from tvcid.models.recording import Recording
+    from tvcid.studies.benchmarks.coverage_oracle import main as oracle_main
+    from tvcid.studies.benchmarks.coverage_oracle import replay_chi_square
+    from tvcid.studies.benchmarks.scenarios import RecordingDesign
 
     design = RecordingDesign(kind="open", duration=4.0, rate=200.0, waveform="sine",
                              amplitude=0.0227, frequency=2.58)
@@ -245,7 +245,7 @@ def test_oracle_replay_chi_square_sees_a_sines_chords(capsys):
 def test_widening_compares_interval_widths_with_and_without_the_discrepancy_term():
     """``widening`` divides each parameter's 90 % width with the term by its width without it,
     pairs draws by index (a draw run one way only is left out) and counts ratios within 1.2."""
-    from studies.benchmarks.coverage import widening
+    from tvcid.studies.benchmarks.coverage import widening
 
     def row(index, widths, inflation=(1.0,)):
         return {"index": index, "inflation": list(inflation), "converged": True,
@@ -265,7 +265,7 @@ def test_widening_compares_interval_widths_with_and_without_the_discrepancy_term
 
 def test_widening_without_finished_draws_says_so(tmp_path, capsys):
     """``--widening`` before the benchmark has rows in DIR: exit 1 and a message naming the file."""
-    from studies.benchmarks.coverage import main as bench_main
+    from tvcid.studies.benchmarks.coverage import main as bench_main
 
     assert bench_main(["--quick", "--widening", "--out", str(tmp_path)]) == 1
     assert "no finished draws" in capsys.readouterr().out
@@ -276,7 +276,7 @@ def test_a_failing_draw_is_reported_and_the_others_still_run(tmp_path, monkeypat
     raises is named in the output and in the exit status, the draws after it still run."""
     from dataclasses import asdict
 
-    import studies.benchmarks.coverage as bc
+    import tvcid.studies.benchmarks.coverage as bc
 
     def fake_run_draw(index, config, workdir, discrepancy=True):
         if index == 0:

@@ -1,6 +1,6 @@
-"""The discovery benchmark (studies.benchmarks.discovery): one bundled draw, its stored rows, its rules.
+"""The discovery benchmark (tvcid.studies.benchmarks.discovery): one bundled draw, its stored rows, its rules.
 
-The benchmark's first draw (seed 1000, :func:`studies.benchmarks.scenarios.draw_scenario`) is bundled under
+The benchmark's first draw (seed 1000, :func:`tvcid.studies.benchmarks.scenarios.draw_scenario`) is bundled under
 ``data/bench/draw1000`` as the benchmark writes it (reference path, measured-style sidecars, the
 truth in ``truth/scenario.json``), so that no test spends four minutes of the plain-Python
 reference path making it; a slow test rebuilds it byte for byte. The default suite runs one draw
@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models.structures import Structure
-from studies.benchmarks.discovery import main as bench_main
-from studies.benchmarks.scenarios import draw_scenario, provenance, write_recordings
+from tvcid.models.structures import Structure
+from tvcid.studies.benchmarks.discovery import main as bench_main
+from tvcid.studies.benchmarks.scenarios import draw_scenario, provenance, write_recordings
 
 BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
 ROWS = Path(__file__).resolve().parent / "data" / "discovery_rows.json"
@@ -47,7 +47,7 @@ def _digests(directory):
 @pytest.mark.slow
 def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tmp_path, monkeypatch,
                                                                                capsys):
-    """``python -m studies.benchmarks.discovery --quick --draws 1`` on the bundled draw, its search cut
+    """``python -m tvcid.studies.benchmarks.discovery --quick --draws 1`` on the bundled draw, its search cut
     to the truth's dead-zone and delay positions (8 structures) and to a few generations, each
     structure's first population seeded with the truth (as SINDy's proposals seed a full run; a
     search of three generations alone ends anywhere from 0.3 to 2 against the truth's 0.18, by
@@ -55,8 +55,8 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
     band-pass loop costs over 20x the best (two 9-10 Hz ringing cycles), so the reported set
     decides the loop and holds the truth, and no structural choice is decided wrong; the row's
     ranking and the summary are the row's own, and the exit status is the goal's verdict."""
-    import discovery.structure.structure_search as structure_search
-    import studies.benchmarks.discovery as bench
+    import tvcid.discovery.structure.structure_search as structure_search
+    import tvcid.studies.benchmarks.discovery as bench
 
     monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
         pop=3, gens=3, open_pop=3, open_gens=3, nfev=4, rank_nfev=2))
@@ -64,7 +64,7 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
     def no_reference_path(*args, **kwargs):
         raise AssertionError("the bundled recordings were made again")
 
-    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", no_reference_path)
+    monkeypatch.setattr("tvcid.studies.benchmarks.scenarios.simulate_reference", no_reference_path)
     scenario = draw_scenario(1000, ranges="papers")
     truth = scenario.structure
     positions = {"dead_zone_position": truth.dead_zone_position.value,
@@ -121,7 +121,7 @@ def test_a_finished_row_is_rederived_from_its_stored_ranking():
     recording (0.35 in all), leaves the set, which keeps the three delay positions of the truth's
     dead-zone position; the old verdict stays under ``previous``. A row re-derived twice is the
     same."""
-    from studies.benchmarks.discovery import rederived
+    from tvcid.studies.benchmarks.discovery import rederived
 
     row = stored_rows()[1017]
     row = {**row, **row.get("previous", {}), "set_size": 5, "right_or_in_small_set": False,
@@ -143,7 +143,7 @@ def test_floor_scan_weighs_the_set_rule_on_finished_rows():
     floor draw 1017's set grows past 3, and draws 1010, 1020 and 1025 (the three positions of the
     delay fitting within 0.003-0.015 of each other, the folds disagreeing as much) are missed at
     every scale. The truth is never lost by widening the margin."""
-    from studies.benchmarks.discovery import FLOOR_SCALES, floor_scan
+    from tvcid.studies.benchmarks.discovery import FLOOR_SCALES, floor_scan
 
     seeds = (1003, 1010, 1017, 1020, 1025)
     rows = [r for seed, r in stored_rows().items() if seed in seeds]
@@ -167,7 +167,7 @@ def test_structures_fitting_as_well_as_the_truth_bound_the_set():
     sine) leaves the six positions of the dead zone and the delay, each minimal and each fitted at
     most at the truth's cost; a set of at most 3 cannot hold 1010's truth without excluding a
     structure the data favour as much. The summary counts the ceiling per class."""
-    from studies.benchmarks.discovery import as_well_as_truth, summarise
+    from tvcid.studies.benchmarks.discovery import as_well_as_truth, summarise
 
     rows = stored_rows()
     assert as_well_as_truth(rows[1013]) == [rows[1013]["structure"]]

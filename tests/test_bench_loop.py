@@ -1,5 +1,5 @@
-"""The experiment-loop benchmark (studies.benchmarks.loop) and the closure rule it reports
-(discovery.structure.closure)."""
+"""The experiment-loop benchmark (tvcid.studies.benchmarks.loop) and the closure rule it reports
+(tvcid.discovery.structure.closure)."""
 import dataclasses
 import json
 import shutil
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from discovery.structure.closure import SetClosure, _squared_distances, _within
+from tvcid.discovery.structure.closure import SetClosure, _squared_distances, _within
 
 BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
 
@@ -38,17 +38,17 @@ def test_a_set_is_closed_when_one_or_when_nothing_parts_it():
 
 @pytest.mark.slow
 def test_quick_loop_on_one_cycle_adds_the_suggested_test_from_the_truth(tmp_path, monkeypatch, capsys):
-    """``python -m studies.benchmarks.loop --quick --draws 1`` on the discovery benchmark's first
+    """``python -m tvcid.studies.benchmarks.loop --quick --draws 1`` on the discovery benchmark's first
     draw cut to its first limit cycle (its recording bundled), the search cut short and the dead
     zone's place and the friction given: one cycle leaves a set of several structures that parts
     on the menu, so a test is suggested; it is recorded from the truth by the reference path as
     a measured recording and added to the run, which then holds both recordings. Every round's
     closure verdict agrees with its parting list; the table is the rows' own; the goals are not
     judged on one draw (exit status 1)."""
-    import discovery.structure.structure_search as structure_search
-    import studies.benchmarks.loop as loop
-    from models.strict_json import write_json
-    from studies.benchmarks.scenarios import draw_scenario, provenance
+    import tvcid.discovery.structure.structure_search as structure_search
+    import tvcid.studies.benchmarks.loop as loop
+    from tvcid.models.strict_json import write_json
+    from tvcid.studies.benchmarks.scenarios import draw_scenario, provenance
 
     monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
         pop=3, gens=3, open_pop=3, open_gens=3, nfev=4, rank_nfev=2))
@@ -89,9 +89,9 @@ def test_members_agree_on_a_test_when_their_difference_is_inside_their_own_sprea
     """Paper 002's model with its dead zone scattered by 2 %: two members drawn alike agree on an
     open-loop square; a member with twice the dead zone parts from them, its distance to them many
     times their own spread."""
-    from discovery.structure.closure import menu_agreement
-    from discovery.structure.discrimination import default_candidates
-    from models import M002
+    from tvcid.discovery.structure.closure import menu_agreement
+    from tvcid.discovery.structure.discrimination import default_candidates
+    from tvcid.models import M002
 
     base = M002()
 
@@ -112,7 +112,7 @@ def test_round_zero_is_taken_from_a_set_coverage_run_once(tmp_path):
     """``--reuse DIR``: a draw's recordings and discovery in the set-coverage benchmark's layout
     are copied to the loop's, once; a draw the loop has started, or one the other run has not
     discovered, is left alone."""
-    from studies.benchmarks.loop import reuse_round_zero
+    from tvcid.studies.benchmarks.loop import reuse_round_zero
 
     source = tmp_path / "setcov" / "draw1000"
     (source / "recordings" / "truth").mkdir(parents=True)

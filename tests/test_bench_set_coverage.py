@@ -1,4 +1,4 @@
-"""studies.benchmarks.set_coverage and set_judge: a draw's row judges what the report prints, per
+"""tvcid.studies.benchmarks.set_coverage and set_judge: a draw's row judges what the report prints, per
 quantity: a pinned quantity on its 90 % interval, a not-pinned one on the range the recordings
 allow (an open end on the prior's bound), a component the truth lacks on whether it is printed
 absent or "present or absent"; the judgements that cannot fail are counted apart from the goals;
@@ -9,13 +9,13 @@ import json
 import numpy as np
 import pytest
 
-from models import M000, M002
-from models.structures import Structure
-from studies.benchmarks.set_coverage import (GAUSSIAN_MEDIAN_POSITION, GOAL_QUANTITIES,
+from tvcid.models import M000, M002
+from tvcid.models.structures import Structure
+from tvcid.studies.benchmarks.set_coverage import (GAUSSIAN_MEDIAN_POSITION, GOAL_QUANTITIES,
                                              coverage_goals, coverage_row, drop_old_layout,
                                              narrower_than_step, quantity_entry, rejudge_rows,
                                              summarise, truth_position, truth_quantities)
-from studies.benchmarks.set_judge import rejudge_row
+from tvcid.studies.benchmarks.set_judge import rejudge_row
 
 
 def _q(lo, hi, mid=None, pinned=True, present=1.0, allowed=None, allowed_open=None, step=None,
@@ -222,7 +222,7 @@ def test_rows_are_counted_by_the_commit_that_sampled_them_and_the_one_that_judge
 def test_the_stored_rows_are_what_their_judging_commit_gives_them():
     """The stored record's rows judged again from the rows alone, at their own judging commit,
     come out as stored: every verdict, cannot-fail mark and judged range."""
-    from studies.benchmarks.results_table import load_records
+    from tvcid.studies.benchmarks.results_table import load_records
 
     rows = load_records()["bench_set_coverage"]["rows"]
     for r in rows:
@@ -408,7 +408,7 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     """docs/results.md's row for the set coverage: the finished draws, the rows of an earlier
     layout counted apart, each printed quantity's count, the chains' split, the allowed ranges'
     counts and the widths; under 30 draws no goal is met, whatever the share."""
-    from studies.benchmarks.results_table import set_coverage
+    from tvcid.studies.benchmarks.results_table import set_coverage
 
     truth = M002()
     printed = _printed(truth)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from emcee.backends import HDFBackend
 
-from discovery.calibration import CheckpointBackend
+from tvcid.discovery.calibration import CheckpointBackend
 
 HOLD = 1.0  # seconds the reader keeps the file open
 

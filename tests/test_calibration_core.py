@@ -6,7 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from discovery.calibration import (
+from tvcid.cli import main
+from tvcid.discovery.calibration import (
     Calibration,
     LogUniform,
     Uniform,
@@ -14,13 +15,12 @@ from discovery.calibration import (
     parse_prior,
     run_ensemble,
 )
-from discovery.calibration.runner import ConvergenceWarning
-from discovery.calibration.testing import moment_errors, sample_gaussian
-from models import CONTROLLER_A, M002, simulate
-from models.features import limit_cycle_features
-from models.recording import RecordingError
-from models.synthetic import synthetic_recording
-from tvcid.cli import main
+from tvcid.discovery.calibration.runner import ConvergenceWarning
+from tvcid.discovery.calibration.testing import moment_errors, sample_gaussian
+from tvcid.models import CONTROLLER_A, M002, simulate
+from tvcid.models.features import limit_cycle_features
+from tvcid.models.recording import RecordingError
+from tvcid.models.synthetic import synthetic_recording
 
 
 @pytest.fixture(scope="module")
@@ -63,8 +63,8 @@ def test_log_uniform_in_linear_coordinate_keeps_its_density():
 
 
 def test_ridge_coordinates_straighten_only_the_difference_ridge():
-    from discovery.calibration.priors import ridge_coordinates
-    from models import M001f
+    from tvcid.discovery.calibration.priors import ridge_coordinates
+    from tvcid.models import M001f
 
     priors = {"dead_zone": LogUniform(1e-3, 3e-2), "friction_offset": Uniform(-3e-2, 0.0),
               "backlash": LogUniform(1e-5, 1e-3)}
@@ -162,7 +162,7 @@ def test_convergence_is_judged_after_the_walkers_way_in():
     and the report says so (burn = half the chain, the posterior's samples start there). A
     stationary chain passes on the whole (burn 0); a chain that drifts throughout passes neither
     way."""
-    from discovery.calibration.runner import convergence_report
+    from tvcid.discovery.calibration.runner import convergence_report
 
     rng = np.random.default_rng(3)
     steps = 1200
@@ -185,7 +185,7 @@ def test_convergence_is_judged_after_the_walkers_way_in():
 def test_independent_draws_pass_only_past_tau_factor_steps():
     """Independent draws (tau 1): emcee's tau estimate on 10 steps falls below one step (0.3-0.6),
     which must not call 10 steps converged at 12 tau; past ``tau_factor`` steps they are."""
-    from discovery.calibration.runner import convergence_report
+    from tvcid.discovery.calibration.runner import convergence_report
 
     rng = np.random.default_rng(5)
     short = _StoredChain(rng.standard_normal((10, 16, 2)))
@@ -201,7 +201,7 @@ def test_interval_drift_tells_a_settled_chain_from_a_wandering_one():
     leave free) gives them apart by half the width (measured 0.60). A parameter sampled in log
     is judged in log: the settled chain as ``exp`` of itself drifts as much as in its own
     coordinate (0.05; read in natural units, 0.02)."""
-    from discovery.calibration.posterior import Posterior
+    from tvcid.discovery.calibration.posterior import Posterior
 
     rng = np.random.default_rng(4)
     settled = _ar1_chain(rng, 1000, rho=0.8)
@@ -223,7 +223,7 @@ def test_interval_drift_tells_a_settled_chain_from_a_wandering_one():
 def test_gaussian_resume_through_hdf_equals_straight_run(tmp_path):
     import emcee
 
-    from discovery.calibration.testing import GaussianLogProb
+    from tvcid.discovery.calibration.testing import GaussianLogProb
 
     lp = GaussianLogProb([0.0, 1.0], [[1.0, 0.5], [0.5, 2.0]])
     init = lambda rng: rng.standard_normal((8, 2))  # noqa: E731
@@ -291,7 +291,7 @@ def test_interrupted_run_resumes_to_the_same_chain(tmp_path, short_record, monke
     file gives, step for step, the chain of an uninterrupted run with the same seed."""
     import warnings
 
-    from discovery.calibration.log_posterior import LogPosterior
+    from tvcid.discovery.calibration.log_posterior import LogPosterior
 
     warnings.simplefilter("ignore", ConvergenceWarning)
     straight = _small(backend=tmp_path / "a.h5", stop_when_converged=False).fit([short_record])
@@ -358,11 +358,11 @@ def test_pool_with_map_is_accepted(short_record):
 def test_open_loop_command_rebuilt_from_sidecar(tmp_path):
     """A square-wave test replayed from its 1 kHz samples by linear interpolation has each edge
     0.5 ms early; the sidecar's waveform gives the exact command, and so does the replay of the
-    samples as a piecewise-constant command (models.commands): the delay is unbiased in both."""
+    samples as a piecewise-constant command (tvcid.models.commands): the delay is unbiased in both."""
     import json as _json
 
-    from models import OpenLoop
-    from models.recording import load_recording
+    from tvcid.models import OpenLoop
+    from tvcid.models.recording import load_recording
 
     rec = synthetic_recording(M002(), OpenLoop.square(5e-3, 1.0), 3.0, 1e-4, 2, tmp_path / "sq.csv")
     exact = Calibration("M002", params=("delay",)).setup([rec])
@@ -382,7 +382,7 @@ def test_open_loop_command_rebuilt_from_sidecar(tmp_path):
 
 
 def test_default_delay_prior_refuses_a_start_below_one_step():
-    from discovery.calibration import default_prior
+    from tvcid.discovery.calibration import default_prior
 
     assert default_prior("delay", 7e-3, dt=5e-4).low == pytest.approx(3.5e-3)
     assert default_prior("delay", 1.5e-3, dt=5e-4).low == pytest.approx(7.5e-4)
@@ -399,8 +399,8 @@ def test_the_step_follows_the_floor_of_the_delay_prior():
     default (half the start): 0.8 ms starts a prior at 0.4 ms on 2.5e-4 s steps, a declared
     floor of 0.1 ms runs at 6.25e-5 s; a floor at or above 5e-4 s, a delay not sampled or a given
     step keeps the step; a floor finer than four halvings is a one-line error."""
-    from discovery.calibration.priors import MAX_DELAY_HALVINGS, step_under_delay
-    from models.recording import load_recording
+    from tvcid.discovery.calibration.priors import MAX_DELAY_HALVINGS, step_under_delay
+    from tvcid.models.recording import load_recording
 
     assert [step_under_delay(f, 5e-4) for f in (7e-3, 5e-4, 4.9e-4, 2.5e-4, 1e-4, 3.125e-5)] == \
         [5e-4, 5e-4, 2.5e-4, 2.5e-4, 6.25e-5, 3.125e-5]
@@ -446,7 +446,7 @@ def test_laplace_independence_move_samples_a_known_gaussian():
     Its acceptance estimate from proposals alone tells a right proposal from a wrong one."""
     import emcee
 
-    from discovery.calibration.moves import LaplaceIndependenceMove
+    from tvcid.discovery.calibration.moves import LaplaceIndependenceMove
 
     mean, sd, cov = _correlated_gaussian()
     move = LaplaceIndependenceMove(mean + 0.3 * sd, cov)
@@ -457,7 +457,7 @@ def test_laplace_independence_move_samples_a_known_gaussian():
     assert np.all(errors["mean_in_sd"] < 0.1) and np.all(errors["sd_relative"] < 0.1)
     _, de_only, _ = sample_gaussian(mean, cov, seed=3, check_every=50)
     assert max(de_only.tau) > 2 * max(report.tau)
-    from discovery.calibration.testing import GaussianLogProb
+    from tvcid.discovery.calibration.testing import GaussianLogProb
 
     lp = GaussianLogProb(mean, cov)
     rng = np.random.default_rng(0)
@@ -504,8 +504,8 @@ def test_chord_moves_reach_the_wide_end_of_a_funnel(seed):
     not make."""
     import emcee
 
-    from discovery.calibration.moves import PriorChordMove, _move_weights
-    from discovery.calibration.runner import run_ensemble
+    from tvcid.discovery.calibration.moves import PriorChordMove, _move_weights
+    from tvcid.discovery.calibration.runner import run_ensemble
 
     target = _Funnel()
     w = _move_weights(0.0)[[0, 1, 3]]
@@ -527,7 +527,7 @@ def test_a_chord_move_alone_samples_a_known_gaussian():
     """emcee's test pattern: the chord move as the only move (axes and the complement's principal
     axes, uniform on the prior box's chord) keeps the 4-d correlated Gaussian, boxed at 6 sd, as
     its stationary law: moments within 0.1 sd / 10 %."""
-    from discovery.calibration.moves import PriorChordMove, resonance_direction
+    from tvcid.discovery.calibration.moves import PriorChordMove, resonance_direction
 
     mean, sd, cov = _correlated_gaussian()
     move = PriorChordMove(mean - 6 * sd, mean + 6 * sd)
@@ -536,7 +536,7 @@ def test_a_chord_move_alone_samples_a_known_gaussian():
     errors = moment_errors(samples, mean, cov)
     assert np.all(errors["mean_in_sd"] < 0.1) and np.all(errors["sd_relative"] < 0.1), errors
     # the linear block's resonance direction: only when gain, damping and stiffness are logs
-    from discovery.calibration.priors import LogUniform, Uniform
+    from tvcid.discovery.calibration.priors import LogUniform, Uniform
 
     priors = {"gain": LogUniform(1e4, 1e7), "damping": LogUniform(10, 1e3),
               "stiffness": LogUniform(1e3, 1e5), "delay": Uniform(1e-3, 1e-2)}
@@ -553,8 +553,8 @@ def test_laplace_move_kept_only_if_its_steps_are_accepted(correlated, kept):
     under 15 % of its steps), its refits spent, is switched off in the sampler and ``laplace_``."""
     import emcee
 
-    from discovery.calibration import Calibration
-    from discovery.calibration.moves import (
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.discovery.calibration.moves import (
         LAPLACE_CHECK_STEPS,
         LAPLACE_MAX_REFITS,
         LaplaceIndependenceMove,
@@ -587,14 +587,14 @@ def test_switched_off_laplace_move_is_tried_again_once_the_chain_has_doubled():
     1600, kept only the last 400 of its 2000 steps otherwise."""
     import emcee
 
-    from discovery.calibration import Calibration
-    from discovery.calibration.moves import (
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.discovery.calibration.moves import (
         LAPLACE_MAX_RETRIES,
         LaplaceIndependenceMove,
         PriorChordMove,
         _move_weights,
     )
-    from discovery.calibration.testing import GaussianLogProb
+    from tvcid.discovery.calibration.testing import GaussianLogProb
 
     mean, sd, cov = _correlated_gaussian()
     move = LaplaceIndependenceMove(mean, np.diag(sd**2))  # the one that was switched off
@@ -616,7 +616,7 @@ def test_switched_off_laplace_move_is_tried_again_once_the_chain_has_doubled():
     # next retry waits for the chain to double from the failed one
     from unittest import mock
 
-    from discovery.calibration import moves as moves_module
+    from tvcid.discovery.calibration import moves as moves_module
 
     cal.laplace_ = {"adapted_at": 200, "checked_at": 200, "share": 0.0}
     with mock.patch.object(moves_module, "LAPLACE_MIN_ACCEPTANCE", 1.01):
@@ -635,7 +635,7 @@ class _BoxedGaussian:
     def __init__(self, mean, cov, lows, highs):
         from types import SimpleNamespace
 
-        from discovery.calibration.testing import GaussianLogProb
+        from tvcid.discovery.calibration.testing import GaussianLogProb
 
         self.gaussian = GaussianLogProb(mean, cov)
         self.lows, self.highs = np.asarray(lows, float), np.asarray(highs, float)
@@ -653,10 +653,10 @@ def test_laplace_move_waits_idle_on_a_ridge_the_prior_cuts():
     chain converges in fewer steps than without it, by the differential-evolution and chord moves
     (measured 280 against 1070, tau 2-3 against 16-21), to the cut Gaussian's moments (mean and
     sd of each coordinate within 0.15 sd / 15 % of a rejection sample's)."""
-    from discovery.calibration import Calibration
-    from discovery.calibration.optimum import _hessian
-    from discovery.calibration.priors import Uniform
-    from discovery.calibration.runner import run_ensemble
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.discovery.calibration.optimum import _hessian
+    from tvcid.discovery.calibration.priors import Uniform
+    from tvcid.discovery.calibration.runner import run_ensemble
 
     mean, sd, cov = _correlated_gaussian()
     lows, highs = mean - 6 * sd, mean + 6 * sd

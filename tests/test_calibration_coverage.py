@@ -5,9 +5,9 @@ Run with ``pytest -m slow tests/test_calibration_coverage.py``.
 """
 import pytest
 
-from discovery.calibration import Calibration
-from models import CONTROLLER_A, M002
-from models.synthetic import synthetic_recording
+from tvcid.discovery.calibration import Calibration
+from tvcid.models import CONTROLLER_A, M002
+from tvcid.models.synthetic import synthetic_recording
 
 NAMES = ("backlash", "dead_zone", "delay", "sigma")
 
@@ -30,13 +30,13 @@ def test_ridge_case_with_a_drawn_truth_converges_and_covers_it(tmp_path):
     """The calibration benchmark's ridge case (paper 001's placement without the band-pass loop,
     limit cycles at A and B, 40 s at 1 kHz), a truth drawn by the shared generator, calibrated as
     ``tvcid fit`` does by default: converged within the step cap and every truth inside its 90 %
-    interval (seed 0 measured by ``python -m studies.benchmarks.calibration --case ridge`` at the
+    interval (seed 0 measured by ``python -m tvcid.studies.benchmarks.calibration --case ridge`` at the
     5e-4 s default step: 210 steps, 20 s; widths 0.6 % dead zone, 2.1 % backlash, 12 % delay,
     1.5 % friction offset; the truth's HPD rank 0.23; discrepancy factors 1.0). The friction
     offset's jump is located inside the step; at a step boundary it would lock the period to the
     5e-4 s grid and every posterior sample would beat the truth. About 3 minutes on 2 cores,
     mostly the data."""
-    from studies.benchmarks.calibration import run_ridge_case
+    from tvcid.studies.benchmarks.calibration import run_ridge_case
 
     row = run_ridge_case(0, tmp_path)
     assert row["converged"] and row["iterations"] <= row["step_cap"]

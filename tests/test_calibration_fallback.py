@@ -7,11 +7,11 @@ import warnings
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration, IllPosedLikelihoodWarning
-from discovery.calibration.likelihood import WaveformTerm
-from models import CONTROLLER_A, M002
-from models.experiments import ClosedLoop
-from models.synthetic import synthetic_recording
+from tvcid.discovery.calibration import Calibration, IllPosedLikelihoodWarning
+from tvcid.discovery.calibration.likelihood import WaveformTerm
+from tvcid.models import CONTROLLER_A, M002
+from tvcid.models.experiments import ClosedLoop
+from tvcid.models.synthetic import synthetic_recording
 
 
 def _with_offset(rec, offset):
@@ -42,7 +42,7 @@ def _settling_case(tmp_path):
     """Coverage draw 22's truth and controller (dead zone on the velocity signal, controller held
     at 200 Hz), recorded as the benchmark does: from 10 s after the kick, 21 s at 1 kHz, white
     noise 2.6e-5 rad (here from the kernel)."""
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(22, Config())
     (design,) = scenario.recordings
@@ -60,7 +60,7 @@ def test_a_record_that_may_still_settle_enters_through_its_features(tmp_path):
     posteriori, with a warning that says why; a resumed chain uses the features again (from the
     checkpoint) and ends where an uninterrupted one does; with ``features_fallback=False`` it
     stays a waveform record. M002's record stays a waveform record without a warning."""
-    from discovery.calibration.calibration import SETTLING_LOAD_LIMIT
+    from tvcid.discovery.calibration.calibration import SETTLING_LOAD_LIMIT
 
     truth, rec = _settling_case(tmp_path)
     term = WaveformTerm(rec, 10.0, 6.0, 5e-4, name="draw22").setup(truth)
@@ -106,12 +106,12 @@ def test_a_record_that_may_still_settle_enters_through_its_features(tmp_path):
 
 @pytest.mark.slow
 def test_settling_record_calibrated_with_the_fallback_covers_its_truth(tmp_path):
-    """Coverage draw 22 as ``python -m studies.benchmarks.coverage --likelihood waveform`` runs it
+    """Coverage draw 22 as ``python -m tvcid.studies.benchmarks.coverage --likelihood waveform`` runs it
     (reference-path data read back as measured, a start 30 % off, ``tvcid fit``'s defaults):
     with the fallback its record enters through its features, the chain converges and both
     truths lie inside their 90 % intervals. (The waveform alone, offset profiled, put both
     outside intervals 0.015 % and 0.13 % wide, at rank 1.00.)"""
-    from studies.benchmarks.coverage import WAVEFORM, run_draw
+    from tvcid.studies.benchmarks.coverage import WAVEFORM, run_draw
 
     row = run_draw(22, WAVEFORM, tmp_path)
     assert row["likelihoods"] == {"rec00_closed": "features"}

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from discovery.calibration.likelihood import FeatureTerm
-from models import CONTROLLER_A, CONTROLLER_B, M002
-from models.recording import load_recording
-from models.synthetic import synthetic_recording
+from tvcid.discovery.calibration.likelihood import FeatureTerm
+from tvcid.models import CONTROLLER_A, CONTROLLER_B, M002
+from tvcid.models.recording import load_recording
+from tvcid.models.synthetic import synthetic_recording
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -35,7 +35,7 @@ def test_m000_wander_estimate_against_the_spread_of_many_windows(name, controlle
     at A, 0.36 % vs 0.06 % at B): conservative, so asserted as between 1x and 8x.
     Every window lies within 2 sd of the record's features under the covariance (largest |z| 1.2),
     which it would not without the wander (the frequency's noise-only sd is < 0.01 %)."""
-    from models import hypothesis, simulate
+    from tvcid.models import hypothesis, simulate
 
     term = FeatureTerm(load_recording(DATA / f"m000_closed_{name}.csv"), 10.0, 6.0, 5e-4)
     meta = load_recording(DATA / f"m000_closed_{name}.csv").meta
@@ -61,7 +61,7 @@ def test_periodic_m002_cycle_has_no_wander(tmp_path):
 
 
 def test_waveform_likelihood_warns_on_a_cycle_that_is_not_periodic(tmp_path):
-    from discovery.calibration import Calibration, IllPosedLikelihoodWarning
+    from tvcid.discovery.calibration import Calibration, IllPosedLikelihoodWarning
 
     m000 = load_recording(DATA / "m000_closed_A.csv")
     with pytest.warns(IllPosedLikelihoodWarning, match="m000_closed_A: the simulated cycle .* not periodic"):
@@ -90,9 +90,9 @@ def test_a_cycle_still_settling_leaves_its_settled_features_inside_the_covarianc
     from 10 s to 36.5 s after rest. The record's last 10 s sit 7 % under the settled H1 (5 sd of
     the noise-and-wander covariance, which made the right model's features inflation 58x); with
     the settling term the settled features lie within 2 sd of the record's, feature by feature."""
-    from models import simulate
-    from models.recording import save_recording
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.models import simulate
+    from tvcid.models.recording import save_recording
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(2, Config())
     design = scenario.recordings[0]
@@ -125,7 +125,7 @@ def test_start_imprint_of_a_slowly_settling_cycle_is_counted(tmp_path):
     1.5), and it must be
     negligible for a run started on its own cycle (periodic M002: the warm start is its own, scaled
     by the record's noisy rms; measured up to 0.06 sd, a 0.4 % wider variance)."""
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     truth = coverage_scenario(20, Config()).truth
     rec = synthetic_recording(truth, CONTROLLER_A, 70.0, 7e-5, 5, tmp_path / "d20.csv", keep_last=10.0,
@@ -161,9 +161,9 @@ def test_a_period_two_cycle_counts_where_the_window_falls(tmp_path):
     apart. The start imprint, compared over several later windows, covers that spread: at the
     truth the discrepancy factor stays under 5 for transients of 6 and 20 s (measured 1.0 and
     3.1; against one next window, 89 and 1.5)."""
-    from models import ClosedLoop
-    from models.features import cycle_crossings
-    from studies.benchmarks.scenarios import draw_scenario
+    from tvcid.models import ClosedLoop
+    from tvcid.models.features import cycle_crossings
+    from tvcid.studies.benchmarks.scenarios import draw_scenario
 
     truth = draw_scenario(1001, ranges="papers").truth
     held = ClosedLoop(CONTROLLER_A.kp, CONTROLLER_A.kd, CONTROLLER_A.mu, sample_rate=200.0)
@@ -186,7 +186,7 @@ def test_features_at_the_fit_step_lie_within_a_tenth_sd_of_a_fine_step(tmp_path)
     simulation's (measured 0.053 at most); with the Richardson correction, still within 0.6 sd.
     A line that spread each held jump over the step before its node would put H1 3.2 sd below.
     The remaining variance is the change itself, not twice it."""
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(16, Config())
     truth = scenario.truth
@@ -206,9 +206,9 @@ def test_features_at_the_fit_step_lie_within_a_tenth_sd_of_a_fine_step(tmp_path)
 def _settling_record(path, index, record=0, lead=10.0, noise=1e-5, seed=5):
     """A coverage draw's closed-loop record made by the kernel as the benchmark makes it: from the
     generator's start, ``lead`` seconds dropped, white noise."""
-    from models import simulate
-    from models.recording import save_recording
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.models import simulate
+    from tvcid.models.recording import save_recording
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(index, Config())
     design = scenario.recordings[record]
@@ -273,7 +273,7 @@ def test_a_record_still_settling_is_simulated_from_where_it_starts(tmp_path, mon
 def _held_record(tmp_path):
     """Coverage draw 16's truth at its second setting (controller held at 200 Hz), 12 s sampled
     at 200 Hz, noise 1.9e-5 rad: the record whose step error the features correct."""
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(16, Config())
     exp = scenario.recordings[1].experiment()
@@ -315,9 +315,9 @@ def test_the_start_measures_the_correction_at_its_walkers_and_a_resumed_run_keep
     posteriori and eight of the walkers' starting points, keeps both in its checkpoint, and a
     resumed run takes them from there rather than from the maximum alone; the half-step log
     posterior of the step error measures its own correction over the same points."""
-    from discovery.calibration import Calibration
-    from discovery.calibration.runner import ConvergenceWarning
-    from discovery.calibration.step_error import halved_log_posterior
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.discovery.calibration.runner import ConvergenceWarning
+    from tvcid.discovery.calibration.step_error import halved_log_posterior
 
     truth, rec = _held_record(tmp_path)
 

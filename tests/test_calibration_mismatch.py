@@ -9,10 +9,10 @@ import warnings
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration
-from discovery.calibration.checks import predictive_check
-from discovery.calibration.likelihood import features_inflation, waveform_inflation
-from discovery.calibration.runner import ConvergenceWarning
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.calibration.checks import predictive_check
+from tvcid.discovery.calibration.likelihood import features_inflation, waveform_inflation
+from tvcid.discovery.calibration.runner import ConvergenceWarning
 
 
 def test_white_residuals_are_not_inflated():
@@ -61,15 +61,15 @@ def test_features_inflation_starts_from_one_at_the_tests_threshold():
 
 @pytest.fixture(scope="module")
 def square(tmp_path_factory):
-    from models import M002, OpenLoop
-    from models.synthetic import synthetic_recording
+    from tvcid.models import M002, OpenLoop
+    from tvcid.models.synthetic import synthetic_recording
 
     path = tmp_path_factory.mktemp("mismatch") / "square.csv"
     return synthetic_recording(M002(), OpenLoop.square(0.02, 1.0), 4.0, 2e-5, 5, path)
 
 
 def _fit(rec, gain_factor, discrepancy, max_steps=150):
-    from models import M002
+    from tvcid.models import M002
 
     base = M002()
     base = base.replace(gain=base.gain * gain_factor)
@@ -139,7 +139,7 @@ def test_a_point_short_of_the_maximum_is_not_read_as_discrepancy(square):
     +15 %, backlash -15 %, delay +5 %; the right model) the factor is over 1; the short ensemble
     run (``Calibration._scout``) finds a better point, where the factor is 1 (coverage draw 23:
     30 at the searches' point, 1.0 at the truth)."""
-    from models import M002
+    from tvcid.models import M002
 
     truth = M002()
     cal = Calibration(truth, params=("dead_zone", "backlash", "delay"), n_walkers=12,
@@ -165,7 +165,7 @@ def test_a_sampled_noise_sd_does_not_undo_the_inflation(square):
     than without). The
     tempered likelihood keeps the noise sd's maximum where it is and divides the physical
     parameters' curvature by ``f``."""
-    from models import M002
+    from tvcid.models import M002
 
     base = M002()
     base = base.replace(gain=base.gain * 1.3)  # a wrong model: a smooth misfit over the noise

@@ -1,14 +1,14 @@
 """Recovery of (backlash, dead_zone, delay, sigma) from drawn limit cycles, and the ``tvcid fit``
 command (outputs, resume).
 
-Recovery: truths and designs from the shared generator (:func:`studies.benchmarks.scenarios.draw_scenario`)
+Recovery: truths and designs from the shared generator (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`)
 with paper 002's placement (dead zone on the error, delay at the output, backlash: the parameters
 sampled); the linear block, thresholds, delay, controller setting and hold, acquisition rate,
 sensor noise, offset and quantisation are drawn. Each draw's first limit cycle is kept at its drawn
 length after the generator's 10 s lead, made by the numba kernel at the generator's 5e-5 s step in
 place of the plain-Python reference path (1-3 s per simulated second) and written as a
 measured-style recording. The calibration gets the true structure and linear block, the coverage
-benchmark's priors (:func:`studies.benchmarks.coverage.priors_for`: the generator's ranges widened
+benchmark's priors (:func:`tvcid.studies.benchmarks.coverage.priors_for`: the generator's ranges widened
 1.5x) and the record's last 4 s. The truth of sigma is the sd of the noise and the quantisation
 together, ``sqrt(sd^2 + q^2/12)``.
 
@@ -33,13 +33,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration
-from discovery.calibration.runner import ConvergenceWarning
-from models import CONTROLLER_A, M002
-from models.structures import Structure
-from models.synthetic import synthetic_recording
-from studies.benchmarks.scenarios import draw_scenario
 from tvcid.cli import main
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.calibration.runner import ConvergenceWarning
+from tvcid.models import CONTROLLER_A, M002
+from tvcid.models.structures import Structure
+from tvcid.models.synthetic import synthetic_recording
+from tvcid.studies.benchmarks.scenarios import draw_scenario
 
 #: Paper 002's placement: the structure of every drawn truth, with the parameters sampled.
 PLACEMENT = Structure.of_params(M002())
@@ -58,9 +58,9 @@ def _calibrate(seed, directory, scatter, walkers, max_steps):
     ``scatter`` off the truth (log-normal sd); ``(scenario, calibration, truths)``."""
     from unittest import mock
 
-    from models import simulate
-    from studies.benchmarks import scenarios
-    from studies.benchmarks.coverage import priors_for
+    from tvcid.models import simulate
+    from tvcid.studies.benchmarks import scenarios
+    from tvcid.studies.benchmarks.coverage import priors_for
 
     scenario = draw_scenario(seed, structure=PLACEMENT, ranges="papers")
     first = next(r for r in scenario.recordings if r.kind == "closed")

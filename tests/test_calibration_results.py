@@ -8,16 +8,16 @@ matplotlib.use("Agg")
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from discovery.calibration import Calibration, compare  # noqa: E402
-from discovery.calibration.ridge import (  # noqa: E402
+from tvcid.discovery.calibration import Calibration, compare  # noqa: E402
+from tvcid.discovery.calibration.ridge import (  # noqa: E402
     PAPER002_FAMILY_A,
     RidgeAnalysis,
     df_family,
     robust_amplitude,
 )
-from discovery.calibration.runner import ConvergenceWarning  # noqa: E402
-from models import CONTROLLER_A, M002  # noqa: E402
-from models.synthetic import synthetic_recording  # noqa: E402
+from tvcid.discovery.calibration.runner import ConvergenceWarning  # noqa: E402
+from tvcid.models import CONTROLLER_A, M002  # noqa: E402
+from tvcid.models.synthetic import synthetic_recording  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -136,7 +136,7 @@ def test_df_family_and_robust_amplitude(fits):
     f, zm, source = df_family(2 * PAPER002_FAMILY_A["amplitude"])
     assert f[0] == pytest.approx(2e-4) and zm[0] == pytest.approx(2 * 1.011e-3)
     assert "scaled by homogeneity" in source  # the tabulated family of docs/models.md#errata
-    # with the cycle's frequency, the controller and the structure: discovery.describing's family
+    # with the cycle's frequency, the controller and the structure: tvcid.discovery.describing's family
     f, zm, source = df_family(4.89e-3, 8.57, CONTROLLER_A, M002(), backlash=[2e-4, 4.364e-4])
     assert "paper002_family" in source
     # docs/models.md#errata's corrected family
@@ -151,8 +151,8 @@ def test_a_narrow_posterior_clear_of_a_near_bound_is_not_at_it():
     a wide posterior reaching a bound is not."""
     from types import SimpleNamespace
 
-    from discovery.calibration.posterior import Posterior
-    from discovery.calibration.priors import Uniform
+    from tvcid.discovery.calibration.posterior import Posterior
+    from tvcid.discovery.calibration.priors import Uniform
 
     rng = np.random.default_rng(0)
     prior = Uniform(1.2e-3, 2e-2)

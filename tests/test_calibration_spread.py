@@ -7,13 +7,13 @@ the box's extent there, not the axis-wise sd that leaves the walkers in a thin b
 import numpy as np
 import pytest
 
-from discovery.calibration.optimum import (
+from tvcid.discovery.calibration.optimum import (
     _axis_scales,
     _box_extent,
     _hessian,
     _principal_axes,
 )
-from discovery.calibration.testing import GaussianLogProb
+from tvcid.discovery.calibration.testing import GaussianLogProb
 
 
 class _Box:
@@ -82,7 +82,7 @@ def test_box_extent_of_a_line():
 
 
 def test_unknown_spread_is_named():
-    from discovery.calibration import Calibration
+    from tvcid.discovery.calibration import Calibration
 
     with pytest.raises(ValueError, match="spread must be 'axes' or 'hessian'"):
         Calibration("M002", params=("dead_zone",), spread="ball").setup(["data/m000_closed_A.csv"])

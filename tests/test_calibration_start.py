@@ -1,4 +1,4 @@
-"""The start of a calibration's chain (:class:`discovery.calibration.start.StartSearch`): from a
+"""The start of a calibration's chain (:class:`tvcid.discovery.calibration.start.StartSearch`): from a
 start where the model has no limit cycle, the global search finds the posterior's mass, with or
 without the discrepancy term."""
 import warnings
@@ -6,11 +6,11 @@ import warnings
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration
-from discovery.calibration.runner import ConvergenceWarning
-from models.structures import Structure
-from models.synthetic import synthetic_recording
-from studies.benchmarks.coverage import Config, _start, coverage_scenario, priors_for
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.calibration.runner import ConvergenceWarning
+from tvcid.models.structures import Structure
+from tvcid.models.synthetic import synthetic_recording
+from tvcid.studies.benchmarks.coverage import Config, _start, coverage_scenario, priors_for
 
 
 def test_a_start_without_a_cycle_reaches_the_cycle_without_the_discrepancy_term(tmp_path):
@@ -47,7 +47,7 @@ def test_a_start_without_a_cycle_reaches_the_cycle_without_the_discrepancy_term(
 
 
 def test_nelder_mead_stops_at_a_tenth_of_each_axis_sd():
-    """The start's Nelder-Mead (:func:`discovery.calibration.optimum._nelder_mead`) on a Gaussian
+    """The start's Nelder-Mead (:func:`tvcid.discovery.calibration.optimum._nelder_mead`) on a Gaussian
     log posterior whose axes' sds span five decades (a pinned DC gain beside a free resonance),
     from a point 2 sd off on every axis with a first simplex of one sd per axis: it ends within
     0.1 nats of the maximum (measured: 0.002) after 95 evaluations, where the same search
@@ -56,7 +56,7 @@ def test_nelder_mead_stops_at_a_tenth_of_each_axis_sd():
     its cap)."""
     from scipy.optimize import minimize
 
-    from discovery.calibration.optimum import _nelder_mead
+    from tvcid.discovery.calibration.optimum import _nelder_mead
 
     sd = np.array([1e-5, 1e-3, 0.1, 1.0, 3.0])
     rng = np.random.default_rng(8)

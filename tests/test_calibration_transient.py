@@ -7,10 +7,10 @@ whose log-likelihood at the walkers (and as many points twice as far out) stays 
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration
-from discovery.calibration import calibration as calibration_module
-from models import CONTROLLER_A, M002
-from models.synthetic import synthetic_recording
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.calibration import calibration as calibration_module
+from tvcid.models import CONTROLLER_A, M002
+from tvcid.models.synthetic import synthetic_recording
 
 NAMES = ("backlash", "dead_zone", "delay", "sigma")
 

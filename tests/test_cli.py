@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from models.recording import save_recording
 from tvcid.cli import main
+from tvcid.models.recording import save_recording
 
 
 def test_simulate_then_features_json(tmp_path, capsys):
@@ -21,7 +21,7 @@ def test_simulate_then_features_json(tmp_path, capsys):
 
 def test_simulate_at_a_rate_the_default_step_does_not_divide(tmp_path):
     """``--rate 2000`` with a controller held at 200 Hz: simulated at a step both divide."""
-    from models.recording import load_recording
+    from tvcid.models.recording import load_recording
 
     out = tmp_path / "fast.csv"
     assert main(["simulate", "M002", "--rate", "2000", "--controller-rate", "200", "--t-end", "1",
@@ -42,8 +42,8 @@ def test_simulate_open_loop_with_overrides(tmp_path):
 
 
 def test_simulate_with_compensator_and_bending_writes_them_to_the_sidecar(tmp_path):
-    from models.controllers import BendingMode, TransferFunction
-    from models.recording import load_recording
+    from tvcid.models.controllers import BendingMode, TransferFunction
+    from tvcid.models.recording import load_recording
 
     out = tmp_path / "comp.csv"
     args = ["simulate", "M002", "--lead", "4,8", "--notch", "60,0.5,0.1", "--controller-tf", "1/0.001,1",
@@ -59,8 +59,8 @@ def test_simulate_with_compensator_and_bending_writes_them_to_the_sidecar(tmp_pa
 def test_controller_option_helpers_parse_into_a_closed_loop():
     import argparse
 
-    from models.controllers import TransferFunction
     from tvcid.commands._common import add_controller_options, closed_loop_from_args
+    from tvcid.models.controllers import TransferFunction
 
     parser = argparse.ArgumentParser()
     add_controller_options(parser)

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-from discovery.structure import targets
-from discovery.structure.search import Objective
-from models import hypothesis, params_from_dict
-from models.recording import load_recording
+from tvcid.discovery.structure import targets
+from tvcid.discovery.structure.search import Objective
+from tvcid.models import hypothesis, params_from_dict
+from tvcid.models.recording import load_recording
 
 DATA = Path("data")
 #: (recordings, truth) of the bundled cases.

@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from discovery.calibration.likelihood import make_term
-from models import M002, OpenLoop
-from models.commands import command_from_samples
-from models.edge_timing import EdgeTiming
-from models.recording import load_recording
-from models.simulate import simulate_batch
-from models.synthetic import synthetic_recording
+from tvcid.discovery.calibration.likelihood import make_term
+from tvcid.models import M002, OpenLoop
+from tvcid.models.commands import command_from_samples
+from tvcid.models.edge_timing import EdgeTiming
+from tvcid.models.recording import load_recording
+from tvcid.models.simulate import simulate_batch
+from tvcid.models.synthetic import synthetic_recording
 
 FREQUENCY = 0.31331990500313334
 NOISE = 2.5e-5
@@ -135,8 +135,8 @@ def test_open_loop_step_refined_until_its_error_is_under_the_noise(tmp_path, mon
     chi-square: the truth's log-likelihood then lies within 15 nats of a term started 8x finer
     (measured 11.9), against 363 at 5e-4 s. A record with 1e-4 rad of noise at 200 Hz keeps the
     5e-4 s step."""
-    from discovery.calibration.likelihood import solver as likelihood
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.discovery.calibration.likelihood import solver as likelihood
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     truth = coverage_scenario(10, Config()).truth
     path = tmp_path / "square.csv"
@@ -168,11 +168,11 @@ def test_closed_loop_waveform_keeps_the_coarse_step_once_the_friction_jump_is_lo
     at controllers A and B, 1e-4 rad noise). While RK4 sampled the friction offset's jump at its
     stages, the cycle at B locked to the 5e-4 s grid, added 37 to the chi-square and sat 16 nats
     from a term 8x finer (a phase error the delay absorbed: the posterior beat the truth by 21
-    nats). With the jump located inside the step (``models.nonlinearities.sign_switch_average``)
+    nats). With the jump located inside the step (``tvcid.models.nonlinearities.sign_switch_average``)
     both cycles keep 5e-4 s with a load under 1 (measured 0.002 and 0.0) and the log-likelihood at
     the truth is within 1 nat of the 8x finer term's (measured 0.06)."""
-    from discovery.calibration.likelihood import solver as likelihood
-    from studies.benchmarks.scenarios import ridge_scenario
+    from tvcid.discovery.calibration.likelihood import solver as likelihood
+    from tvcid.studies.benchmarks.scenarios import ridge_scenario
 
     scenario = ridge_scenario(0)
     truth = scenario.truth
@@ -196,8 +196,8 @@ def test_step_check_repeated_at_the_map_refines_and_never_coarsens(tmp_path, mon
     against a fine simulation) is 53.9 at the truth and 56.0 with the backlash 30 % short. With the limit put between the two, the term set up at the truth keeps
     5e-4 s, ``refine_at`` (what Calibration runs at the maximum a posteriori) halves the step at
     the other point, and a later check where the load is small keeps the finer step."""
-    from discovery.calibration.likelihood import solver as likelihood
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.discovery.calibration.likelihood import solver as likelihood
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     truth = coverage_scenario(10, Config()).truth
     other = truth.replace(backlash=0.7 * truth.backlash)
@@ -230,8 +230,8 @@ SQUARES = Path(__file__).resolve().parents[1] / "data" / "bench" / "reference_sq
 def square_response(index):
     """Coverage draw ``index``'s first square (default config), noise-free, 4 s from rest by the
     reference path at 5e-5 s, sampled at the design's rate: columns and a measured-style sidecar."""
-    from models.reference import simulate_reference
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.models.reference import simulate_reference
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(index, Config())
     design = next(r for r in scenario.recordings if r.waveform == "square")
@@ -244,7 +244,7 @@ def square_response(index):
 @pytest.mark.slow
 @pytest.mark.parametrize("index", [5, 7, 18])
 def test_bundled_square_responses_are_rebuilt_byte_for_byte(index, tmp_path):
-    from models.recording import save_recording
+    from tvcid.models.recording import save_recording
 
     path = save_recording(tmp_path / f"draw{index:02d}.csv", *square_response(index))
     for p in (path, path.with_suffix(".json")):
@@ -264,8 +264,8 @@ def test_a_response_that_never_settles_is_simulated_at_its_own_edges(index, hunt
     Draw 18's 2.56 Hz square at 200 Hz (band-pass loop) hunts too, but its centre edges fall on
     the grid, where both ways are one simulation (loads 0.76 each): the way is chosen at the
     record's own timing, 2.4 ms from the centre (grid 249, its own edges 5.7)."""
-    from discovery.calibration.likelihood import OpenLoopTerm
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.discovery.calibration.likelihood import OpenLoopTerm
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(index, Config())
     truth, noise = scenario.truth, scenario.acquisition.noise_sd
@@ -327,7 +327,7 @@ def test_compiled_edge_read_and_normal_equations_equal_numpy(rate):
         y_ref, jac_ref = _numpy_shift_read(timing, theta, tau, t_sim, y_sim)
         np.testing.assert_allclose(y, y_ref, rtol=0, atol=1e-10)
         np.testing.assert_allclose(jac, jac_ref, rtol=0, atol=1e-7)
-    from models.edge_timing import _normal_equations
+    from tvcid.models.edge_timing import _normal_equations
 
     w = 1.0 / var
     for demean in (True, False):
@@ -351,8 +351,8 @@ def test_the_step_is_divided_as_far_as_the_record_needs_and_no_further(monkeypat
     """The bundled M000 square (1 kHz, noise 2.1e-5 rad): its solver load falls as the step
     squared (184 at 5e-4 s), so the term runs at a fifth of the step (1e-4 s, load 6.7), the
     coarsest whose load is under the limit: at a quarter (1.25e-4 s) it is 10.4, over 10."""
-    from discovery.calibration.likelihood import solver as likelihood
-    from models import M000
+    from tvcid.discovery.calibration.likelihood import solver as likelihood
+    from tvcid.models import M000
 
     rec = load_recording(Path(__file__).resolve().parents[1] / "data" / "m000_open_square.csv")
     term = make_term(rec, "waveform", None, 0.0, 5e-4).setup(M000())

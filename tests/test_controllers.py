@@ -9,14 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from models import CONTROLLER_A, ClosedLoop, hypothesis, simulate, simulate_batch
-from models.controllers import (
+from tvcid.models import CONTROLLER_A, ClosedLoop, hypothesis, simulate, simulate_batch
+from tvcid.models.controllers import (
     BendingMode,
     ImproperTransferFunctionError,
     TransferFunction,
 )
-from models.features import limit_cycle_features
-from models.reference import simulate_reference
+from tvcid.models.features import limit_cycle_features
+from tvcid.models.reference import simulate_reference
 
 LEAD = TransferFunction.lead(4.0, 8.0)
 NOTCH = TransferFunction.notch(60.0, 0.5, 0.1)
@@ -123,7 +123,7 @@ def test_batch_pads_compensators_of_different_orders():
 
 
 def test_calibration_batch_simulator_runs_a_compensated_loop():
-    from models.batch import BatchSimulator
+    from tvcid.models.batch import BatchSimulator
 
     experiment = _closed(compensator=LEAD, bending=BENDING)
     params = hypothesis("M002")

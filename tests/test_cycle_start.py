@@ -1,8 +1,8 @@
 """The closed-loop target's start: a model with coexisting cycles must be able to show the record's.
 
 The initial conditions select the limit cycle (docs/models.md#m000). Recordings drawn by the
-benchmark's generator (:func:`studies.benchmarks.scenarios.draw_scenario`) start from the
-hypotheses' kick (``models.hypotheses.KICK_X0``), the target's simulations from the recorded cycle's
+benchmark's generator (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`) start from the
+hypotheses' kick (``tvcid.models.hypotheses.KICK_X0``), the target's simulations from the recorded cycle's
 state; on these draws one start alone settles the TRUE model on a cycle the record does not show
 (costs 2001 and 124 at the truth with ``y = x'``, 133841 with the threshold-consistent start alone),
 which no search can repair.
@@ -10,11 +10,11 @@ which no search can repair.
 import numpy as np
 import pytest
 
-from discovery.structure.search import Objective
-from discovery.structure.targets import SECOND_START_COST, make_target
-from models.recording import Recording
-from models.simulate import simulate
-from studies.benchmarks.scenarios import draw_scenario
+from tvcid.discovery.structure.search import Objective
+from tvcid.discovery.structure.targets import SECOND_START_COST, make_target
+from tvcid.models.recording import Recording
+from tvcid.models.simulate import simulate
+from tvcid.studies.benchmarks.scenarios import draw_scenario
 
 
 def _noise_free_record(seed, index):

@@ -1,4 +1,4 @@
-"""Closed-loop runs start on the recorded cycle (:class:`models.cycle_state.RecordedCycleState`):
+"""Closed-loop runs start on the recorded cycle (:class:`tvcid.models.cycle_state.RecordedCycleState`):
 the state read off a record is the simulated loop's, and the calibration's likelihood terms start
 from it, so that a model whose rest is stable too keeps the cycle it was recorded on."""
 import math
@@ -6,14 +6,14 @@ import math
 import numpy as np
 import pytest
 
-from discovery.calibration.likelihood import FeatureTerm, WaveformTerm
-from models import CONTROLLER_A, CONTROLLER_B, M000, M002, ActuatorParams, simulate
-from models.batch import warm_start_state
-from models.cycle_state import RecordedCycleState
-from models.experiments import ClosedLoop
-from models.features import cycle_crossings
-from models.hypotheses import DeadZonePosition, DelayPosition
-from models.synthetic import synthetic_recording
+from tvcid.discovery.calibration.likelihood import FeatureTerm, WaveformTerm
+from tvcid.models import CONTROLLER_A, CONTROLLER_B, M000, M002, ActuatorParams, simulate
+from tvcid.models.batch import warm_start_state
+from tvcid.models.cycle_state import RecordedCycleState
+from tvcid.models.experiments import ClosedLoop
+from tvcid.models.features import cycle_crossings
+from tvcid.models.hypotheses import DeadZonePosition, DelayPosition
+from tvcid.models.synthetic import synthetic_recording
 
 NOISE = 1.4e-5
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from models.recording import load_recording
+from tvcid.models.recording import load_recording
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

@@ -8,7 +8,7 @@ import emcee
 import numpy as np
 import pytest
 
-from discovery.calibration.delayed_acceptance import DelayedAcceptanceMove
+from tvcid.discovery.calibration.delayed_acceptance import DelayedAcceptanceMove
 
 MEAN = np.array([1.0, -2.0, 0.5])
 SD = np.array([1.0, 2.0, 0.5])

@@ -13,7 +13,7 @@ import control  # python-control, in the test extras: a missing package fails, n
 import numpy as np
 import pytest
 
-from discovery.describing import (
+from tvcid.discovery.describing import (
     COMPENSATOR_CAVEAT,
     DF_CAVEAT,
     ActuatorDescribingLoop,
@@ -31,9 +31,16 @@ from discovery.describing import (
     solve_backlash_and_dead_zone,
     vehicle_controller_response,
 )
-from models import CONTROLLER_A, CONTROLLER_B, ClosedLoop, SimulationDiverged, hypothesis, simulate
-from models.controllers import BendingMode, TransferFunction
-from models.hypotheses import DelayPosition
+from tvcid.models import (
+    CONTROLLER_A,
+    CONTROLLER_B,
+    ClosedLoop,
+    SimulationDiverged,
+    hypothesis,
+    simulate,
+)
+from tvcid.models.controllers import BendingMode, TransferFunction
+from tvcid.models.hypotheses import DelayPosition
 
 #: Geometric centre of the lead/lag/notch corners: the cycle's 8.6 rad/s
 #: (docs/models.md#reference-limit-cycles, M002 at A).
@@ -257,7 +264,7 @@ def _simulated_cycle(params, controller, t_end=60.0):
 
 
 # DF error against the simulator (DF over simulated first harmonic and frequency, minus 1),
-# measured with models.simulate and, independently, a stand-alone RK4 of M002 (4e-5 apart):
+# measured with tvcid.models.simulate and, independently, a stand-alone RK4 of M002 (4e-5 apart):
 # the error grows with the lead (COMPENSATOR_CAVEAT); the directions are all right.
 COMPENSATED_CASES = {
     "lead 1.2": (_lead(1.2), 0.119, 0.061),

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from discovery.describing import (
+from tvcid.discovery.describing import (
     Chain,
     DeadZone,
     FrictionOffset,

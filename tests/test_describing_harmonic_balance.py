@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from discovery.describing import (
+from tvcid.discovery.describing import (
     ActuatorDescribingLoop,
     AmplitudeBelowDeadZoneError,
     Chain,
@@ -12,7 +12,7 @@ from discovery.describing import (
     lure_limit_cycles,
     predict_limit_cycles,
 )
-from models import CONTROLLER_A, CONTROLLER_B, hypothesis
+from tvcid.models import CONTROLLER_A, CONTROLLER_B, hypothesis
 
 
 def test_python_control_example():
@@ -145,7 +145,7 @@ def test_results_plot_on_given_axes_without_new_figures():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from discovery.describing import paper002_family
+    from tvcid.discovery.describing import paper002_family
 
     fig, (ax1, ax2) = plt.subplots(1, 2)
     open_figures = plt.get_fignums()  # other tests may have left figures open
@@ -161,7 +161,7 @@ def test_cells_on_the_edge_of_a_region_without_cycles_are_not_searched(monkeypat
     ``Phi`` is set to exactly 1: the zero imaginary part there is no sign change, so only cells
     where both parts change strictly sign are refined (the grid's edge row took 23 of 27 root
     searches, all failing)."""
-    from discovery.describing import harmonic_balance
+    from tvcid.discovery.describing import harmonic_balance
 
     calls = []
     real_root = harmonic_balance.root

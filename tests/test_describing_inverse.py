@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from discovery.describing import (
+from tvcid.discovery.describing import (
     FAMILY_BACKLASH_HALF_WIDTHS,
     NoHarmonicBalanceSolution,
     UnsupportedStructureError,
@@ -10,7 +10,7 @@ from discovery.describing import (
     predict_limit_cycles,
     solve_backlash_and_dead_zone,
 )
-from models import CONTROLLER_A, hypothesis
+from tvcid.models import CONTROLLER_A, hypothesis
 
 #: docs/models.md#errata: the corrected family at controller A, as tabulated there.
 TABULATED_FAMILY = np.array([1.011e-3, 1.111e-3, 1.208e-3, 1.301e-3, 1.333e-3, 1.389e-3, 1.554e-3, 1.769e-3])

@@ -1,6 +1,6 @@
 """Next-experiment ranking on the one-cycle ridge of M002.
 
-Case (the ridge of ``studies.calibration_ridge``): M002 at controller A, the last 10 s of a 20 s
+Case (the ridge of ``tvcid.studies.calibration_ridge``): M002 at controller A, the last 10 s of a 20 s
 run with 1e-4 rad sensor noise (seeded); posterior of (backlash, dead_zone, delay) from the cycle's
 frequency and first harmonic with sigma fixed at 1e-4. One cycle leaves the dead zone and the
 backlash on a ridge; a second controller setting or an open-loop test breaks it, repeating A does
@@ -12,11 +12,11 @@ Both are slow tests; the default suite ranks a menu through the h6 study's quick
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration
-from discovery.prediction import load_posterior_draws
-from discovery.prediction.design import load_candidates, rank_experiments
-from models import CONTROLLER_A, M002
-from models.synthetic import synthetic_recording
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.prediction import load_posterior_draws
+from tvcid.discovery.prediction.design import load_candidates, rank_experiments
+from tvcid.models import CONTROLLER_A, M002
+from tvcid.models.synthetic import synthetic_recording
 
 NOISE = 1e-4
 SEED = 1

@@ -1,18 +1,18 @@
-"""tvcid discover / discovery.structure: bad input, resuming, and recovery on drawn scenarios."""
+"""tvcid discover / tvcid.discovery.structure: bad input, resuming, and recovery on drawn scenarios."""
 import json
 import math
 
 import numpy as np
 import pytest
 
-from discovery.structure import StructureDiscovery
-from discovery.structure.indistinguishable import TOL_ABS
-from discovery.structure.search import Objective
-from discovery.structure.member_calibration import member_walkers
-from models.recording import save_recording
-from models.structures import Structure, shared_choices
-from studies.benchmarks.discovery import coordinate_errors
-from studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
+from tvcid.discovery.structure import StructureDiscovery
+from tvcid.discovery.structure.indistinguishable import TOL_ABS
+from tvcid.discovery.structure.search import Objective
+from tvcid.discovery.structure.member_calibration import member_walkers
+from tvcid.models.recording import save_recording
+from tvcid.models.structures import Structure, shared_choices
+from tvcid.studies.benchmarks.discovery import coordinate_errors
+from tvcid.studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
 from tvcid.cli import main
 
 DATA = "data/m000_closed_A.csv"
@@ -49,8 +49,8 @@ def test_unknown_search_size_names_the_choices():
     are ordered (``thorough`` searches more than ``standard`` at every stage)."""
     from dataclasses import astuple
 
-    from discovery.structure.estimator import StructureDiscovery
-    from discovery.structure.structure_search import SEARCHES
+    from tvcid.discovery.structure.estimator import StructureDiscovery
+    from tvcid.discovery.structure.structure_search import SEARCHES
 
     with pytest.raises(ValueError, match="unknown search size 'huge'.*standard, thorough"):
         StructureDiscovery(search="huge").fit([DATA])
@@ -62,7 +62,7 @@ def test_unknown_search_size_names_the_choices():
 def test_a_thorough_run_never_reuses_a_standard_ranking():
     """The ranking's reuse key holds the search size (and not ``--quick``, which only shortens
     the chain): ``--thorough`` on a directory of a default run searches again."""
-    from models.recording import load_recording
+    from tvcid.models.recording import load_recording
     from tvcid.pipeline import inputs_hash
 
     recs = [load_recording(DATA)]
@@ -73,8 +73,8 @@ def test_a_thorough_run_never_reuses_a_standard_ranking():
 def test_sidecar_hypothesis_and_parameters_are_ignored(tmp_path):
     """A sidecar's truth keys must not leak into discovery: the same data with and without them
     give the same targets."""
-    from discovery.structure.targets import make_target
-    from models.recording import load_recording
+    from tvcid.discovery.structure.targets import make_target
+    from tvcid.models.recording import load_recording
 
     rec = load_recording(DATA)
     assert "parameters" in rec.meta
@@ -101,8 +101,8 @@ def _recover_known_positions(seed, directory, reference_path):
     coordinates the local spread at the truth calls pinned."""
     from unittest import mock
 
-    from models import simulate
-    from studies.benchmarks import scenarios
+    from tvcid.models import simulate
+    from tvcid.studies.benchmarks import scenarios
 
     s = KNOWN_POSITIONS
     scenario = shortened(draw_scenario(seed, structure=s), closed=12.0, open_=6.0)
@@ -290,7 +290,7 @@ def test_the_speed_benchmark_records_each_stage_and_member_and_flags_a_busy_run(
     """The speed benchmark's row of a run: its stages' steps, CPU and wall seconds as
     ``discovery.json`` has them, each member's, and the idle check on the load average at the
     start and the kernel references before and after (here 30 % apart: flagged)."""
-    from studies.benchmarks.discover_speed import record
+    from tvcid.studies.benchmarks.discover_speed import record
 
     summary = json.loads((straight_discover / "discovery.json").read_text())
     row = record(summary, 12.0, (0.1, 0.2, 0.3), 1.0e-7, 1.3e-7)
@@ -433,7 +433,7 @@ def test_period_two_cycle_is_measured_at_its_fundamental():
     """A cycle with two upward mean crossings per period (alternating lobes, as a controller held
     at 200 Hz can give) is measured at its true period; a cycle that only wanders is not mistaken
     for one."""
-    from discovery.structure.cycle_tail import fundamental_crossings, stationary_tail
+    from tvcid.discovery.structure.cycle_tail import fundamental_crossings, stationary_tail
 
     rng = np.random.default_rng(3)
     t = np.arange(0, 30, 1e-3)
@@ -462,9 +462,9 @@ def test_delay_moved_into_the_block_keeps_the_cycle():
     at controllers A and B agree within 0.3 % in amplitude and 0.05 % in frequency (measured
     0.12 % and 0.011 %; moving the delay alone changes the amplitude 3.6 % at A); this is why the
     ranking may leave the two positions undecided."""
-    from discovery.structure.structure_search import delay_moved
-    from models import ClosedLoop, hypothesis, simulate
-    from models.hypotheses import DelayPosition
+    from tvcid.discovery.structure.structure_search import delay_moved
+    from tvcid.models import ClosedLoop, hypothesis, simulate
+    from tvcid.models.hypotheses import DelayPosition
 
     p = hypothesis("M000")
     q = delay_moved(p, DelayPosition.BEFORE_INTEGRATOR)
@@ -487,14 +487,14 @@ def test_delay_moved_matches_the_frequency_response_of_drawn_blocks():
     is within 1 % in gain and 0.01 rad in phase (measured <= 0.75 %), where the first-order match
     alone misses by over 5 % in some (it did on benchmark draw 1019: 29 %, and its refit stopped
     at cost 133 against the truth's 0.72)."""
-    from discovery.structure.structure_search import (
+    from tvcid.discovery.structure.structure_search import (
         MATCHED_BAND,
         _first_order_moved,
         delay_moved,
     )
-    from models.hypotheses import DelayPosition
-    from models.linear import second_order_response
-    from studies.benchmarks.scenarios import draw_truth
+    from tvcid.models.hypotheses import DelayPosition
+    from tvcid.models.linear import second_order_response
+    from tvcid.studies.benchmarks.scenarios import draw_truth
 
     rng = np.random.default_rng(11)
     inner = DelayPosition.BEFORE_FIRST_INTEGRATOR
@@ -525,10 +525,10 @@ def test_transferred_start_is_valid_for_every_structure_and_keeps_the_threshold(
     valid parameter object of the target structure for every pair of the space; the threshold
     keeps its size in rad of error across dead-zone positions (z_error = (z - off) / g0) and a
     round trip velocity -> error -> velocity keeps the moving threshold z - off."""
-    from discovery.structure.structure_search import transferred
-    from models import hypothesis
-    from models.hypotheses import DeadZonePosition
-    from models.structures import Structure, structure_space
+    from tvcid.discovery.structure.structure_search import transferred
+    from tvcid.models import hypothesis
+    from tvcid.models.hypotheses import DeadZonePosition
+    from tvcid.models.structures import Structure, structure_space
 
     kept, _ = structure_space()
     m000 = hypothesis("M000")
@@ -551,7 +551,7 @@ def test_benchmark_counts_a_coordinate_moved_by_an_equally_good_fit_as_undecided
     """The discovery benchmark's identifiability rule: a coordinate sharp at the truth but moved
     by over 5 % in a fit of the truth's structure that costs no more than the truth is left open
     by the recordings (not a discovery error); the same miss with a worse fit is an error."""
-    from studies.benchmarks.discovery import undecided_marked
+    from tvcid.studies.benchmarks.discovery import undecided_marked
 
     def row(own_cost):
         return {"truth_structure_cost": own_cost, "cost_at_truth": 0.78,
@@ -569,7 +569,7 @@ def test_benchmark_scores_each_structural_choice_the_reported_set_decides():
     positions and disagrees on the backlash decides two choices right, leaves two open, and
     decides the friction offset (absent in every member, present in the truth) wrong; a failed
     draw decides nothing."""
-    from studies.benchmarks.discovery import choice_verdicts
+    from tvcid.studies.benchmarks.discovery import choice_verdicts
 
     row = {"structure": "dz_velocity+delay_output+friction+bandpass",
            "set": ["dz_velocity+delay_output+bandpass", "dz_velocity+delay_before_integrator+bandpass",
@@ -590,16 +590,16 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
     (~4 CPU-min)."""
     import math
 
-    from discovery.structure.coordinates import SearchSpace
-    from discovery.structure.search import Objective, local_sd
-    from discovery.structure.structure_search import (
+    from tvcid.discovery.structure.coordinates import SearchSpace
+    from tvcid.discovery.structure.search import Objective, local_sd
+    from tvcid.discovery.structure.structure_search import (
         SEARCHES,
         TEMPLATE,
         StructureSearch,
         _fixed_for,
     )
-    from discovery.structure.targets import make_target
-    from models.hypotheses import ActuatorParams
+    from tvcid.discovery.structure.targets import make_target
+    from tvcid.models.hypotheses import ActuatorParams
 
     scenario = shortened(draw_scenario(1002, ranges="papers"), closed=12.0, open_=6.0)
     paths = write_recordings(scenario, tmp_path)
@@ -623,7 +623,7 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
 
 
 def _loaded(paths):
-    from models.recording import load_recording
+    from tvcid.models.recording import load_recording
 
     return [load_recording(p) for p in paths]
 
@@ -634,11 +634,11 @@ def test_a_seed_with_an_unphysical_linear_block_starts_at_the_box_edge(bad):
     """SINDy can return K2 = 0 or a negative K3; such a seed must not stop discovery (the log
     coordinates of a value <= 0 would raise 'math domain error'). Its coordinates are finite,
     inside the box, and those that do not involve the bad value are the valid seed's."""
-    from discovery.structure.coordinates import SearchSpace
-    from discovery.structure.structure_search import TEMPLATE, _fixed_for
-    from models import hypothesis
-    from models.hypotheses import ActuatorParams
-    from models.structures import structure_space
+    from tvcid.discovery.structure.coordinates import SearchSpace
+    from tvcid.discovery.structure.structure_search import TEMPLATE, _fixed_for
+    from tvcid.models import hypothesis
+    from tvcid.models.hypotheses import ActuatorParams
+    from tvcid.models.structures import structure_space
 
     kept, _ = structure_space()
     for s in kept:
@@ -655,13 +655,13 @@ def test_a_seed_with_an_unphysical_linear_block_starts_at_the_box_edge(bad):
 
 
 def test_a_superset_of_a_member_joins_the_set_merged_whatever_its_own_fit_scored():
-    """The set rule (:func:`discovery.structure.indistinguishable.indistinguishable_set`): the best and a
+    """The set rule (:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_set`): the best and a
     structure within the floor's margin are members; the best's backlash superset, whose fit
     scored far worse (a search failure: at zero backlash it is the best), is merged into it and
     so is an unranked friction superset; a structure with another delay position that scored
     worse than the margin stays out, and the winner is the best unmerged structure."""
-    from discovery.structure.indistinguishable import indistinguishable_set
-    from discovery.structure.ranking import StructureFit
+    from tvcid.discovery.structure.indistinguishable import indistinguishable_set
+    from tvcid.discovery.structure.ranking import StructureFit
 
     def fit(name, score):
         folds = np.full((2, 2), score / 2.0)
@@ -690,12 +690,12 @@ def test_every_structure_within_the_screen_is_ranked_however_many_fit():
     """One cycle that every structure of the grammar fits about equally (costs of a few
     thousandths): all of them get the out-of-sample ranking, so none leaves the set by the
     order of its in-sample cost; a fit far outside the screen is still left unranked."""
-    from discovery.structure.ranking import (
+    from tvcid.discovery.structure.ranking import (
         StructureFit,
         in_sample_screen,
         ranked_candidates,
     )
-    from models.structures import all_structures
+    from tvcid.models.structures import all_structures
 
     rng = np.random.default_rng(1009)
     names = [str(s) for s in all_structures()]
@@ -723,7 +723,7 @@ def test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature():
     difference."""
     from scipy import stats
 
-    from discovery.structure.indistinguishable import (
+    from tvcid.discovery.structure.indistinguishable import (
         MARGIN_QUANTILE,
         TOL_ABS,
         indistinguishable_margin,
@@ -765,15 +765,15 @@ def test_wandering_cycles_raise_the_margin_floor(tmp_path):
     under it, from the pieces' ends at sampled crossings)."""
     from pathlib import Path
 
-    from discovery.structure.indistinguishable import (
+    from tvcid.discovery.structure.indistinguishable import (
         TOL_ABS,
         indistinguishable_set,
         margin_floors,
     )
-    from discovery.structure.ranking import StructureFit
-    from discovery.structure.targets import make_target
-    from models import ClosedLoop, simulate
-    from models.recording import load_recording, recording_from_trajectory
+    from tvcid.discovery.structure.ranking import StructureFit
+    from tvcid.discovery.structure.targets import make_target
+    from tvcid.models import ClosedLoop, simulate
+    from tvcid.models.recording import load_recording, recording_from_trajectory
 
     bundled = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
     targets = [make_target(load_recording(p), 5e-4) for p in sorted(bundled.glob("rec*.csv"))]
@@ -804,11 +804,11 @@ def _held_m000_records(tmp_path):
     """Paper 000's model recorded as the HWIL did (the held-out case ``m000_hwil``, made here by
     the kernel at 1e-4 s): controller held at 200 Hz, 40 s at 200 Hz after a 10 s lead, noise
     2e-5 rad, offset 1.5e-4 rad, quantisation 2e-5 rad; controllers A and B."""
-    from models import hypothesis
-    from models.recording import load_recording
-    from models.simulate import simulate
-    from models.synthetic import Acquisition
-    from studies.benchmarks.scenarios import CONTROLLERS, RecordingDesign
+    from tvcid.models import hypothesis
+    from tvcid.models.recording import load_recording
+    from tvcid.models.simulate import simulate
+    from tvcid.models.synthetic import Acquisition
+    from tvcid.studies.benchmarks.scenarios import CONTROLLERS, RecordingDesign
 
     truth, acq, recs = hypothesis("M000"), Acquisition(2e-5, 1.5e-4, 2e-5), []
     for i, (kp, kd, mu) in enumerate(CONTROLLERS):
@@ -829,8 +829,8 @@ def test_a_wandering_cycle_is_compared_over_enough_periods(tmp_path, monkeypatch
     up to ``MAX_WINDOW_PERIODS`` (24): the truth then lies within 0.1 units per recording of its
     own records whatever the transient (4-16 s); windows of 6 periods leave it 0.3-0.6 units off on
     controller A's record, where periodic wrong structures fit at 0.04-0.1 and take its place."""
-    import discovery.structure.targets as targets
-    from discovery.structure.search import Objective
+    import tvcid.discovery.structure.targets as targets
+    from tvcid.discovery.structure.search import Objective
 
     truth, recs = _held_m000_records(tmp_path)
 
@@ -876,7 +876,7 @@ class _ScriptedSearch:
 ])
 def test_restarted_searches_stop_when_the_best_two_agree(costs, n_recordings, least, most, calls,
                                                           best):
-    from discovery.structure.structure_search import best_of_restarts
+    from tvcid.discovery.structure.structure_search import best_of_restarts
 
     search = _ScriptedSearch(costs)
     fit = best_of_restarts(search, n_recordings, least, most)
@@ -885,7 +885,7 @@ def test_restarted_searches_stop_when_the_best_two_agree(costs, n_recordings, le
 
 
 def test_restarts_out_of_order_are_an_error():
-    from discovery.structure.structure_search import best_of_restarts
+    from tvcid.discovery.structure.structure_search import best_of_restarts
 
     with pytest.raises(ValueError, match="min"):
         best_of_restarts(_ScriptedSearch([1.0]), 1, 3, 2)

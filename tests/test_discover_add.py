@@ -63,9 +63,9 @@ def test_an_earlier_optimum_that_fits_the_added_recording_is_refined_not_searche
     """``previous`` at the fresh run's optimum of cycles A and B: the refit fits no recording
     worse than its start, so no global search runs and the optimum's cost is kept within a few
     hundredths."""
-    from discovery.structure import StructureDiscovery
-    from models.hypotheses import params_from_dict
-    from models.recording import load_recordings
+    from tvcid.discovery.structure import StructureDiscovery
+    from tvcid.models.hypotheses import params_from_dict
+    from tvcid.models.recording import load_recordings
 
     _, _, _, fresh = runs
     best = fresh["structures"][0]

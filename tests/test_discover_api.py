@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from discovery.structure.set_posterior import MemberPosterior, combine, member_quantities
-from models import hypothesis
-from models.structures import Structure, shared_choices
+from tvcid.discovery.structure.set_posterior import MemberPosterior, combine, member_quantities
+from tvcid.models import hypothesis
+from tvcid.models.structures import Structure, shared_choices
 from tvcid.pipeline import DiscoveryResult
 
 #: Two members of M000's structure differing in the delay's position, and where they put it (s).

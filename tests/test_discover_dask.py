@@ -14,10 +14,10 @@ import sys
 import pytest
 from test_discover_resume import FIXED, STEPS, TRUTH, _Ranking
 
-from discovery.executors import executor_from
-from discovery.structure import StructureDiscovery
-from models import CONTROLLER_A, simulate
-from models.recording import recording_from_trajectory, save_recording
+from tvcid.discovery.executors import executor_from
+from tvcid.discovery.structure import StructureDiscovery
+from tvcid.models import CONTROLLER_A, simulate
+from tvcid.models.recording import recording_from_trajectory, save_recording
 from tvcid.cli import main
 
 #: A structure space of four: the dead zone on the error or the velocity signal, the band-pass
@@ -47,7 +47,7 @@ def _ranking(disc):
 
 def test_searches_on_a_dask_cluster_give_this_process_ranking(recording, monkeypatch):
     pytest.importorskip("distributed")
-    import discovery.structure.structure_search as structure_search
+    import tvcid.discovery.structure.structure_search as structure_search
 
     # the sizes travel with each search; a module constant patched here would not
     monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
@@ -66,11 +66,10 @@ def test_searches_on_a_dask_cluster_give_this_process_ranking(recording, monkeyp
 def _calibrated(recording, out, dask, monkeypatch):
     """The stand-in ranking's members calibrated into ``out``, in this process (``dask`` None)
     or on the cluster ``dask``; returns the summary."""
-    import discovery.structure
-
+    import tvcid.discovery.structure
     import tvcid.pipeline
 
-    monkeypatch.setattr(discovery.structure, "StructureDiscovery", _Ranking)
+    monkeypatch.setattr(tvcid.discovery.structure, "StructureDiscovery", _Ranking)
     monkeypatch.setattr(tvcid.pipeline, "next_test", lambda *a: None)  # not at issue
     return tvcid.pipeline.discover([recording], out, fixed=FIXED, seed=1, quick=True,
                                    max_steps=STEPS, progress=False, dask=dask).summary

@@ -12,15 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from discovery.structure.coordinates import SearchSpace
-from discovery.structure.ranking import RANK_OPEN_LOOP_REFINEMENT
-from discovery.structure.search import Objective, refine
-from discovery.structure.structure_search import TEMPLATE, transferred
-from discovery.structure.targets import make_target
-from models.hypotheses import ActuatorParams
-from models.recording import load_recording
-from models.structures import Structure
-from studies.benchmarks.scenarios import draw_scenario, write_recordings
+from tvcid.discovery.structure.coordinates import SearchSpace
+from tvcid.discovery.structure.ranking import RANK_OPEN_LOOP_REFINEMENT
+from tvcid.discovery.structure.search import Objective, refine
+from tvcid.discovery.structure.structure_search import TEMPLATE, transferred
+from tvcid.discovery.structure.targets import make_target
+from tvcid.models.hypotheses import ActuatorParams
+from tvcid.models.recording import load_recording
+from tvcid.models.structures import Structure
+from tvcid.studies.benchmarks.scenarios import draw_scenario, write_recordings
 
 SEARCH_DT = 5e-4
 OTHER = "dz_velocity+delay_before_integrator"

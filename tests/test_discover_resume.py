@@ -12,12 +12,12 @@ import emcee
 import numpy as np
 import pytest
 
-from discovery.calibration.backend import CheckpointBackend
-from discovery.structure.ranking import StructureFit
-from discovery.structure.targets import make_target
-from models import CONTROLLER_A, hypothesis, simulate
-from models.recording import recording_from_trajectory, save_recording
-from models.structures import Structure
+from tvcid.discovery.calibration.backend import CheckpointBackend
+from tvcid.discovery.structure.ranking import StructureFit
+from tvcid.discovery.structure.targets import make_target
+from tvcid.models import CONTROLLER_A, hypothesis, simulate
+from tvcid.models.recording import recording_from_trajectory, save_recording
+from tvcid.models.structures import Structure
 from tvcid.cli import main
 
 #: M000 without its band-pass loop: no saturation either (``bandpass_saturation`` open).
@@ -33,7 +33,7 @@ STEPS, STOP_AT = 6, 3
 
 
 class _Ranking:
-    """Stands in for :class:`discovery.structure.StructureDiscovery`: the truth at two delay
+    """Stands in for :class:`tvcid.discovery.structure.StructureDiscovery`: the truth at two delay
     positions, both in the set, the truth's first."""
 
     def __init__(self, **options):
@@ -100,15 +100,14 @@ def test_a_run_stopped_in_its_second_members_chain_resumes_both_where_they_stopp
     again reuses the ranking, adds no step to the first member's finished chain, and continues
     the second one from step 4 on the steps already saved: two chain files, as many as
     members."""
-    import discovery.structure
-
+    import tvcid.discovery.structure
     import tvcid.pipeline
 
     out = tmp_path / "out"
     args = ["discover", recording, *[a for k, v in FIXED.items() for a in ("--fix", f"{k}={v}")],
             "--quick", "--seed", "1", "--max-steps", str(STEPS), "--no-progress", "--out", str(out)]
     with monkeypatch.context() as m:
-        m.setattr(discovery.structure, "StructureDiscovery", _Ranking)
+        m.setattr(tvcid.discovery.structure, "StructureDiscovery", _Ranking)
         m.setattr(tvcid.pipeline, "next_test", lambda *a: None)  # the next test is not at issue
         first = _saved_steps(m, stop_in=2)
         assert main(args) == 130
@@ -140,14 +139,13 @@ def test_a_member_whose_chain_cannot_start_is_left_out_and_named(tmp_path, recor
     """The second member's calibration finds no starting point with a finite posterior (a
     set-coverage draw's member whose runs do not sustain the recorded cycle): the run goes on,
     the set's posterior is the first member's, and the report names the member left out."""
-    from discovery.calibration.start import NoFiniteStartError
-    from discovery.structure import member_calibration
+    from tvcid.discovery.calibration.start import NoFiniteStartError
+    from tvcid.discovery.structure import member_calibration
 
-    import discovery.structure
-
+    import tvcid.discovery.structure
     import tvcid.pipeline
 
-    monkeypatch.setattr(discovery.structure, "StructureDiscovery", _Ranking)
+    monkeypatch.setattr(tvcid.discovery.structure, "StructureDiscovery", _Ranking)
     monkeypatch.setattr(tvcid.pipeline, "next_test", lambda *a: None)
     calibrate = member_calibration.calibrate_member
 

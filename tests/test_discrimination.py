@@ -1,17 +1,17 @@
-"""Which test tells structures apart (discovery.structure.discrimination)."""
+"""Which test tells structures apart (tvcid.discovery.structure.discrimination)."""
 import numpy as np
 import pytest
 
-from discovery.prediction.design import Candidate
-from discovery.structure.discrimination import (
+from tvcid.discovery.prediction.design import Candidate
+from tvcid.discovery.structure.discrimination import (
     DECIDES,
     default_candidates,
     design_over_set,
     discriminating_tests,
     set_design_order,
 )
-from models import M002, M001i
-from models.experiments import CONTROLLER_A, OpenLoop
+from tvcid.models import M002, M001i
+from tvcid.models.experiments import CONTROLLER_A, OpenLoop
 
 MENU = [Candidate("sine 10 mrad 1 Hz", OpenLoop.sine(10e-3, 1.0), 6.0),
         Candidate("square 20 mrad 4 Hz", OpenLoop.square(20e-3, 4.0), 6.0),
@@ -53,8 +53,8 @@ def test_refitted_members_are_weighed_on_the_best_candidates_only(tmp_path):
     refitted to that cycle and the other's record of the test: a refit starts from the fixed
     comparison and only lowers it (within the two records' noise), and the other candidates
     keep their fixed verdicts."""
-    from discovery.structure.targets import make_target
-    from models.synthetic import synthetic_recording
+    from tvcid.discovery.structure.targets import make_target
+    from tvcid.models.synthetic import synthetic_recording
 
     rec = synthetic_recording(M002(), CONTROLLER_A, 30.0, 2e-5, 4, tmp_path / "cycle.csv",
                               keep_last=20.0)
@@ -96,8 +96,8 @@ def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     recording: the refits simulate the record's length): the unmerged members are weighed on the
     default menu at the recordings' rate and median noise, and the report gives the best test
     and its verdict with the figure; a set of one gives ``None`` and no section."""
-    from models import M002, M001i
-    from models.recording import load_recording, save_recording
+    from tvcid.models import M002, M001i
+    from tvcid.models.recording import load_recording, save_recording
     from tvcid.pipeline import next_test
     from tvcid.report import _next_test_lines
 
@@ -132,7 +132,7 @@ def test_the_next_test_leaves_out_the_members_the_weights_decided_against(tmp_pa
     """A member under 5 % of the set's weight is left out of the next test (named with its
     weight); with one member left there is nothing to split and the summary says so, with no
     section of candidates."""
-    from models import M002, M001i
+    from tvcid.models import M002, M001i
     from tvcid.pipeline import next_test
     from tvcid.report import _next_test_headline, _next_test_lines
 
@@ -151,8 +151,8 @@ def test_the_next_test_leaves_out_the_members_the_weights_decided_against(tmp_pa
 
 def _dead_zone_draws(base, n=8, seed=0):
     """Draws of ``base`` with its dead zone spread by 5 % (the one sampled parameter)."""
-    from discovery.calibration.priors import LogUniform
-    from discovery.prediction.draws import PosteriorDraws
+    from tvcid.discovery.calibration.priors import LogUniform
+    from tvcid.discovery.prediction.draws import PosteriorDraws
 
     z = base.dead_zone * np.exp(0.05 * np.random.default_rng(seed).standard_normal(n))
     return PosteriorDraws(names=("dead_zone",), samples=z[:, None], internal=np.log(z)[:, None],
@@ -212,7 +212,7 @@ def test_report_says_which_members_chains_did_not_converge():
 def test_a_pair_is_decided_in_fact_by_the_members_the_second_set_keeps_merged_ones_included():
     """The next-test benchmark's count: a richer structure the first set merged into a member
     keeps that member when the second set needs it; a structure outside the first set keeps none."""
-    from studies.benchmarks.next_test import pairs_decided_in_fact
+    from tvcid.studies.benchmarks.next_test import pairs_decided_in_fact
 
     first = {"a": "a", "b": "b", "c": "c", "a+bandpass": "a"}
     assert pairs_decided_in_fact(first, ["a+bandpass"]) == [("a", "b"), ("a", "c")]

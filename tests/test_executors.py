@@ -1,4 +1,4 @@
-"""One executor interface for independent work (:mod:`discovery.executors`).
+"""One executor interface for independent work (:mod:`tvcid.discovery.executors`).
 
 The same seeded calls give the same results, in submission order, in this process, in two local
 processes and on a Dask ``LocalCluster`` of two workers; the draw benchmarks' ``run_draws`` on
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from discovery.executors import LocalProcesses, executor_from
+from tvcid.discovery.executors import LocalProcesses, executor_from
 
 TESTS = Path(__file__).resolve().parent
 ROOT = TESTS.parent
@@ -115,7 +115,7 @@ def test_dask_local_cluster_gives_the_same_results_as_this_process():
 
 def test_run_draws_on_dask_records_what_it_records_locally(tmp_path):
     pytest.importorskip("distributed")
-    from studies.benchmarks.draws import run_draws
+    from tvcid.studies.benchmarks.draws import run_draws
 
     recorded = {}
     for where in ("inline", "processes", "dask"):
@@ -137,7 +137,7 @@ def test_bad_dask_option_is_one_line(bench, args, says, capsys):
     pytest.importorskip("distributed")  # the address is checked once Dask is there
     import importlib
 
-    main = importlib.import_module(f"studies.benchmarks.{bench}").main
+    main = importlib.import_module(f"tvcid.studies.benchmarks.{bench}").main
     with pytest.raises(SystemExit) as stop:
         main(args)
     assert stop.value.code == 2
@@ -147,7 +147,7 @@ def test_bad_dask_option_is_one_line(bench, args, says, capsys):
 
 def test_dask_without_dask_installed_names_the_extra(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed: ImportError
-    from studies.benchmarks.coverage import main
+    from tvcid.studies.benchmarks.coverage import main
 
     with pytest.raises(SystemExit):
         main(["--dask", "local:2"])
@@ -207,7 +207,7 @@ import os, sys, time
 from pathlib import Path
 sys.path.insert(0, sys.argv[3])
 from test_executors import looping
-from discovery.executors import executor_from
+from tvcid.discovery.executors import executor_from
 
 executor = executor_from(dask=sys.argv[1])
 executor.map(looping, [sys.argv[2]])

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from models import InsufficientPeriodsError, limit_cycle_features
-from models.features import upward_mean_crossings
+from tvcid.models import InsufficientPeriodsError, limit_cycle_features
+from tvcid.models.features import upward_mean_crossings
 
 W0 = 8.57
 
@@ -32,7 +32,7 @@ def test_fourier_harmonics_give_each_harmonics_amplitude_and_phase():
     """``x = sum_k A_k cos(k w t + phi_k)`` over twelve whole periods: ``c_k = A_k exp(i phi_k)``
     to 1e-13 rad for k = 1..9, 0 where there is none (the powers of one exponential lose nothing
     against one exponential per harmonic)."""
-    from models.features import fourier_harmonics
+    from tvcid.models.features import fourier_harmonics
 
     period, dt = 0.8, 1e-4
     t = np.arange(12 * 8000) * dt
@@ -96,7 +96,7 @@ def test_small_cycle_under_sensor_noise_keeps_its_frequency():
     """Coverage draw 5's held band-pass cycles: 3.5e-4 rad at 1.9 Hz under 8.9e-5 rad of noise,
     sampled at 200 Hz. A hysteresis of 10 % of the amplitude let noise cross it (frequency read
     18-22 rad/s for 11.94); one of at least three noise sd keeps the cycle's."""
-    from models.features import white_noise_sd
+    from tvcid.models.features import white_noise_sd
 
     rng = np.random.default_rng(5)
     t = np.arange(0.0, 10.0, 0.005)
@@ -116,7 +116,7 @@ def test_whole_period_harmonics_over_a_span_between_samples():
     """Over exactly 13 periods that start and end between 1 kHz samples, the first and third
     harmonics to 1e-10 rad of their amplitudes; the sum over the samples between the same ends
     (what :func:`fourier_harmonics` is given) misses them by 1e-8 to 1e-7 rad, at any start."""
-    from models.features import fourier_harmonics, whole_period_harmonics
+    from tvcid.models.features import fourier_harmonics, whole_period_harmonics
 
     period, h = 0.7309, 1e-3
     t = np.arange(0.0, 12.0, h)
@@ -138,11 +138,11 @@ def test_settled_simulated_cycle_reads_the_same_from_window_to_window(tmp_path):
     """M002's cycle under controller A, settled (run from its own cycle for 30 s): its features
     over four successive 10 s windows agree within 0.02 of the record's noise sd in every
     feature; the harmonics summed over the samples between crossings moved by up to 0.4 sd."""
-    from discovery.calibration.likelihood import FeatureTerm
-    from discovery.calibration.likelihood.features import cycle_features
-    from models import CONTROLLER_A, M002
-    from models.batch import BatchSimulator
-    from models.synthetic import synthetic_recording
+    from tvcid.discovery.calibration.likelihood import FeatureTerm
+    from tvcid.discovery.calibration.likelihood.features import cycle_features
+    from tvcid.models import CONTROLLER_A, M002
+    from tvcid.models.batch import BatchSimulator
+    from tvcid.models.synthetic import synthetic_recording
 
     rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 3, tmp_path / "m002.csv",
                               keep_last=10.0)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from models import (
+from tvcid.models import (
     CONTROLLER_A,
     ClosedLoop,
     OpenLoop,
@@ -10,8 +10,8 @@ from models import (
     simulate,
     simulate_batch,
 )
-from models.delay import DelayLine, transport_delay
-from models.reference import simulate_reference
+from tvcid.models.delay import DelayLine, transport_delay
+from tvcid.models.reference import simulate_reference
 
 
 @pytest.mark.parametrize("name", ["M002", "M001i", "M001f", "M000"])
@@ -102,7 +102,7 @@ def test_held_command_through_the_delay_converges_with_the_step():
     """M000 held at 200 Hz, delay before the first integrator: the cycle's first harmonic at the
     fits' 5e-4 s step within 0.1 % of a 5e-5 s run (a line that spread each jump over the step
     before its node would read it 2.0 % small, 0.9 % at 2.5e-4 s)."""
-    from discovery.structure.cycle_tail import phase_free_harmonics, stationary_tail
+    from tvcid.discovery.structure.cycle_tail import phase_free_harmonics, stationary_tail
 
     def first_harmonic(dt):
         tr = simulate(hypothesis("M000"), ClosedLoop(5.84, 0.062, 12.3, sample_rate=200.0), 40.0,
@@ -144,8 +144,8 @@ def test_step_error_does_not_grow_as_the_delay_nears_one_step(position):
     error at eight (measured: within 3 %, and 0.64x before the integrator), and a held loop's
     cycle (amplitude and frequency) is off by no more at one step or 1.6 steps than at two
     (measured: 0.4-0.8x of it at every position).
-    :func:`discovery.calibration.priors.step_under_delay` rests on this."""
-    from discovery.calibration.priors import step_under_delay
+    :func:`tvcid.discovery.calibration.priors.step_under_delay` rests on this."""
+    from tvcid.discovery.calibration.priors import step_under_delay
 
     base = hypothesis("M001f", delay_position=position)
     square, loop = OpenLoop.square(0.01, 1.0), ClosedLoop(5.84, 0.062, 12.3, sample_rate=200.0)

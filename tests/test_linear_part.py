@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from models import OpenLoop, hypothesis, simulate
+from tvcid.models import OpenLoop, hypothesis, simulate
 
 LINEAR = dict(dead_zone=0.0, backlash=0.0, friction_offset=0.0, bandpass_gain=0.0, delay=0.0)
 PAPER_TF = {

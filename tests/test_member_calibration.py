@@ -5,16 +5,16 @@ from unittest import mock
 import numpy as np
 import pytest
 
-from discovery.calibration.priors import step_under_delay
-from discovery.structure.member_calibration import (
+from tvcid.discovery.calibration.priors import step_under_delay
+from tvcid.discovery.structure.member_calibration import (
     MEMBER_DELAY_FLOOR,
     calibrate_member,
     member_delay_floor,
     member_priors,
 )
-from models.structures import Structure
-from models.synthetic import Acquisition
-from studies.benchmarks.scenarios import (
+from tvcid.models.structures import Structure
+from tvcid.models.synthetic import Acquisition
+from tvcid.studies.benchmarks.scenarios import (
     CONTROLLERS,
     RANGES,
     RecordingDesign,
@@ -67,9 +67,9 @@ def test_a_start_at_the_shortest_delay_is_accepted_and_its_likelihood_peaks_ther
     2.5e-4 s steps, and the likelihood along the delay (the rest at the truth) is finite at the
     truth and peaks within 0.1 ms of it (data by the numba kernel at the data's step, in place of
     the plain-Python reference path, which the slow test below uses)."""
-    from discovery.calibration import Calibration
-    from models import simulate
-    from studies.benchmarks import scenarios
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.models import simulate
+    from tvcid.studies.benchmarks import scenarios
 
     scenario, _ = _scenario(2000.0)
     truth = scenario.truth

@@ -1,6 +1,6 @@
 """No worker process outlives the command that started it.
 
-A command running a process pool (``python -m studies.benchmarks.coverage --jobs``, ``tvcid fit
+A command running a process pool (``python -m tvcid.studies.benchmarks.coverage --jobs``, ``tvcid fit
 --processes``, ``tvcid study all --jobs``) sent SIGTERM, or Ctrl-C (SIGINT to its whole process
 group, workers included), stops its workers and waits for them before it exits with status 130
 and one line on stderr; killed outright (SIGKILL), it leaves workers that notice and end by
@@ -112,7 +112,7 @@ def _started(args, stderr_path):
 
 def _coverage(tmp):
     out = tmp / "coverage"
-    args = [sys.executable, "-m", "studies.benchmarks.coverage", "--quick", "--jobs", "2",
+    args = [sys.executable, "-m", "tvcid.studies.benchmarks.coverage", "--quick", "--jobs", "2",
             "--max-steps", "100000", "--out", str(out)]
     # each worker writes its draw's recordings before calibrating on them
     return args, lambda workers: all((out / "data" / f"draw{i:03d}").exists() for i in range(2))
@@ -140,7 +140,7 @@ def _study(tmp):
 BUSY_MAP_POOL = """
 import sys, time
 from pathlib import Path
-from discovery.parallel import map_pool
+from tvcid.discovery.parallel import map_pool
 
 with map_pool(2) as pool:
     pool.map(abs, [1, 2], chunksize=1)  # both started
@@ -224,7 +224,7 @@ def test_killed_command_leaves_no_worker_running(tmp_path, command):
 def test_map_pool_left_by_an_exception_has_stopped_its_workers():
     """Not only at the interpreter's exit (``multiprocessing``'s own clean-up): ``tvcid fit``
     called in a process that goes on."""
-    from discovery.parallel import map_pool
+    from tvcid.discovery.parallel import map_pool
 
     pool = None
     try:
@@ -244,7 +244,7 @@ def test_map_pool_left_by_an_exception_has_stopped_its_workers():
 ONE_WAY_CHILD = """
 import os, sys, threading, time
 from pathlib import Path
-from discovery import parallel as common
+from tvcid.discovery import parallel as common
 
 if sys.argv[1] == "prctl":
     common._die_with_parent()

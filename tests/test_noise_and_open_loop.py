@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from models import CONTROLLER_A, OpenLoop, hypothesis, simulate
-from models.noise import band_limited_white_noise, noise_std
+from tvcid.models import CONTROLLER_A, OpenLoop, hypothesis, simulate
+from tvcid.models.noise import band_limited_white_noise, noise_std
 
 
 def test_noise_samples_have_the_simulink_variance():
@@ -54,7 +54,7 @@ def test_open_loop_step_stops_where_the_velocity_enters_the_dead_zone():
 
 
 def test_benchmark_script_runs_and_reports(tmp_path):
-    from studies.benchmarks.simulator import main
+    from tvcid.studies.benchmarks.simulator import main
 
     result = main(["--quick", "--out", str(tmp_path)])
     saved = json.loads((tmp_path / "bench.json").read_text())
@@ -69,7 +69,7 @@ def test_square_stage_command_is_built_once_and_changes_no_run():
     """The stage-averaged command of an open-loop test is memoised on the experiment (a search
     simulates the same test thousands of times); the runs are those of a fresh experiment, and a
     longer run of the same experiment gets its own, longer command."""
-    from models import simulate_batch
+    from tvcid.models import simulate_batch
 
     p = hypothesis("M002")
     sets = [p, p.replace(backlash=p.backlash * 1.5)]

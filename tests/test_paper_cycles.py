@@ -2,7 +2,7 @@
 (docs/models.md#reference-limit-cycles)."""
 import pytest
 
-from models import ClosedLoop, hypothesis, simulate
+from tvcid.models import ClosedLoop, hypothesis, simulate
 
 HWIL_FREQUENCY = 8.57  # rad/s, paper 002 section 6 and paper 001
 H7_HZ = 9.57  # paper 001 section 3, the raised 7th harmonic of the derivative

@@ -1,11 +1,11 @@
-"""What a posterior pins (discovery.calibration.pinned), on draws of known distributions."""
+"""What a posterior pins (tvcid.discovery.calibration.pinned), on draws of known distributions."""
 import math
 
 import numpy as np
 import pytest
 
-from discovery.calibration.pinned import pinned_combinations
-from discovery.calibration.priors import LogUniform, Uniform
+from tvcid.discovery.calibration.pinned import pinned_combinations
+from tvcid.discovery.calibration.priors import LogUniform, Uniform
 
 PRIORS = {"dead_zone": LogUniform(1e-4, 1e-2), "backlash": LogUniform(1e-6, 3e-3),
           "delay": LogUniform(1e-4, 3e-2), "friction_offset": Uniform(0.0, 1.0)}
@@ -66,8 +66,8 @@ def test_a_members_pinned_figure_draws_its_joined_pairs_over_the_df_family(tmp_p
     from pathlib import Path
     from types import SimpleNamespace
 
-    from models import hypothesis
-    from models.recording import load_recording
+    from tvcid.models import hypothesis
+    from tvcid.models.recording import load_recording
     from tvcid.figures import write_pinned_figure
 
     names = ("dead_zone", "backlash", "delay", "friction_offset")

@@ -1,13 +1,13 @@
 """Limit-cycle prediction under other controllers from a calibrated posterior.
 
-The case is the prediction benchmark's (:func:`studies.benchmarks.prediction.prediction_case`): a truth
+The case is the prediction benchmark's (:func:`tvcid.studies.benchmarks.prediction.prediction_case`): a truth
 drawn by the shared scenario generator (seeded), calibrated on closed-loop records at two
 controller settings (made at dt = 2e-4, sensor noise 5e-5 rad, features likelihood), and its cycle
 predicted at a third setting never used in the fit. The chain is cheaper than the benchmark's
 (16 walkers to convergence, 420 steps on this seed): 8 walkers, the least for four sampled
 parameters, capped at the benchmark's ``--quick`` 300 steps.
 The band must bracket the generating model's own cycle, measured the same way; the tolerance
-``SHORTCUT_TOL`` is the largest shortcut error ``studies.benchmarks.prediction`` measured against
+``SHORTCUT_TOL`` is the largest shortcut error ``tvcid.studies.benchmarks.prediction`` measured against
 full-length runs (0.4 % in amplitude), doubled.
 """
 import json
@@ -15,7 +15,8 @@ import json
 import numpy as np
 import pytest
 
-from discovery.prediction import (
+from tvcid.cli import main
+from tvcid.discovery.prediction import (
     ControllerSetting,
     NoPosteriorError,
     PosteriorDraws,
@@ -25,15 +26,14 @@ from discovery.prediction import (
     parse_grid,
     predict_cycle,
 )
-from discovery.prediction.design import (
+from tvcid.discovery.prediction.design import (
     laplace_update,
     load_candidates,
     weighted_covariance,
 )
-from models import ClosedLoop, SimulationDiverged, simulate
-from studies.benchmarks.prediction import THIRD as BENCH_THIRD
-from studies.benchmarks.prediction import measured_cycle, prediction_case
-from tvcid.cli import main
+from tvcid.models import ClosedLoop, SimulationDiverged, simulate
+from tvcid.studies.benchmarks.prediction import THIRD as BENCH_THIRD
+from tvcid.studies.benchmarks.prediction import measured_cycle, prediction_case
 
 SEED = 11
 THIRD = ControllerSetting(*BENCH_THIRD)
@@ -167,8 +167,8 @@ def test_weighted_covariance_and_laplace_update_on_known_answers():
 
 
 def test_posterior_draws_helpers():
-    from discovery.calibration.priors import LogUniform
-    from models import M002
+    from tvcid.discovery.calibration.priors import LogUniform
+    from tvcid.models import M002
 
     x = np.column_stack([np.full(5, 1e-3), [1e-4, 2e-4, 3e-4, 4e-4, 5e-4]])
     draws = PosteriorDraws(names=("dead_zone", "sigma"), samples=x, internal=np.log(x),
@@ -183,7 +183,7 @@ def test_posterior_draws_helpers():
 def test_shortcut_agrees_with_full_length_runs(posterior_dir):
     """The shortcut (pilot on the median model's cycle, 3 s transient) against 30 s transients
     from the hypothesis' own initial state: same outcome for every draw, quantiles within 0.5 %."""
-    from studies.benchmarks.prediction import shortcut_accuracy
+    from tvcid.studies.benchmarks.prediction import shortcut_accuracy
 
     directory, _ = posterior_dir
     draws = load_posterior_draws(directory, n_draws=30, seed=3)

@@ -1,9 +1,9 @@
-"""discovery.calibration.profile_range: the range a quantity's profile likelihood allows, read
+"""tvcid.discovery.calibration.profile_range: the range a quantity's profile likelihood allows, read
 off posterior draws, against the true 95 % profile range of known distributions."""
 import numpy as np
 import pytest
 
-from discovery.calibration.profile_range import AllowedRange, allowed_range
+from tvcid.discovery.calibration.profile_range import AllowedRange, allowed_range
 
 #: The 95 % profile range's half-width in sd for a Gaussian: sqrt(2 * 1.92).
 Z95 = np.sqrt(2 * 1.92)

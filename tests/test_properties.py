@@ -5,7 +5,7 @@ an explicit example budget; ``deadline=None`` because the first call of a numba 
 
 Properties
 ----------
-Recording format (:mod:`models.recording`)
+Recording format (:mod:`tvcid.models.recording`)
     * Any finite table round-trips bit for bit through :func:`save_recording` and
       :func:`load_recording`: 2 to 60 rows on a uniform time grid (start within +-1e4 s, step
       1e-5 to 1 s, each timestamp jittered by up to 1 % of the step, inside the reader's
@@ -19,24 +19,24 @@ Recording format (:mod:`models.recording`)
       first; :func:`save_recording` refuses the same table with the same message and writes
       nothing.
 
-Simulator (:func:`models.simulate`, :func:`models.simulate_batch`)
+Simulator (:func:`tvcid.models.simulate`, :func:`tvcid.models.simulate_batch`)
     For parameters in their declared ranges the simulator returns a trajectory whose every signal
-    is finite, or raises :class:`models.SimulationDiverged`; never any other exception. The
-    ranges are those of the seeded scenario generator (:mod:`studies.benchmarks.scenarios`): its own
+    is finite, or raises :class:`tvcid.models.SimulationDiverged`; never any other exception. The
+    ranges are those of the seeded scenario generator (:mod:`tvcid.studies.benchmarks.scenarios`): its own
     :func:`draw_truth` and :func:`draw_design` are called with a stand-in random generator whose
     every draw is made by ``hypothesis`` within the bounds the generator asks for, so the ranges
-    are the generator's, not copies (every kept structure of :func:`models.structures.structure_space`,
+    are the generator's, not copies (every kept structure of :func:`tvcid.models.structures.structure_space`,
     every controller setting, controller held at 200 Hz or continuous, acquisition at 200 Hz or
     1 kHz, open-loop squares and sines, plus a step of the same amplitude). The four paper
-    hypotheses (:func:`models.hypothesis`) are run with their structure's parameters drawn the
+    hypotheses (:func:`tvcid.models.hypothesis`) are run with their structure's parameters drawn the
     same way and initial conditions within the basin study's ranges
-    (:class:`studies.h3_initial_conditions.Config`). Runs last 1 to 3 s. A returned trajectory
+    (:class:`tvcid.studies.h3_initial_conditions.Config`). Runs last 1 to 3 s. A returned trajectory
     also keeps ``|x|`` and ``|theta|`` within the divergence bound, its backlash output within
     ``r`` of ``x``, its time grid at the requested rate, and in open loop ``u`` equal to the
     command and ``theta = 0``. :func:`simulate_batch` on the same runs flags exactly the runs
     that :func:`simulate` reports diverged and returns the same signals for the others.
 
-Limit-cycle features of a pure sinusoid (:func:`models.limit_cycle_features`)
+Limit-cycle features of a pure sinusoid (:func:`tvcid.models.limit_cycle_features`)
     ``x = c + A sin(2 pi f t + phi)``, ``A`` in [1e-4, 0.1] rad, ``f`` in [0.5, 20] Hz, sampled at
     ``fs`` in [200, 1000] Hz (10 to 2000 samples a period) over 3.5 to 12 periods (enough for two
     whole periods between the first and last detected upward crossing at any phase), any phase,
@@ -53,7 +53,7 @@ Limit-cycle features of a pure sinusoid (:func:`models.limit_cycle_features`)
       frequency at most ``A / N`` (harmonics above it are aliases and are not checked);
     * whole periods used: ``floor(m) - 2 <= n_periods <= floor(m)``.
 
-Nonlinearities (:mod:`models.nonlinearities`)
+Nonlinearities (:mod:`tvcid.models.nonlinearities`)
     Dead zone ``DZ_z``: odd; zero inside the band, ``|q| - z`` in magnitude with the sign of ``q``
     outside; nondecreasing; slope 1 on each side beyond the band and 1-Lipschitz everywhere;
     positively homogeneous (``DZ_cz(c q) = c DZ_z(q)``); ``DZ_z + sat_z`` is the identity;
@@ -83,7 +83,7 @@ from hypothesis import Phase, event, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from models import (
+from tvcid.models import (
     HYPOTHESES,
     ClosedLoop,
     OpenLoop,
@@ -92,20 +92,20 @@ from models import (
     simulate,
     simulate_batch,
 )
-from models import hypothesis as make_hypothesis
-from models.kernel import _dead_zone as kernel_dead_zone
-from models.nonlinearities import dead_zone, play_operator, play_step, saturation
-from models.recording import (
+from tvcid.models import hypothesis as make_hypothesis
+from tvcid.models.kernel import _dead_zone as kernel_dead_zone
+from tvcid.models.nonlinearities import dead_zone, play_operator, play_step, saturation
+from tvcid.models.recording import (
     DEFAULT_UNITS,
     RecordingError,
     load_recording,
     save_recording,
     sidecar_path,
 )
-from models.simulate import DEFAULT_BOUND, DEFAULT_DT
-from models.structures import Structure
-from studies.benchmarks.scenarios import draw_design, draw_truth
-from studies.h3_initial_conditions import Config as BasinConfig
+from tvcid.models.simulate import DEFAULT_BOUND, DEFAULT_DT
+from tvcid.models.structures import Structure
+from tvcid.studies.benchmarks.scenarios import draw_design, draw_truth
+from tvcid.studies.h3_initial_conditions import Config as BasinConfig
 
 FINITE = dict(allow_nan=False, allow_infinity=False)
 
@@ -225,7 +225,7 @@ def test_any_non_finite_table_is_refused_naming_column_and_row(table, data):
 
 
 class DrawnGenerator:
-    """Stands in for the ``numpy.random.Generator`` of :mod:`studies.benchmarks.scenarios`.
+    """Stands in for the ``numpy.random.Generator`` of :mod:`tvcid.studies.benchmarks.scenarios`.
 
     Every draw the generator asks for (``uniform(low, high)``, ``integers``, ``choice``,
     ``permutation``) is made by ``hypothesis`` within the same bounds, so the scenario code keeps

@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from models import CONTROLLER_B, M002, ActuatorParams, OpenLoop, hypothesis, params_from_dict, simulate
-from models.recording import (
+from tvcid.models import CONTROLLER_B, M002, ActuatorParams, OpenLoop, hypothesis, params_from_dict, simulate
+from tvcid.models.recording import (
     RecordingError,
     load_recording,
     recording_from_trajectory,
@@ -70,7 +70,7 @@ def test_malformed_recordings_name_the_culprit(tmp_path, text, meta, message):
 
 
 def test_open_loop_sidecar_rebuilds_the_analytic_command(tmp_path):
-    from models import OpenLoop
+    from tvcid.models import OpenLoop
 
     tr = simulate(hypothesis("M002"), OpenLoop.square(5e-3, 1.0), 2.0)
     rec = load_recording(save_recording(tmp_path / "sq.csv", *recording_from_trajectory(tr)))
@@ -81,8 +81,8 @@ def test_open_loop_sidecar_rebuilds_the_analytic_command(tmp_path):
 
 
 def test_compensator_and_bending_round_trip_through_the_sidecar(tmp_path):
-    from models import ClosedLoop
-    from models.controllers import BendingMode, TransferFunction
+    from tvcid.models import ClosedLoop
+    from tvcid.models.controllers import BendingMode, TransferFunction
 
     comp = TransferFunction.series(TransferFunction.lead(4.0, 8.0), TransferFunction.notch(60.0, 0.5, 0.1))
     exp = ClosedLoop(5.84, 0.062, 12.3, sample_rate=200.0, compensator=comp,
@@ -134,8 +134,8 @@ def test_a_synthetic_record_at_any_rate_is_simulated_at_a_step_that_rate_divides
     """Acquisition rates the default 2e-4 s step does not divide (2 kHz read off timestamps,
     rates drawn over 200 Hz-2 kHz) are recorded at the longest step under it that they divide;
     rates that divide it keep it."""
-    from models.simulate import DEFAULT_DT, step_for_rate
-    from models.synthetic import synthetic_recording
+    from tvcid.models.simulate import DEFAULT_DT, step_for_rate
+    from tvcid.models.synthetic import synthetic_recording
 
     dt = step_for_rate(rate)
     assert dt <= DEFAULT_DT and step_for_rate(rate, dt) == dt
@@ -152,9 +152,9 @@ def test_a_synthetic_record_at_any_rate_is_simulated_at_a_step_that_rate_divides
 def test_a_record_of_a_held_controller_is_simulated_at_a_step_both_rates_divide(tmp_path, rate):
     """A controller held at 200 Hz and an acquisition rate the default step does not divide: the
     step is one both rates divide; two rates that share none within reach are one line."""
-    from models import ClosedLoop
-    from models.simulate import step_for_rate
-    from models.synthetic import synthetic_recording
+    from tvcid.models import ClosedLoop
+    from tvcid.models.simulate import step_for_rate
+    from tvcid.models.synthetic import synthetic_recording
 
     held = ClosedLoop(CONTROLLER_B.kp, CONTROLLER_B.kd, CONTROLLER_B.mu, sample_rate=200.0)
     rec = synthetic_recording(M002(), held, 3.0, 1e-5, 0, tmp_path / "r.csv", rate=rate)

@@ -1,5 +1,5 @@
-"""``docs/results.md`` and what the benchmarks share at their end (studies.benchmarks.results_table,
-studies.benchmarks.goals): the table is the rendering of the stored records, a changed record changes it,
+"""``docs/results.md`` and what the benchmarks share at their end (tvcid.studies.benchmarks.results_table,
+tvcid.studies.benchmarks.goals): the table is the rendering of the stored records, a changed record changes it,
 every claim names a real test, goal lines say met or NOT met on the right side of a target, and
 the JSON written is strict."""
 import json
@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models.strict_json import write_json
-from studies.benchmarks.goals import Goal, report
-from studies.benchmarks.results_table import (
+from tvcid.models.strict_json import write_json
+from tvcid.studies.benchmarks.goals import Goal, report
+from tvcid.studies.benchmarks.results_table import (
     CLAIMS,
     OUT,
     RECORDS,
@@ -27,7 +27,7 @@ from studies.benchmarks.results_table import (
 
 def test_docs_results_md_is_the_rendering_of_the_current_records(capsys):
     """The committed table equals the rendering of ``studies/benchmarks/records`` by the current code
-    (``python -m studies.benchmarks.results_table --check`` exits 0), so a quoted number cannot drift from
+    (``python -m tvcid.studies.benchmarks.results_table --check`` exits 0), so a quoted number cannot drift from
     its record."""
     assert OUT.read_text() == render()
     assert main(["--check"]) == 0
@@ -82,7 +82,7 @@ def test_a_range_is_met_inside_it_only(value, met):
 def test_speed_goals_are_judged_in_reference_seconds_not_seconds():
     """The same 900 s meet a 600 s goal on a machine whose reference runs 3x slower than the
     nominal one, and miss it on a nominal machine; the line prints both seconds and the ratio."""
-    from studies.benchmarks.goals import NOMINAL_REFERENCE
+    from tvcid.studies.benchmarks.goals import NOMINAL_REFERENCE
 
     slow = Goal.speed("discover", 900.0, 3 * NOMINAL_REFERENCE, 600.0)
     nominal = Goal.speed("discover", 900.0, NOMINAL_REFERENCE, 600.0)
@@ -144,7 +144,7 @@ def test_speed_claim_judges_the_stored_run_in_reference_seconds():
     """The speed claim: the stored run's wall time judged against 600 s in kernel-reference
     seconds of the same run (met at half the budget, NOT met at twice it), with the search's and
     the chains' seconds and simulated seconds."""
-    from studies.benchmarks.results_table import discover_speed
+    from tvcid.studies.benchmarks.results_table import discover_speed
 
     record = json.loads((RECORDS / "bench_discover_speed.json").read_text())
     text = discover_speed({"bench_discover_speed": record})
@@ -159,7 +159,7 @@ def test_speed_claim_judges_the_stored_run_in_reference_seconds():
 
 
 def test_the_next_tests_default_seeds_are_the_discovery_records_misses_that_hold_the_truth():
-    from studies.benchmarks.next_test import DEFAULT_SEEDS
+    from tvcid.studies.benchmarks.next_test import DEFAULT_SEEDS
 
     rows = load_records()["bench_discovery_quick"]["rows"]
     misses = {r["seed"] for r in rows if r["truth_in_set"] and not r["right_or_in_small_set"]}

@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from models import simulate
-from models.hypotheses import DeadZonePosition
-from models.recording import load_recording
-from models.structures import structure_space
-from studies.benchmarks.scenarios import (
+from tvcid.models import simulate
+from tvcid.models.hypotheses import DeadZonePosition
+from tvcid.models.recording import load_recording
+from tvcid.models.structures import structure_space
+from tvcid.studies.benchmarks.scenarios import (
     RecordingDesign,
     draw_design,
     draw_scenario,
@@ -139,9 +139,9 @@ def test_the_data_step_keeps_the_solver_error_under_the_smallest_noise():
     """The reference path's RK4 error near square edges and switching events must stay below the
     generator's smallest sensor noise (1e-5 rad), or a right model's fit reads it as a misfit
     (coverage draw 8's 1 kHz square: rms 1.36e-5 at 2e-4, discrepancy factor 12.8 at the truth)."""
-    from models.simulate import simulate_batch
-    from studies.benchmarks.coverage import Config, coverage_scenario
-    from studies.benchmarks.scenarios import DATA_DT
+    from tvcid.models.simulate import simulate_batch
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.studies.benchmarks.scenarios import DATA_DT
 
     sc = coverage_scenario(8, Config())
     rd = next(r for r in sc.recordings if r.kind == "open" and r.waveform == "square")
@@ -157,11 +157,11 @@ def test_the_data_step_keeps_the_solver_error_under_the_smallest_noise():
 
 
 def test_heldout_cases_are_the_papers_placements_and_oscillate():
-    """``studies.benchmarks.heldout_cases``: the three held-out recordings sets, each truth a
+    """``tvcid.studies.benchmarks.heldout_cases``: the three held-out recordings sets, each truth a
     paper's placement that oscillates at every closed-loop setting of its design (else the
     script would fail after minutes of the reference path), and the comparison of a fit with
     the truth reads 0 on the truth itself."""
-    from studies.benchmarks.heldout_cases import cases, compared
+    from tvcid.studies.benchmarks.heldout_cases import cases, compared
 
     expected = {
         "m001f_no_bandpass": "dz_velocity+delay_before_integrator+friction+backlash",
@@ -187,7 +187,7 @@ def test_an_added_test_is_recorded_once_and_again_when_its_scenario_changes(tmp_
     draw, kept on a rerun of the same scenario, made again for another one. The bookkeeping is
     tested here: the numba kernel makes the data in place of the reference path (10 s per
     simulated second at its step)."""
-    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", simulate)
+    monkeypatch.setattr("tvcid.studies.benchmarks.scenarios.simulate_reference", simulate)
     sc = shortened(draw_scenario(24), closed=6.0, open_=4.0)
     square = RecordingDesign("open", 1.0, 1000.0, waveform="square", amplitude=0.01, frequency=2.0)
     extended, path = record_added_test(sc, square, tmp_path)
@@ -208,7 +208,7 @@ def test_an_unfinished_draw_keeps_the_recordings_it_finished(tmp_path, monkeypat
     ``truth/recNN.json`` holds the scenario is kept, the others are made; another scenario's
     recordings are all made again. The bookkeeping is tested here: the numba kernel makes the
     data in place of the reference path."""
-    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", simulate)
+    monkeypatch.setattr("tvcid.studies.benchmarks.scenarios.simulate_reference", simulate)
     sc = shortened(draw_scenario(2), closed=2.0, open_=1.0)
     paths = write_recordings(sc, tmp_path, dt=5e-4)
     assert len(paths) >= 2

@@ -1,4 +1,4 @@
-"""discovery.structure.set_posterior: the linear block's DC gain and bandwidth, the members'
+"""tvcid.discovery.structure.set_posterior: the linear block's DC gain and bandwidth, the members'
 quantities, their weighted mixture with the structure-dependence rule, the not-pinned verdict of
 every quantity against its prior-implied spread, the range the recordings allow, components the
 set leaves open and the step error's widening; and how the report's summary prints them."""
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from discovery.structure.set_posterior import (
+from tvcid.discovery.structure.set_posterior import (
     STRUCTURE_DEPENDENCE,
     MemberPosterior,
     allowed_range,
@@ -15,7 +15,7 @@ from discovery.structure.set_posterior import (
     linear_block_dc_gain_and_bandwidth,
     member_quantities,
 )
-from models import M000, M002
+from tvcid.models import M000, M002
 
 
 @pytest.mark.parametrize("params", [M000(), M002()])
@@ -294,7 +294,7 @@ def test_the_richer_structure_of_a_component_left_open_is_calibrated_too():
     """The set's distinct members lack a backlash the set leaves open: the best structure with
     one, merged into a member, joins the calibration; a decided component adds none; one richer
     structure holding two open components serves both."""
-    from discovery.structure.set_posterior import richer_members
+    from tvcid.discovery.structure.set_posterior import richer_members
 
     base = "dz_velocity+delay_output"
     rows = [{"structure": base, "indistinguishable_from_best": True, "merged_into": None},
@@ -401,7 +401,7 @@ def test_the_report_lists_pruned_structures_once_per_reason():
 
 def test_a_component_the_shared_choices_rule_out_is_said_to_be_decided_by_the_structure():
     """A set whose members all put the dead zone on the error has no friction offset because the
-    structure forbids it there (:func:`models.structures.prune_reason`), not because the data
+    structure forbids it there (:func:`tvcid.models.structures.prune_reason`), not because the data
     rule it out: the summary says so. A friction offset all members have, and a backlash all
     lack beside a velocity dead zone, are decided plainly."""
     from tvcid.report import summary_lines

@@ -1,4 +1,4 @@
-"""discovery.prediction.set_prediction and ``tvcid predict`` on a set: every member of a set
+"""tvcid.discovery.prediction.set_prediction and ``tvcid predict`` on a set: every member of a set
 predicts with its own draws; the band is their mixture, weighted by each member's weight and
 oscillating fraction; the output says whether the members agree at a controller."""
 import json
@@ -6,18 +6,18 @@ import json
 import numpy as np
 import pytest
 
-from discovery.calibration.priors import LogUniform
-from discovery.prediction import PredictionConfig
-from discovery.prediction.cycles import CycleOutcomes, CyclePrediction
-from discovery.prediction.draws import PosteriorDraws, load_set_weights
-from discovery.prediction.set_prediction import (
+from tvcid.cli import main
+from tvcid.discovery.calibration.priors import LogUniform
+from tvcid.discovery.prediction import PredictionConfig
+from tvcid.discovery.prediction.cycles import CycleOutcomes, CyclePrediction
+from tvcid.discovery.prediction.draws import PosteriorDraws, load_set_weights
+from tvcid.discovery.prediction.set_prediction import (
     SetPrediction,
     members_agree,
     predict_cycle_over_set,
 )
-from discovery.prediction.settings import ControllerSetting
-from models import M002
-from tvcid.cli import main
+from tvcid.discovery.prediction.settings import ControllerSetting
+from tvcid.models import M002
 
 CONFIG = PredictionConfig(transient=8.0, window=6.0)
 SETTING_A = ControllerSetting(kp=5.84, kd=0.062, mu=12.3)
@@ -101,8 +101,8 @@ def test_a_recording_resolves_a_cycle_to_its_noise_and_wander():
     first harmonic less finely than the frequency; no closed-loop recording, no resolution."""
     from pathlib import Path
 
-    from discovery.prediction.set_prediction import measurement_resolution
-    from models.recording import load_recording
+    from tvcid.discovery.prediction.set_prediction import measurement_resolution
+    from tvcid.models.recording import load_recording
 
     data = Path(__file__).resolve().parents[1] / "data"
     closed = [load_recording(data / f"m000_closed_{c}.csv") for c in "AB"]
@@ -161,11 +161,11 @@ PART = ["--kp", "5.84", "--kd", "0.1", "--mu", "12.3"]
 
 def _write_chain(path, base, seed, walkers=8, steps=40):
     """A tvcid chain file of independent draws around ``base`` (log-normal in each name of
-    :data:`_SAMPLED`), with the set-up :func:`discovery.prediction.draws.load_chain_draws`
+    :data:`_SAMPLED`), with the set-up :func:`tvcid.discovery.prediction.draws.load_chain_draws`
     reads."""
     from emcee import State
 
-    from discovery.calibration import CheckpointBackend
+    from tvcid.discovery.calibration import CheckpointBackend
 
     rng = np.random.default_rng(seed)
     names = list(_SAMPLED)
@@ -243,7 +243,7 @@ def test_cli_members_part_where_the_backlash_shifts_the_cycle(set_dir, capsys):
 def test_cli_set_prediction_is_seeded_from_seed(set_dir, capsys, monkeypatch):
     """``--seed`` selects the draws and seeds every member's in-loop noise; one seed gives one
     answer, another seed other draws."""
-    import discovery.prediction.set_prediction as sp
+    import tvcid.discovery.prediction.set_prediction as sp
 
     seeds = []
     real = sp.predict_cycle

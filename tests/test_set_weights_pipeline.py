@@ -13,8 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from models.structures import Structure
-from studies.benchmarks.scenarios import (
+from tvcid.models.structures import Structure
+from tvcid.studies.benchmarks.scenarios import (
     Acquisition,
     RecordingDesign,
     Scenario,
@@ -35,7 +35,7 @@ def test_discover_weighs_its_members_by_their_evidence(tmp_path, out=None):
     truth's own (equal models, the importance noise apart); the friction superset comparable
     (over 5 %). The next test leaves out the screened member, and the summary never calls the
     backlash both present-or-absent and decided."""
-    from discovery.structure import validate_recordings
+    from tvcid.discovery.structure import validate_recordings
     from tvcid.set_stage import _write, calibrate_set
 
     rng = np.random.default_rng(2024)

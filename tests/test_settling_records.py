@@ -3,8 +3,8 @@
 Drawn truths near the bifurcation that makes their cycle grow it slowly: a 12 s record taken 10 s
 after the loop closes can sit 5-25 % under the settled cycle. Compared with the settled cycle, the
 truth then costs tens to hundreds of units on its own record and the fit moves the linear block
-(:func:`discovery.structure.cycle_tail.settles`,
-:meth:`discovery.structure.targets.CycleTarget._transient_features`).
+(:func:`tvcid.discovery.structure.cycle_tail.settles`,
+:meth:`tvcid.discovery.structure.targets.CycleTarget._transient_features`).
 """
 from __future__ import annotations
 
@@ -13,12 +13,12 @@ from unittest import mock
 import numpy as np
 import pytest
 
-from discovery.structure import cycle_tail, targets
-from discovery.structure.search import Objective
-from models import simulate
-from models.recording import load_recording
-from studies.benchmarks import scenarios
-from studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
+from tvcid.discovery.structure import cycle_tail, targets
+from tvcid.discovery.structure.search import Objective
+from tvcid.models import simulate
+from tvcid.models.recording import load_recording
+from tvcid.studies.benchmarks import scenarios
+from tvcid.studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
 
 DATA = "data/bench/draw1000"
 

@@ -6,7 +6,8 @@ import numpy as np
 import pysindy as ps
 import pytest
 
-from discovery.sindy import (
+from tvcid.cli import main
+from tvcid.discovery.sindy import (
     ActuatorLibrary,
     BumpTestFunctions,
     RecordingTooShortError,
@@ -14,12 +15,11 @@ from discovery.sindy import (
     WeakSINDyActuator,
     play_along,
 )
-from discovery.sindy.library import command_jumps, delayed_command
-from discovery.sindy.weak import prepare_signals, weak_integrals
-from models import OpenLoop, hypothesis, simulate
-from models.nonlinearities import dead_zone, play_operator
-from models.recording import load_recording, recording_from_trajectory, save_recording
-from tvcid.cli import main
+from tvcid.discovery.sindy.library import command_jumps, delayed_command
+from tvcid.discovery.sindy.weak import prepare_signals, weak_integrals
+from tvcid.models import OpenLoop, hypothesis, simulate
+from tvcid.models.nonlinearities import dead_zone, play_operator
+from tvcid.models.recording import load_recording, recording_from_trajectory, save_recording
 
 
 def test_play_along_matches_the_models_play_operator():

@@ -2,7 +2,7 @@
 velocity signal, delay before the integrator, friction offset, backlash, band-pass loop), from
 open-loop tests.
 
-Truths and sensors come from the shared generator (:func:`studies.benchmarks.scenarios.draw_scenario` with
+Truths and sensors come from the shared generator (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario` with
 M001f's structure); the records are made by the numba kernel at the generator's 5e-5 s step in
 place of the plain-Python reference path and written as measured-style recordings. The tests are
 the specified ones: square 2e-2 rad at 1 Hz, sine 2e-2 rad at 2 Hz (they pin the block, K, r and the
@@ -31,12 +31,12 @@ from unittest import mock
 
 import pytest
 
-from discovery.sindy import discover_structure
-from models import M001f, simulate
-from models.recording import load_recording
-from models.structures import Structure
-from studies.benchmarks import scenarios
-from studies.benchmarks.scenarios import RecordingDesign, draw_scenario
+from tvcid.discovery.sindy import discover_structure
+from tvcid.models import M001f, simulate
+from tvcid.models.recording import load_recording
+from tvcid.models.structures import Structure
+from tvcid.studies.benchmarks import scenarios
+from tvcid.studies.benchmarks.scenarios import RecordingDesign, draw_scenario
 
 M001F_TERMS = {
     "delta''", "delta'", "u(t-Td)", "play_r(delta)(t-Td)", "L[sign(delta')]",

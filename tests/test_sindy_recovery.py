@@ -1,7 +1,7 @@
 """Weak-form SINDy recovers drawn actuators of paper 002's placement (dead zone on the error,
 delay at the output, backlash).
 
-Truths and sensors come from the shared generator (:func:`studies.benchmarks.scenarios.draw_scenario` with
+Truths and sensors come from the shared generator (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario` with
 paper 002's structure: the linear block, thresholds, delay, sensor noise, quantisation drawn), the
 records are made by the numba kernel at the generator's 5e-5 s step in place of the plain-Python
 reference path and written as measured-style recordings. The open-loop tests are the specified
@@ -37,12 +37,12 @@ from unittest import mock
 
 import pytest
 
-from discovery.sindy import WeakSINDyActuator, rank_by_simulation
-from models import M002, ActuatorParams, simulate
-from models.recording import load_recording
-from models.structures import Structure
-from studies.benchmarks import scenarios
-from studies.benchmarks.scenarios import RecordingDesign, draw_scenario
+from tvcid.discovery.sindy import WeakSINDyActuator, rank_by_simulation
+from tvcid.models import M002, ActuatorParams, simulate
+from tvcid.models.recording import load_recording
+from tvcid.models.structures import Structure
+from tvcid.studies.benchmarks import scenarios
+from tvcid.studies.benchmarks.scenarios import RecordingDesign, draw_scenario
 
 DZ_TERM = "DZ_z(u(t-Td)-K*play_r(delta))"
 TERMS = {"delta''", "delta'", DZ_TERM}

@@ -5,18 +5,18 @@ import json
 import numpy as np
 import pytest
 
-from discovery.spectral import (
+from tvcid.cli import main
+from tvcid.discovery.spectral import (
     SpectralInputError,
     amplitude_spectrum,
     harmonic_table,
     lowpass_reconstruction,
     noise_floor,
 )
-from models import CONTROLLER_A, InsufficientPeriodsError, hypothesis, simulate
-from models.noise import band_limited_white_noise
-from models.recording import load_recording, recording_from_trajectory, save_recording
-from studies.benchmarks.scenarios import draw_scenario
-from tvcid.cli import main
+from tvcid.models import CONTROLLER_A, InsufficientPeriodsError, hypothesis, simulate
+from tvcid.models.noise import band_limited_white_noise
+from tvcid.models.recording import load_recording, recording_from_trajectory, save_recording
+from tvcid.studies.benchmarks.scenarios import draw_scenario
 
 RATE = 1000.0
 
@@ -66,7 +66,7 @@ def test_harmonic_table_flags_the_seventh_harmonic_of_m001f(m001f_record):
 
 @functools.lru_cache(maxsize=None)
 def _drawn(seed):
-    """Draw ``seed`` of the shared generator (:func:`studies.benchmarks.scenarios.draw_scenario`: truths
+    """Draw ``seed`` of the shared generator (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`: truths
     over every structure) at its first limit-cycle setting (controller, hold and acquisition
     rate): ``(scenario, experiment, rate)``."""
     scenario = draw_scenario(seed, ranges="papers")
@@ -117,7 +117,7 @@ def _noise_floor_errors(seeds, power, band):
 def test_noise_floor_recovers_the_injected_power(power, band):
     """Measured over draws 0-19: every matched power within 12.5 % of the injected one (draw 4,
     whose band-pass loop answers the noise coherently, as M000's does:
-    discovery.spectral.noise_floor), its root within 6.1 %. Asserted on :data:`PLAIN_DRAWS`:
+    tvcid.discovery.spectral.noise_floor), its root within 6.1 %. Asserted on :data:`PLAIN_DRAWS`:
     each within 20 % (1.6x the largest) and the root within 10 %."""
     errors, std_errors = _noise_floor_errors(PLAIN_DRAWS, power, band)
     assert np.max(np.abs(errors)) < 0.20, errors.round(3)
@@ -174,7 +174,7 @@ def test_short_and_bad_records_are_refused():
 
 
 def load_recording_stub():
-    from models.recording import Recording
+    from tvcid.models.recording import Recording
 
     return Recording(columns={"t": np.arange(10.0), "u": np.zeros(10), "delta": np.zeros(10)}, meta={"kind": "open"})
 

@@ -1,4 +1,4 @@
-"""discovery.calibration.step_error: the widening rule, the tilt that moves a posterior, and the
+"""tvcid.discovery.calibration.step_error: the widening rule, the tilt that moves a posterior, and the
 step error measured on real calibrations (a quantity pinned tighter than the step resolves is
 widened; one far wider than it is left as it is; the measured move agrees with the difference of
 the two steps' optima)."""
@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from discovery.calibration import Calibration
-from discovery.calibration.likelihood.solver import SOLVER_ERROR_FACTOR
-from discovery.calibration.runner import ConvergenceWarning
-from discovery.calibration.step_error import (
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.calibration.likelihood.solver import SOLVER_ERROR_FACTOR
+from tvcid.discovery.calibration.runner import ConvergenceWarning
+from tvcid.discovery.calibration.step_error import (
     halved_log_posterior,
     measure_step_error,
     tilt_shift,
@@ -21,8 +21,8 @@ from discovery.calibration.step_error import (
     widen_interval,
     widen_quantiles,
 )
-from models import M000, OpenLoop, hypothesis, simulate
-from models.recording import recording_from_trajectory, save_recording
+from tvcid.models import M000, OpenLoop, hypothesis, simulate
+from tvcid.models.recording import recording_from_trajectory, save_recording
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

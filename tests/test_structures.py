@@ -1,11 +1,11 @@
-"""The grammar of structures (models.structures) and the replay of sampled commands
-(models.commands)."""
+"""The grammar of structures (tvcid.models.structures) and the replay of sampled commands
+(tvcid.models.commands)."""
 import numpy as np
 import pytest
 
-from models import OpenLoop, hypothesis
-from models.commands import command_from_samples
-from models.structures import (
+from tvcid.models import OpenLoop, hypothesis
+from tvcid.models.commands import command_from_samples
+from tvcid.models.structures import (
     Structure,
     UnknownStructureError,
     all_structures,
@@ -104,7 +104,7 @@ def test_unknown_interpolation_and_too_few_samples_for_a_spline_are_errors():
 def test_shared_choices_decide_what_every_indistinguishable_structure_shares():
     """M000's quick discovery set: the dead zone's position, the backlash and the band-pass loop
     are decided; the delay's position and the friction offset (merged into the threshold) are not."""
-    from models.structures import shared_choices
+    from tvcid.models.structures import shared_choices
 
     decided = shared_choices(["dz_velocity+delay_before_first_integrator+backlash+bandpass",
                               "dz_velocity+delay_before_first_integrator+friction+backlash+bandpass",

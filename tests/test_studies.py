@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from studies.registry import STUDIES
 from tvcid.cli import main
+from tvcid.studies.registry import STUDIES
 
 
 @pytest.fixture(scope="session")
@@ -31,7 +31,7 @@ def test_study_quick_writes_outputs(quick_results, name):
 
 
 def test_report_has_a_row_for_every_paper_number(quick_results):
-    from studies.report import load_papers
+    from tvcid.studies.report import load_papers
 
     report = (quick_results / "report.md").read_text()
     ids = [e["id"] for e in load_papers()["numbers"]]
@@ -139,13 +139,13 @@ def test_h1_runs_the_mcmc_ridge_and_the_report_embeds_it(quick_results):
 
 @pytest.mark.slow
 def test_full_ridge_study_leaves_one_cycle_on_a_ridge_that_more_data_shrink(tmp_path):
-    """The full ``python -m studies.calibration_ridge`` (seed 0; 2-4 min on 2 cores), whose numbers
+    """The full ``python -m tvcid.studies.calibration_ridge`` (seed 0; 2-4 min on 2 cores), whose numbers
     docs/methods/calibration.md states. One cycle's amplitude and frequency leave a ridge: corr(ln
     f, ln zm) 0.995 and 0.994 on seeds 0 and 1, its chain unconverged at the cap, so its widths are
     lower bounds (6-13 times the two-controller widths). Against the converged two-controller
     posterior, open-loop tests shrink the widths 2.2-5.8 times and the waveforms of all records
     5.2-10 times (seeds 0 and 1, per parameter f, zm, Td); asserted with the margins below."""
-    from studies import calibration_ridge
+    from tvcid.studies import calibration_ridge
 
     summary = calibration_ridge.run(calibration_ridge.Config(), 0, tmp_path)
     rows = {r["label"]: r for r in summary["ridge"]["rows"]}

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from models import simulate
-from models.features import limit_cycle_features
-from models.kernel import _sign_switch_average
-from models.nonlinearities import sign_switch_average
+from tvcid.models import simulate
+from tvcid.models.features import limit_cycle_features
+from tvcid.models.kernel import _sign_switch_average
+from tvcid.models.nonlinearities import sign_switch_average
 
 
 def _brute_force_mean(q0, q1, z, n=200_001):
@@ -30,7 +30,7 @@ def locked_cycle():
     """Coverage draw 2, second limit cycle: friction offset at a velocity dead zone; with the jump
     at a step boundary instead of located, its frequency would be identical at 5e-4 and 2.5e-4 s
     and flat in the offset."""
-    from studies.benchmarks.coverage import Config, coverage_scenario
+    from tvcid.studies.benchmarks.coverage import Config, coverage_scenario
 
     scenario = coverage_scenario(2, Config())
     design = [d for d in scenario.recordings if d.kind == "closed"][1]

@@ -1,15 +1,15 @@
-"""Threads in the searches (discovery.structure.search) and the BLAS budget (discovery.threads):
+"""Threads in the searches (tvcid.discovery.structure.search) and the BLAS budget (tvcid.discovery.threads):
 the concurrent discovery returns exactly what the plain loops return."""
 import numpy as np
 import pytest
 
-import discovery.structure.search as search
-import discovery.threads as threads
-from discovery.structure import StructureDiscovery
-from discovery.threads import one_blas_thread
-from models import simulate
-from models.structures import Structure
-from studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
+import tvcid.discovery.structure.search as search
+import tvcid.discovery.threads as threads
+from tvcid.discovery.structure import StructureDiscovery
+from tvcid.discovery.threads import one_blas_thread
+from tvcid.models import simulate
+from tvcid.models.structures import Structure
+from tvcid.studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
 
 
 def _blas_threads():
@@ -51,7 +51,7 @@ def test_threaded_discovery_is_the_loop_discovery(tmp_path, monkeypatch):
     concurrently. Every cost, score, coordinate and verdict equals the sequential run's, and
     so does the count of simulated sets. The searches are cut short (the test is about the
     threads, not the search)."""
-    import discovery.structure.structure_search as structure_search
+    import tvcid.discovery.structure.structure_search as structure_search
 
     monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
         pop=3, gens=4, open_pop=3, open_gens=4, nfev=6, rank_nfev=3))
@@ -60,7 +60,7 @@ def test_threaded_discovery_is_the_loop_discovery(tmp_path, monkeypatch):
     scenario = shortened(draw_scenario(5, structure=s), closed=10.0, open_=5.0)
     # coarse, and made by the numba kernel in place of the plain-Python reference path (which
     # costs more than the discoveries): any data will do here
-    monkeypatch.setattr("studies.benchmarks.scenarios.simulate_reference", simulate)
+    monkeypatch.setattr("tvcid.studies.benchmarks.scenarios.simulate_reference", simulate)
     paths = write_recordings(scenario, tmp_path, dt=5e-4)
     fixed = {"dead_zone_position": "velocity", "delay_position": "output", "bandpass_gain": 0.0}
     runs = {}
@@ -76,9 +76,9 @@ def test_threaded_log_posterior_is_the_loop_log_posterior(tmp_path, monkeypatch)
     """The calibration's likelihood terms simulated concurrently: a limit cycle (features) and an
     open-loop square (output error) of paper 002's actuator; the log posterior of a batch, of one
     point, and the pointwise log-likelihoods equal the plain loop's bit for bit."""
-    from discovery.calibration import Calibration
-    from models import CONTROLLER_A, M002, OpenLoop
-    from models.synthetic import synthetic_recording
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.models import CONTROLLER_A, M002, OpenLoop
+    from tvcid.models.synthetic import synthetic_recording
 
     recs = [synthetic_recording(M002(), CONTROLLER_A, 14.0, 1e-4, 1, tmp_path / "a.csv",
                                 keep_last=8.0),
@@ -100,12 +100,12 @@ def test_threaded_log_posterior_is_the_loop_log_posterior(tmp_path, monkeypatch)
 
 @pytest.mark.slow
 def test_likelihood_threads_benchmark_records_equal_numbers_and_both_timings(tmp_path):
-    """``python -m studies.benchmarks.likelihood_threads --quick``: its record holds both timings
+    """``python -m tvcid.studies.benchmarks.likelihood_threads --quick``: its record holds both timings
     of one point and of a batch, the bit-for-bit comparison (its goals judge the speed-ups) and
     each recording's share of a point's cost."""
     import json
 
-    from studies.benchmarks.likelihood_threads import main
+    from tvcid.studies.benchmarks.likelihood_threads import main
 
     main(["--quick", "--out", str(tmp_path)])
     saved = json.loads((tmp_path / "bench.json").read_text())

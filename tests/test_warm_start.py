@@ -5,8 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from models import CONTROLLER_A, M000, M002, M001f, simulate
-from models.batch import BatchSimulator, warm_start_state
+from tvcid.models import CONTROLLER_A, M000, M002, M001f, simulate
+from tvcid.models.batch import BatchSimulator, warm_start_state
 
 DT = 5e-4
 
@@ -60,7 +60,7 @@ def test_a_run_continued_from_its_own_end_state_follows_it():
 
 
 def test_continuation_returns_the_nearest_stored_state_within_its_radius():
-    from models.batch import Continuation
+    from tvcid.models.batch import Continuation
 
     base = M002()
     store = Continuation(radius=0.01, capacity=2)
@@ -80,8 +80,8 @@ def test_continued_runs_cut_the_worst_transient_error_of_proposals_near_their_wa
     """M002's 10 s record, a 3 s transient: proposals 0.3 % from walkers 0.5-2 % off the truth,
     log-likelihood against a 12 s transient. Measured: worst 121 nats from the shared start,
     8 continued (median 0.40 and 0.59: the transient cannot shrink much)."""
-    from discovery.calibration import Calibration
-    from models.synthetic import synthetic_recording
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.models.synthetic import synthetic_recording
 
     rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 0, tmp_path / "m002.csv",
                               keep_last=10.0)
@@ -116,7 +116,7 @@ def test_a_reference_run_decaying_to_rest_gives_no_warm_start():
     the record's 5.6e-4), and scaling that state up by 10^5 overflows every run. No warm start
     is made there; the run from the member's own initial conditions stays finite; a cycle the
     size of its target still gets one."""
-    from models.experiments import ClosedLoop
+    from tvcid.models.experiments import ClosedLoop
 
     loop = ClosedLoop(kp=5.84, kd=0.062, mu=12.3, sample_rate=200.0)
     member = M002().replace(

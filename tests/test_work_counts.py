@@ -1,4 +1,4 @@
-"""What a run's work is counted in (discovery.speed, the search's Objective, the members' tasks)
+"""What a run's work is counted in (tvcid.discovery.speed, the search's Objective, the members' tasks)
 and when a timed run counts as the speed (the idle check of the speed benchmark)."""
 import json
 import math
@@ -7,11 +7,11 @@ from pathlib import Path
 import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from discovery.speed import MAX_LOAD, MAX_REFERENCE_DRIFT, idle_check, kernel_reference
-from discovery.structure.search import Objective
-from discovery.structure.targets import make_target
-from models import hypothesis
-from models.recording import load_recording
+from tvcid.discovery.speed import MAX_LOAD, MAX_REFERENCE_DRIFT, idle_check, kernel_reference
+from tvcid.discovery.structure.search import Objective
+from tvcid.discovery.structure.targets import make_target
+from tvcid.models import hypothesis
+from tvcid.models.recording import load_recording
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "m000_closed_A.csv"
 RECORDS = Path(__file__).resolve().parents[1] / "studies" / "benchmarks" / "records"
@@ -85,7 +85,7 @@ def test_a_members_task_runs_blas_on_one_thread_and_reports_its_cpu(monkeypatch,
 def test_a_flagged_speed_run_is_shown_flagged_and_not_judged():
     """The stored speed run with a failed idle check: the results table says it is flagged and
     why, and does not judge its goal."""
-    from studies.benchmarks.results_table import discover_speed
+    from tvcid.studies.benchmarks.results_table import discover_speed
 
     record = json.loads((RECORDS / "bench_discover_speed.json").read_text())
     flag = idle_check(1.08, 1.0e-7, 1.0e-7)
@@ -102,8 +102,8 @@ def test_evaluation_steps_split_a_points_cost_by_record_and_part(tmp_path):
     cycle's settling (6 s) and window (10 s) at 5e-4 s, nothing simulated beyond the window; the
     square's whole record at the step its edges and solver check chose, the steps that choice
     added apart. The parts add up to the steps."""
-    from discovery.calibration.likelihood import FeatureTerm, OpenLoopTerm
-    from discovery.speed import evaluation_steps
+    from tvcid.discovery.calibration.likelihood import FeatureTerm, OpenLoopTerm
+    from tvcid.discovery.speed import evaluation_steps
 
     truth = hypothesis("M000")
     cycle = FeatureTerm(load_recording(DATA), 10.0, 6.0, 5e-4).setup(truth)
@@ -128,7 +128,7 @@ def test_stored_evaluation_cost_record_is_its_rows_summary():
     every cycle record's settling and window are counted, and a run's features, read over exact
     whole periods, move from one window to the next by less than the data's sd in the median
     where the record does not settle."""
-    from studies.benchmarks.evaluation_cost import summarise
+    from tvcid.studies.benchmarks.evaluation_cost import summarise
 
     record = json.loads((RECORDS / "bench_evaluation_cost.json").read_text())
     rows = record["rows"]

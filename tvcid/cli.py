@@ -59,7 +59,7 @@ def plugin_commands() -> tuple:
 
 
 def main(argv=None) -> int:
-    from models import SimulationDiverged
+    from tvcid.models import SimulationDiverged
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -14,7 +14,7 @@ def pyplot():
 
 def write_posterior_figures(post, out_dir, seed=0, n_draws=30):
     """``corner.png``, ``traces.png`` and ``predictive.png`` (one panel per recording) of a
-    :class:`discovery.calibration.Posterior` into ``out_dir``."""
+    :class:`tvcid.discovery.calibration.Posterior` into ``out_dir``."""
     plt = pyplot()
     fig = post.plot_corner()
     fig.savefig(out_dir / "corner.png", dpi=90)
@@ -33,10 +33,10 @@ def write_posterior_figures(post, out_dir, seed=0, n_draws=30):
 
 def write_pinned_figure(post, pinned, path, recordings=(), params=None, max_panels=6):
     """The draws of one member over the parameters its pinned combinations join, pair by pair
-    (``pinned``: :class:`discovery.calibration.pinned.PinnedMap` as a dict): each combination's
+    (``pinned``: :class:`tvcid.discovery.calibration.pinned.PinnedMap` as a dict): each combination's
     leading term against its next two, at most ``max_panels`` panels. Where the dead zone acts on
     the error (paper 002's structure, ``params``), the backlash / dead-zone pair carries paper
-    002's describing-function family (:func:`discovery.calibration.ridge.df_family`), placed by
+    002's describing-function family (:func:`tvcid.discovery.calibration.ridge.df_family`), placed by
     the first limit cycle of ``recordings``. Writes ``path`` and returns it, or ``None`` where no
     combination joins two parameters."""
     import textwrap
@@ -44,8 +44,8 @@ def write_pinned_figure(post, pinned, path, recordings=(), params=None, max_pane
     import numpy as np
     from matplotlib.ticker import NullFormatter
 
-    from discovery.calibration.ridge import df_family, robust_amplitude
-    from models.features import InsufficientPeriodsError, limit_cycle_features
+    from tvcid.discovery.calibration.ridge import df_family, robust_amplitude
+    from tvcid.models.features import InsufficientPeriodsError, limit_cycle_features
 
     combos = [c for c in pinned["pinned"] if len(c["terms"]) > 1]
     pairs = []

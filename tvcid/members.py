@@ -1,9 +1,9 @@
-"""The set's members calibrated as independent tasks of an executor (:mod:`discovery.executors`).
+"""The set's members calibrated as independent tasks of an executor (:mod:`tvcid.discovery.executors`).
 
 :func:`calibrate_member_task` does all of one member's own work: its chain
 (:func:`member_chain`, checkpointed in ``chain-<tag>.h5`` of the output
 directory), its summary, its step error and the importance draws of its evidence for the weights
-(:func:`discovery.structure.member_evidence.member_importance_draws`); or, screening, the chain
+(:func:`tvcid.discovery.structure.member_evidence.member_importance_draws`); or, screening, the chain
 and the draws alone. It
 gets everything as arguments and hands back a :class:`MemberRun`, both of which pickle, so it
 runs the same in this process (the default) or on a Dask worker; :func:`tvcid.set_stage.calibrate_set`
@@ -17,7 +17,7 @@ import os
 import time
 from dataclasses import dataclass, field
 
-from models.strict_json import jsonable
+from tvcid.models.strict_json import jsonable
 
 __all__ = ["MemberRun", "calibrate_member_task"]
 
@@ -30,16 +30,16 @@ class MemberRun:
     ----------
     structure : str
     failed : str or None
-        Why its chain could not start (:class:`discovery.calibration.start.NoFiniteStartError`);
+        Why its chain could not start (:class:`tvcid.discovery.calibration.start.NoFiniteStartError`);
         the other fields are then empty.
-    posterior : discovery.calibration.Posterior or None
+    posterior : tvcid.discovery.calibration.Posterior or None
     kept : dict
         Its row of ``set_posterior.members`` (the posterior's summary, step error, chain file).
     quantities, prior_quantities : dict
         Combined quantity -> draws, of the posterior and of the priors alone.
     step_error : dict
         Combined quantity -> its step error.
-    draws : discovery.structure.member_evidence.ImportanceDraws or None
+    draws : tvcid.discovery.structure.member_evidence.ImportanceDraws or None
         Its evidence's importance draws, for the weights (only when the set has several members).
     simulated_seconds : float
         Seconds simulated: the chain (start included), the step error, the importance draws.
@@ -83,7 +83,7 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     ----------
     row : dict
         The member's row of the ranking.
-    recs : list of models.recording.Recording
+    recs : list of tvcid.models.recording.Recording
     offsets : dict
         Sensor offset per recording (rad), removed before the calibration.
     fixed : dict or None
@@ -103,7 +103,7 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     -------
     MemberRun
     """
-    from discovery.threads import one_blas_thread
+    from tvcid.discovery.threads import one_blas_thread
 
     t0, c0 = time.perf_counter(), time.process_time()
     with one_blas_thread():  # also on a worker: the kernels own its cores
@@ -117,11 +117,15 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
 def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out, weigh,
                  screen):
     """:func:`calibrate_member_task`'s work, untimed."""
-    from discovery.calibration.start import NoFiniteStartError
-    from discovery.calibration.step_error import measure_step_error, widen_quantiles
-    from discovery.structure.member_evidence import member_importance_draws
-    from discovery.calibration.pinned import pinned_combinations
-    from discovery.structure.set_posterior import member_quantities, not_pinned, prior_quantities
+    from tvcid.discovery.calibration.pinned import pinned_combinations
+    from tvcid.discovery.calibration.start import NoFiniteStartError
+    from tvcid.discovery.calibration.step_error import measure_step_error, widen_quantiles
+    from tvcid.discovery.structure.member_evidence import member_importance_draws
+    from tvcid.discovery.structure.set_posterior import (
+        member_quantities,
+        not_pinned,
+        prior_quantities,
+    )
 
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
     try:
@@ -171,7 +175,7 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
 
 def _corrected(recordings, offsets):
     """The recordings with their estimated sensor offset removed from ``delta``."""
-    from models.recording import Recording
+    from tvcid.models.recording import Recording
 
     out = []
     for r in recordings:
@@ -184,18 +188,18 @@ def _corrected(recordings, offsets):
 
 def member_chain(row, recs, offsets, fixed, seed, quick, max_steps, progress, out):
     """MCMC of one member of the set
-    (:func:`discovery.structure.member_calibration.calibrate_member`) on all recordings with
+    (:func:`tvcid.discovery.structure.member_calibration.calibrate_member`) on all recordings with
     their offsets removed, checkpointed in ``out``. Returns ``(posterior, priors, simulated
     seconds of the start and of the sampling, chain file name)``.
 
     The chain's file is named by a hash of the member's parameters as strict JSON
-    (:func:`models.strict_json.jsonable` of the rebuilt :class:`models.ActuatorParams`): the
+    (:func:`tvcid.models.strict_json.jsonable` of the rebuilt :class:`tvcid.models.ActuatorParams`): the
     ranking of a fresh run holds an open saturation as infinity, the same ranking read back from
     ``discovery.json`` as ``null``, and both must name the same chain for a rerun to resume it.
     """
-    from discovery.structure.member_calibration import calibrate_member
-    from models import params_from_dict
-    from models.structures import Structure
+    from tvcid.discovery.structure.member_calibration import calibrate_member
+    from tvcid.models import params_from_dict
+    from tvcid.models.structures import Structure
 
     p = params_from_dict("custom", row["params"])
     tag = hashlib.sha256(json.dumps([jsonable(p.to_dict()), "set member", quick, seed],

@@ -2,16 +2,16 @@
 own recordings, then MCMC.
 
 Screening (SINDy seeds), fitting every structure by closed- and open-loop simulation, ranking by
-two-fold out-of-sample error (:class:`discovery.structure.StructureDiscovery`), then the MCMC
+two-fold out-of-sample error (:class:`tvcid.discovery.structure.StructureDiscovery`), then the MCMC
 calibration of every member of the set the recordings leave open, on all recordings
-(:class:`discovery.calibration.Calibration`), combined by the members' weights; where
+(:class:`tvcid.discovery.calibration.Calibration`), combined by the members' weights; where
 the recordings leave several structures, the test that would tell them apart (:func:`next_test`).
 Nothing is lost to a killed run: ``discovery.json`` is written as soon as the ranking is done and
 carries a hash of the inputs, so a rerun with the same recordings and options reuses it instead of
 searching again, and the chain is checkpointed, so the MCMC resumes where it stopped.
 :func:`discover` returns a :class:`DiscoveryResult` and writes ``discovery.json`` and
 ``report.md`` with the figures beside them (docs/methods/discovery.md). With ``dask``, the
-classes' global searches (:mod:`discovery.structure.tasks`) and the members' calibrations
+classes' global searches (:mod:`tvcid.discovery.structure.tasks`) and the members' calibrations
 (:mod:`tvcid.members`) run on a Dask cluster, with the same result (docs/cluster.md).
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.speed import cpu_seconds
+from tvcid.discovery.speed import cpu_seconds
 
 from .result import DiscoveryResult
 from .set_stage import calibrate_set
@@ -56,7 +56,7 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     mcmc : bool
         Calibrate the set's members after the ranking.
     search : {"standard", "thorough", ...}
-        Search sizes (:data:`discovery.structure.structure_search.SEARCHES`).
+        Search sizes (:data:`tvcid.discovery.structure.structure_search.SEARCHES`).
     dask : str, optional
         Run the global searches of the classes' largest structures and the members'
         calibrations on the Dask scheduler at this address (``tcp://HOST:8786``), or on a
@@ -68,22 +68,22 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
     -------
     DiscoveryResult
 
-    ``search`` names the search sizes (:data:`discovery.structure.structure_search.SEARCHES`);
+    ``search`` names the search sizes (:data:`tvcid.discovery.structure.structure_search.SEARCHES`);
     ``quick`` only shortens the chain.
 
     A finished ranking of the same inputs already in ``out`` is reused (``resumed_ranking``), and
     an interrupted chain resumes from its checkpoint.
     """
-    from discovery.executors import check_dask_address, executor_from
-    from discovery.structure import validate_recordings
-    from discovery.threads import one_blas_thread
+    from tvcid.discovery.executors import check_dask_address, executor_from
+    from tvcid.discovery.structure import validate_recordings
+    from tvcid.discovery.threads import one_blas_thread
 
     if dask is not None:
         check_dask_address(dask)  # a bad address, or no Dask: one line before any work
     out = Path(out)
     recs = validate_recordings(files)
     out.mkdir(parents=True, exist_ok=True)
-    # every stage: the kernels own the cores (discovery.threads; the workers' tasks limit their own)
+    # every stage: the kernels own the cores (tvcid.discovery.threads; the workers' tasks limit their own)
     with executor_from(dask=dask) as executor, one_blas_thread():
         return _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search,
                          executor)
@@ -91,7 +91,7 @@ def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=T
 
 def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, executor):
     """:func:`discover` on validated recordings, the independent work through ``executor``."""
-    from models.structures import shared_choices
+    from tvcid.models.structures import shared_choices
 
     inputs = inputs_hash(recs, fixed, seed, search)
     previous = _previous_ranking(out, inputs)
@@ -165,16 +165,16 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
     """The experiment loop: add recordings to an earlier :func:`discover` run in ``out``.
 
     Every structure is refitted by least squares from its optimum of the earlier run on all the
-    recordings (:meth:`discovery.structure.StructureDiscovery.fit` with ``previous``), then
+    recordings (:meth:`tvcid.discovery.structure.StructureDiscovery.fit` with ``previous``), then
     ranked; the set, its posterior and the next test are made again. The earlier run's fixed
     set-up, seed and search sizes are kept. Refused with one line, before anything is written:
     no earlier run in ``out``, one of another version, a different ``fixed``, or a recording
     already in the run. Rerun after an interruption, the same ``--add`` resumes. ``dask`` runs
     the members' calibrations as :func:`discover`'s does (the refits run in this process).
     """
-    from discovery.executors import check_dask_address
-    from discovery.structure import validate_recordings
-    from models import params_from_dict
+    from tvcid.discovery.executors import check_dask_address
+    from tvcid.discovery.structure import validate_recordings
+    from tvcid.models import params_from_dict
 
     if dask is not None:
         check_dask_address(dask)
@@ -221,20 +221,20 @@ def median_sensor_noise(summary) -> float:
 
 def next_test(summary, recs, seed, out, spent=None):
     """The test that would tell apart the structures the recordings cannot
-    (:func:`discovery.structure.discrimination.discriminating_tests` on the set's unmerged
+    (:func:`tvcid.discovery.structure.discrimination.discriminating_tests` on the set's unmerged
     members at their fitted parameters, refitted to the recordings for the best
     candidates; the default menu acquired at the recordings' highest rate, the recordings'
     median noise); writes ``next_test.png``. A calibrated member whose weight is under
-    :data:`discovery.structure.set_weights.DECIDING_SHARE` is left out (``left_out``: the data
+    :data:`tvcid.discovery.structure.set_weights.DECIDING_SHARE` is left out (``left_out``: the data
     have decided against it); one beyond the calibration's cap stays. ``None`` for a set of one.
     A dict ``spent`` gets what it simulated, ``simulated_seconds`` and ``simulated_steps``."""
-    from discovery.structure.discrimination import (
+    from tvcid.discovery.structure.discrimination import (
         default_candidates,
         discriminating_tests,
     )
-    from discovery.structure.set_weights import DECIDING_SHARE
-    from discovery.structure.targets import make_target
-    from models import params_from_dict
+    from tvcid.discovery.structure.set_weights import DECIDING_SHARE
+    from tvcid.discovery.structure.targets import make_target
+    from tvcid.models import params_from_dict
 
     weight = {m["structure"]: m["weight"]
               for m in (summary.get("set_posterior") or {}).get("members") or ()}
@@ -294,7 +294,7 @@ def _previous_ranking(out, inputs):
 
 
 def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None, executor=None):
-    from discovery.structure import StructureDiscovery
+    from tvcid.discovery.structure import StructureDiscovery
 
     t0 = time.perf_counter()
     disc = StructureDiscovery(fixed=fixed, seed=seed, search=search, progress=progress,

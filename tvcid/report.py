@@ -10,10 +10,10 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from discovery.structure.set_posterior import (COMPONENT_QUANTITIES, QUANTITY_UNITS, decided_absent,
+from tvcid.discovery.structure.set_posterior import (COMPONENT_QUANTITIES, QUANTITY_UNITS, decided_absent,
                                                partly_present, printed_present_or_absent)
-from models.hypotheses import parameter_unit
-from models.structures import Structure, prune_reason
+from tvcid.models.hypotheses import parameter_unit
+from tvcid.models.structures import Structure, prune_reason
 
 __all__ = ["discovery_report", "summary_lines"]
 
@@ -208,7 +208,7 @@ def _members_lines(sp) -> list:
 
 def _pinned_lines(members) -> list:
     """Per member, the combinations of parameters its draws pin beyond any one parameter, and
-    how many directions they leave free (:mod:`discovery.calibration.pinned`)."""
+    how many directions they leave free (:mod:`tvcid.discovery.calibration.pinned`)."""
     rows, figures = [], []
     for m in members:
         pm = m["posterior"].get("pinned")
@@ -288,7 +288,7 @@ def summary_lines(summary) -> list:
 
 def _decided_line(summary, best) -> str:
     """What the set and the weights decide, and what they leave open with each side's share:
-    one rule (:func:`discovery.structure.set_weights.weighed_choices`) for this line and the
+    one rule (:func:`tvcid.discovery.structure.set_weights.weighed_choices`) for this line and the
     table's "present or absent"."""
     choices = (summary.get("set_posterior") or {}).get("choices")
     if not choices:  # no calibration: the set's structures alone

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.strict_json import jsonable, write_json
+from tvcid.models.strict_json import jsonable, write_json
 
 __all__ = ["DiscoveryResult"]
 

@@ -9,7 +9,7 @@
   predictive plots, ArviZ export, WAIC and BIC;
 * :mod:`.ridge` -- the dead-zone/backlash ridge of a single limit cycle and its shrinkage.
 """
-from models.recording import load_recordings
+from tvcid.models.recording import load_recordings
 
 from .backend import CheckpointBackend
 from .calibration import Calibration

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from models.hypotheses import ActuatorParams
-from models.hypotheses import hypothesis as get_hypothesis
-from models.recording import load_recordings
+from tvcid.models.hypotheses import ActuatorParams
+from tvcid.models.hypotheses import hypothesis as get_hypothesis
+from tvcid.models.recording import load_recordings
 
 from ..threads import one_blas_thread
 from .backend import H5_GROUP, CheckpointBackend
@@ -60,9 +60,9 @@ def truths_from_recordings(recordings, names, hypothesis_name):
 
 
 #: Default RK4 step per likelihood (s). With the friction offset's jump located inside the step
-#: (``models.nonlinearities.sign_switch_average``), the ridge case at 5e-4 s converges in 260 steps
+#: (``tvcid.models.nonlinearities.sign_switch_average``), the ridge case at 5e-4 s converges in 260 steps
 #: (27 s) with all four truths inside (HPD rank 0.30), against 970 steps (159 s) at 2.5e-4 s
-#: (``python -m studies.benchmarks.calibration --case ridge``); records that need a finer step get
+#: (``python -m tvcid.studies.benchmarks.calibration --case ridge``); records that need a finer step get
 #: one (:meth:`.likelihood.solver._WaveformSolverError._refine_step`). The features' first-order
 #: error is corrected instead.
 DEFAULT_DT = {"waveform": 5e-4, "features": 5e-4}
@@ -89,7 +89,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
     Parameters
     ----------
     hypothesis : str or ActuatorParams
-        A hypothesis name (``models.hypothesis``) or a parameter object; every parameter not
+        A hypothesis name (``tvcid.models.hypothesis``) or a parameter object; every parameter not
         sampled keeps its value (after ``fixed``).
     params : sequence of str
         Sampled parameters: fields of the hypothesis and/or ``"sigma"`` (sensor-noise sd, rad).
@@ -137,7 +137,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
         the truth, against a 12 s transient) from 121 to 8 nats at a 3 s transient and from 9.9
         to 0.9 at 6 s, but not the median (0.40 and 0.22 nats shared, 0.59 and 0.10 continued:
         a nearby cycle is approached slowly). Over the calibration benchmark's seven M002 seeds
-        (``studies.benchmarks.calibration --continuation``; 99.6 % of the runs continued) the
+        (``tvcid.studies.benchmarks.calibration --continuation``; 99.6 % of the runs continued) the
         posteriors sit within 0.10 half-widths of a 12 s transient's at 6 s and at 3 s (0.15 and
         0.08 without it) and the cost to convergence does not drop (median simulated seconds
         35,729 at 6 s against 38,740 without; 35,794 at 3 s against 24,359 without, chains of
@@ -505,7 +505,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
         (:class:`.runner.ConvergenceReport`), ``sampler_``, ``log_posterior_``, ``terms_``,
         ``priors_``, ``truths_``, ``sigma_hat_``.
         """
-        with one_blas_thread():  # the kernels own the cores (:mod:`discovery.threads`)
+        with one_blas_thread():  # the kernels own the cores (:mod:`tvcid.discovery.threads`)
             return self._fit(recordings)
 
     def _fit(self, recordings):

@@ -132,7 +132,7 @@ REPLICATES = 4
 def _replicated_statistics(term, params, sigmas, rng):
     """:func:`misfit_statistic` of replicated open-loop records: each draw simulated with its
     in-loop noise (fresh seeds) minus its noise-free prediction, plus white sensor noise."""
-    from models import simulate
+    from tvcid.models import simulate
 
     # both at the simulated edges (the replicates are not re-timed)
     clean = term._at_samples(params) if getattr(term, "timing", None) is not None else term.predict(params)

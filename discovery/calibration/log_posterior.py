@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from discovery.threads import thread_map
-from models.hypotheses import ActuatorParams
+from tvcid.discovery.threads import thread_map
+from tvcid.models.hypotheses import ActuatorParams
 
 from .priors import SIGMA
 
@@ -13,7 +13,7 @@ __all__ = ["LogPosterior", "CALIBRATABLE_EXCLUDED", "check_parameter_names"]
 #: Threads simulating the likelihood terms of one evaluation concurrently: the recordings of one
 #: point (the start's searches) would otherwise keep one core busy, and a batch's simulation of
 #: one recording overlaps the feature extraction of another (the speed-ups on M000's four
-#: recordings: ``python -m studies.benchmarks.likelihood_threads``).
+#: recordings: ``python -m tvcid.studies.benchmarks.likelihood_threads``).
 TERM_THREADS = 4
 
 #: Fields that are structural choices or describe the in-loop noise forcing, not calibratable.

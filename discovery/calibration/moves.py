@@ -12,11 +12,11 @@ detailed balance move by move. Measured on M002's benchmark record (f, zm, Td, s
 in ten independent, the proposal refitted once to the chain after 50 steps): tau 2.3 steps instead
 of 13.8, converged after 125 steps instead of 700, the same 90 % intervals to 1-2 % of their
 widths. Where the Laplace approximation cannot serve (a ridge cut by the prior, a maximum on a
-prior bound: :func:`discovery.calibration.optimum.laplace_covariance`) the move waits idle
+prior bound: :func:`tvcid.discovery.calibration.optimum.laplace_covariance`) the move waits idle
 until it can be fitted to the chain; a proposal that would be accepted under a quarter of the
 time is not switched on (:meth:`LaplaceIndependenceMove.expected_acceptance`).
 
-:class:`LaplaceAdaptation` (a part of :class:`discovery.calibration.calibration.Calibration`)
+:class:`LaplaceAdaptation` (a part of :class:`tvcid.discovery.calibration.calibration.Calibration`)
 builds the moves of a run and refits, checks and switches the move off as the chain grows.
 """
 from __future__ import annotations
@@ -202,7 +202,7 @@ class LaplaceAdaptation:
     """The Laplace independence move of a calibration's run: built at the start, adapted to the
     chain after each chunk of steps.
 
-    A part of :class:`discovery.calibration.calibration.Calibration`: reads its ``moves``,
+    A part of :class:`tvcid.discovery.calibration.calibration.Calibration`: reads its ``moves``,
     ``laplace_`` (mean, covariance in sampling coordinates, the move's share, and the refits'
     record; set at the start, :meth:`.start.StartSearch._start_laplace`, or read from the
     checkpoint), ``seed``, ``n_walkers``, ``log_posterior_`` and ``backend``, and keeps the move

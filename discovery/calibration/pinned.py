@@ -3,7 +3,7 @@
 A limit cycle fixes a few numbers (an amplitude, a frequency, a waveform's harmonics), so a
 posterior on cycles alone is narrow along a few combinations of the parameters and as wide as
 the prior along the rest: paper 002's one-parameter family of (dead zone, backlash) pairs that all
-reproduce one cycle (its eqs. 13-18; :mod:`discovery.calibration.ridge` draws it). One parameter's
+reproduce one cycle (its eqs. 13-18; :mod:`tvcid.discovery.calibration.ridge` draws it). One parameter's
 interval then says little: each spans much of its prior while their combination is known to a
 fraction of a percent.
 
@@ -131,7 +131,7 @@ def pinned_combinations(samples, names, priors, shrinkage=PINNED_SHRINKAGE,
     names : sequence of str
         The columns' parameters; those without a prior in ``priors`` (the noise sd) are left out.
     priors : dict
-        Parameter -> :class:`discovery.calibration.priors.Prior` (uniform in its internal
+        Parameter -> :class:`tvcid.discovery.calibration.priors.Prior` (uniform in its internal
         coordinate).
     shrinkage, floor : float
         :data:`PINNED_SHRINKAGE` and :data:`TERM_FLOOR`.

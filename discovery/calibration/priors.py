@@ -30,7 +30,7 @@ __all__ = [
 ]
 
 #: Name of the sensor-noise standard deviation (rad), the one parameter that is not a field of
-#: :class:`models.ActuatorParams`.
+#: :class:`tvcid.models.ActuatorParams`.
 SIGMA = "sigma"
 
 #: Parameters that are widths or levels, given log-uniform priors by default.
@@ -161,7 +161,7 @@ def step_under_delay(floor, dt, max_halvings=MAX_DELAY_HALVINGS) -> float:
     """The RK4 step ``dt`` halved until one step fits under ``floor`` (s), a delay prior's floor.
 
     The kernel stores the delayed signal on the step grid and interpolates it linearly between
-    grid points, so it needs ``delay >= dt``: a shorter delay is refused (``models.simulate``) and
+    grid points, so it needs ``delay >= dt``: a shorter delay is refused (``tvcid.models.simulate``) and
     a walker proposing one gets a likelihood of ``-inf``. One step is all it needs: at 5e-4 s, the
     step's error in the cycle's features and in an open-loop square's waveform against a step of
     3.1e-5 s is the same for a delay of one step as for eight, at every delay position
@@ -192,7 +192,7 @@ def default_prior(name, value, dt=None) -> Prior:
     Widths (:data:`WIDTH_PARAMETERS`) get a log-uniform prior over a factor 5 either side; the
     delay a uniform prior on ``[max(value/2, dt), 2 value]``, one step being the kernel's shortest
     delay (:func:`step_under_delay`; a start below one step is refused, and
-    :class:`~discovery.calibration.Calibration`'s default step is halved until one step fits under
+    :class:`~tvcid.discovery.calibration.Calibration`'s default step is halved until one step fits under
     ``value/2``); any other parameter a uniform one over a factor 2 either side. A parameter whose
     starting value is 0 needs a declared prior.
     """

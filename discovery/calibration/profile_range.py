@@ -174,7 +174,7 @@ def _crossing(centre, profile, count, fitted, level, order, extreme):
 def in_log_coordinate(lo, hi) -> bool:
     """Whether a quantity ranging over ``[lo, hi]`` is judged in log: positive and spanning over a
     decade (its bins here, its width against its prior's and its nearness to a prior's end in
-    :mod:`discovery.structure.set_posterior`)."""
+    :mod:`tvcid.discovery.structure.set_posterior`)."""
     return bool(lo > 0 and hi > 10 * lo)
 
 

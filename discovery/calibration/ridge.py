@@ -7,7 +7,7 @@ amplitude and frequency, its waveform, a second controller setting, open-loop te
 of ``ln f`` and ``ln zm``, marginal 90 % widths, the whole correlation matrix, and a plot of the
 samples over the DF family.
 
-The DF family comes from :func:`discovery.describing.paper002_family` (paper 002 eqs. 13-18 with
+The DF family comes from :func:`tvcid.discovery.describing.paper002_family` (paper 002 eqs. 13-18 with
 the corrections of docs/models.md#errata) for the recorded amplitude and frequency, the controller and the
 hypothesis' structure; where that does not apply (another structure, no controller given) from
 the tabulated corrected family of docs/models.md#errata at controller A (computed for the HWIL cycle 4.89e-3 rad
@@ -44,7 +44,7 @@ def robust_amplitude(t, delta, bins=100):
     ``bins`` phase bins leaves the cycle's shape and divides the noise by the root of the samples
     per bin.
     """
-    from models.features import limit_cycle_features
+    from tvcid.models.features import limit_cycle_features
 
     t = np.asarray(t, dtype=float)
     d = np.asarray(delta, dtype=float)
@@ -58,13 +58,13 @@ def robust_amplitude(t, delta, bins=100):
 def df_family(amplitude, frequency=None, controller=None, params=None, backlash=None):
     """(backlash, dead_zone) arrays of paper 002's DF family for a cycle of ``amplitude`` (rad).
 
-    Uses :func:`discovery.describing.paper002_family` (variant "corrected") when ``frequency``,
+    Uses :func:`tvcid.discovery.describing.paper002_family` (variant "corrected") when ``frequency``,
     ``controller`` and ``params`` are given and the structure is paper 002's; otherwise the tabulated family of docs/models.md#errata,
     scaled by homogeneity. Returns ``(f, zm, source)``.
     """
     if frequency is not None and controller is not None and params is not None:
         try:
-            from discovery.describing import paper002_family
+            from tvcid.discovery.describing import paper002_family
 
             grid = np.geomspace(5e-5, 1e-3, 40) if backlash is None else np.asarray(backlash, float)
             fam = paper002_family(amplitude, frequency, controller, params,
@@ -72,7 +72,7 @@ def df_family(amplitude, frequency=None, controller=None, params=None, backlash=
             ok = np.isfinite(fam.dead_zone)
             if ok.sum() >= 2:
                 return (fam.backlash_half_width[ok], fam.dead_zone[ok],
-                        f"discovery.describing.paper002_family (corrected), {amplitude:.4g} rad at "
+                        f"tvcid.discovery.describing.paper002_family (corrected), {amplitude:.4g} rad at "
                         f"{frequency:.4g} rad/s, Td {fam.delay:g} s")
         except (ImportError, ValueError, TypeError):
             pass  # another structure or no describing package: the tabulated family
@@ -99,9 +99,9 @@ class RidgeAnalysis:
     truths : dict or None
     frequency : float or None
         Recorded cycle frequency (rad/s), with ``controller`` and ``params`` for
-        :func:`discovery.describing.paper002_family`.
-    controller : models.ClosedLoop or None
-    params : models.ActuatorParams or None
+        :func:`tvcid.discovery.describing.paper002_family`.
+    controller : tvcid.models.ClosedLoop or None
+    params : tvcid.models.ActuatorParams or None
         The hypothesis (its structure; the widths are ignored).
     """
 

@@ -58,7 +58,7 @@ class NoFiniteStartError(RuntimeError):
 
 class StartSearch:
     """The start of a calibration's chain: a part of
-    :class:`discovery.calibration.calibration.Calibration`.
+    :class:`tvcid.discovery.calibration.calibration.Calibration`.
 
     Reads the estimator's set-up (``log_posterior_``, ``terms_``, ``names_``, ``start_``,
     ``n_walkers``, ``backend`` and the options ``optimize_start``, ``features_fallback``,

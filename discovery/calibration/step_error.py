@@ -19,7 +19,7 @@ at a seeded subsample of the posterior's draws; its difference from the stored f
 full-step one translated by ``m`` gives exactly ``g = C^-1 m``. So the posterior at half the step
 is read as the draws translated by ``s = C g`` (``C`` from all the draws), and every quantity's
 move is the change of its median over the translated draws: the sampled parameters', and the
-combined ones' (:func:`discovery.structure.set_posterior.member_quantities`: DC gain, bandwidth,
+combined ones' (:func:`tvcid.discovery.structure.set_posterior.member_quantities`: DC gain, bandwidth,
 threshold). On M000's bundled open-loop square the moves of the feedback gain and the delay are
 within 8 % and 18 % of the moves of the maximum a posteriori; on the quiet square above, where the
 move is four widths, the feedback gain's within 1.5 times; on the bundled sine, chains at 5e-4 and
@@ -86,7 +86,7 @@ STEP_ERROR_POINTS_PER_PARAMETER = 8
 #: ... and at least this many (the regression has ``n + 1`` coefficients).
 STEP_ERROR_MIN_POINTS = 32
 #: Seconds of the reference run a closed-loop warm start simulates
-#: (:func:`models.batch.warm_start_state`'s ``t_ref``), counted in the set-up's cost.
+#: (:func:`tvcid.models.batch.warm_start_state`'s ``t_ref``), counted in the set-up's cost.
 _WARM_START_SECONDS = 20.0
 #: Draws the standard errors of the quantities' shifts are propagated with (a seeded normal
 #: sample of the translation ``s``) ...
@@ -267,7 +267,7 @@ class StepError:
         (``SOLVER_ERROR_FACTOR * (|shift| + se)``, the step error :func:`widen_interval` takes).
     quantities : dict
         The same for the member's combined quantities
-        (:func:`discovery.structure.set_posterior.member_quantities`); empty when not asked for.
+        (:func:`tvcid.discovery.structure.set_posterior.member_quantities`); empty when not asked for.
     steps : dict
         Record -> ``[step, half step]`` (s).
     n_points : int
@@ -392,7 +392,7 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
         Seeds the subsample and the standard errors' draws.
     quantities : bool
         Also the combined quantities of
-        :func:`discovery.structure.set_posterior.member_quantities`.
+        :func:`tvcid.discovery.structure.set_posterior.member_quantities`.
     params : dict, optional
         The fields not sampled, for those quantities (the member's fit, as its quantities are
         computed); default the calibration's base.
@@ -417,7 +417,7 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
     lp0 = cal.log_posterior_
     # the chain's own log posterior, over the same terms, counting its runs apart from the chain's
     own = LogPosterior(lp0.base, lp0.names, dict(zip(lp0.names, lp0.priors)), lp0.terms, lp0.sigma)
-    with one_blas_thread():  # the kernels own the cores (:mod:`discovery.threads`)
+    with one_blas_thread():  # the kernels own the cores (:mod:`tvcid.discovery.threads`)
         at = _step_check_point(cal, posterior) if at is None else at
         lp = halved_log_posterior(cal, at=at)
         half = np.asarray(lp(points), dtype=float)
@@ -443,7 +443,7 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
     sampled = _median_shifts(natural, z_all, shift, cov, rng)
     combined = {}
     if quantities:
-        from discovery.structure.set_posterior import member_quantities
+        from tvcid.discovery.structure.set_posterior import member_quantities
 
         fit = cal.base_.to_dict() if params is None else dict(params)
 
@@ -508,7 +508,7 @@ def widen_draws(values, error, bounds=None):
     Each side of the median is stretched about it, linearly, so that the draws' 5 % and 95 %
     quantiles become the widened interval's ends; draws already wide enough are returned as they
     are. The stretched draws are clipped to ``bounds``. Mixing members' draws widened each by
-    its own step error (:func:`discovery.structure.set_posterior.combine`) carries each
+    its own step error (:func:`tvcid.discovery.structure.set_posterior.combine`) carries each
     member's error at its weight, where widening the mixture by the largest error would let one
     member that the step does not resolve widen every other member's answer.
 

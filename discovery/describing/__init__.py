@@ -8,10 +8,10 @@ Modules, one concept each:
   numeric first-harmonic describing function of any element or chain, memory included;
 * :mod:`.harmonic_balance` -- every zero of ``1 + L N`` in a rectangle, stability by Loeb's
   criterion; the single-nonlinearity (Lur'e) loop;
-* :mod:`.actuator_loop` -- a hypothesis (:class:`models.ActuatorParams`) and a controller as a
+* :mod:`.actuator_loop` -- a hypothesis (:class:`tvcid.models.ActuatorParams`) and a controller as a
   first-harmonic loop with the exact delay ``exp(-jw Td)`` at any of its three positions, the
   friction offset and the band-pass loop (balanced at the fundamental only); the controller is
-  any :class:`models.ClosedLoop` (PD, compensator ``F(s)``, bending mode, a zero-order hold as
+  any :class:`tvcid.models.ClosedLoop` (PD, compensator ``F(s)``, bending mode, a zero-order hold as
   its first harmonic);
 * :mod:`.inverse` -- paper 002's family of (backlash, dead zone) pairs, printed and corrected, and
   the exact inverse harmonic balance;

@@ -1,7 +1,7 @@
 """The first-harmonic model of an actuator hypothesis in the HWIL closed loop.
 
-Every transfer function comes from the :class:`models.ActuatorParams` object (``linear_block()``,
-``feedback_gain``, ``delay``, ``delay_position``) and the :class:`models.ClosedLoop` controller;
+Every transfer function comes from the :class:`tvcid.models.ActuatorParams` object (``linear_block()``,
+``feedback_gain``, ``delay``, ``delay_position``) and the :class:`tvcid.models.ClosedLoop` controller;
 nothing here is specific to one hypothesis. With ``x = a sin(wt)`` the integrator output and
 ``s = jw`` (paper 002 Figs. 5 and 7, eqs. 7-12; paper 001 section 2)::
 
@@ -17,11 +17,11 @@ nothing here is specific to one hypothesis. With ``x = a sin(wt)`` the integrato
     forward path              H = D_bi G2
     loop equation             1 + H(jw) P(jw, a) N(q) / (jw) = 0
 
-``Gp`` is :meth:`models.ClosedLoop.controller_response` times
-:meth:`models.ClosedLoop.vehicle_response`: the controller is ``u = -C theta_m`` and the sensed
+``Gp`` is :meth:`tvcid.models.ClosedLoop.controller_response` times
+:meth:`tvcid.models.ClosedLoop.vehicle_response`: the controller is ``u = -C theta_m`` and the sensed
 attitude ``theta_m = V delta``, so ``u = -Gp delta`` and the sign of eq. 7 carries over to any
 compensator ``F`` (lead/lag, notch, any proper controller) and bending mode
-(:mod:`models.controllers`). A controller held at ``sample_rate`` (zero-order hold, as the HWIL's
+(:mod:`tvcid.models.controllers`). A controller held at ``sample_rate`` (zero-order hold, as the HWIL's
 200 Hz computer) enters through its first harmonic only: ``C`` is multiplied by the hold's
 ``(1 - exp(-sT))/(sT) = exp(-jwT/2) sin(wT/2)/(wT/2)`` with ``F`` as its Tustin realisation. That
 is an approximation on top of the describing function's: it keeps the half-sample delay and the
@@ -38,7 +38,7 @@ amplitude; lag or a notch at the cycle: down and up, or no cycle where the simul
 diverges), but the first-harmonic error grows with the lead: for M002 at controller A, leads
 centred on 8.6 rad/s with pole/zero ratios 1.2, 2 and 4 give DF errors of +6 %, +16 % and +10 % in
 frequency and +12 %, +25 % and +12 % in amplitude; a lag (ratio 1.2) +1 % and +3 %, a shallow
-notch at 8.6 rad/s +3 % and +1 % (:data:`COMPENSATOR_CAVEAT`; :func:`models.simulate` and a
+notch at 8.6 rad/s +3 % and +1 % (:data:`COMPENSATOR_CAVEAT`; :func:`tvcid.models.simulate` and a
 stand-alone RK4, 4e-5 apart).
 
 ``N`` is the dead zone's describing function (paper 002 eq. 3), or that of ``FRIC(DZ(.))`` when a
@@ -74,9 +74,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.experiments import ClosedLoop
-from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
-from models.linear import bandpass_transfer_function
+from tvcid.models.experiments import ClosedLoop
+from tvcid.models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+from tvcid.models.linear import bandpass_transfer_function
 
 from . import analytic
 from .errors import AmplitudeBelowDeadZoneError, UnsupportedStructureError
@@ -121,12 +121,12 @@ def vehicle_controller_response(controller: ClosedLoop, frequency):
     002 eq. 7; equal to that formula to rounding, 6e-16 relative, as the factors are multiplied
     in another order; predicted cycles move by 2e-15 at most). With a
     compensator, a bending mode or a zero-order hold it is
-    :meth:`models.ClosedLoop.controller_response` times :meth:`models.ClosedLoop.vehicle_response`
+    :meth:`tvcid.models.ClosedLoop.controller_response` times :meth:`tvcid.models.ClosedLoop.vehicle_response`
     (see the module docstring for the hold's first-harmonic approximation).
 
     Parameters
     ----------
-    controller : models.ClosedLoop
+    controller : tvcid.models.ClosedLoop
     frequency : array_like
         rad/s.
 
@@ -143,7 +143,7 @@ def describe_controller(controller: ClosedLoop) -> str:
 
     Parameters
     ----------
-    controller : models.ClosedLoop
+    controller : tvcid.models.ClosedLoop
 
     Returns
     -------
@@ -166,10 +166,10 @@ class ActuatorDescribingLoop:
 
     Parameters
     ----------
-    params : models.ActuatorParams
-    controller : models.ClosedLoop
+    params : tvcid.models.ActuatorParams
+    controller : tvcid.models.ClosedLoop
 
-    Any :class:`models.ClosedLoop`: PD, compensator, bending mode, continuous or held (the hold
+    Any :class:`tvcid.models.ClosedLoop`: PD, compensator, bending mode, continuous or held (the hold
     as its first harmonic, see the module docstring).
 
     Raises
@@ -229,7 +229,7 @@ class ActuatorDescribingLoop:
 
     def bandpass_response(self, frequency):
         """``G BP(jw)``: the band-pass loop's gain and Butterworth filter (paper 001 section 4,
-        :func:`models.linear.bandpass_transfer_function`); 0 without the loop."""
+        :func:`tvcid.models.linear.bandpass_transfer_function`); 0 without the loop."""
         p = self.params
         w = np.asarray(frequency, dtype=float)
         if not p.has_bandpass_loop:
@@ -367,9 +367,9 @@ class ActuatorDescribingLoop:
 def predict_limit_cycles(params: ActuatorParams, controller: ClosedLoop, **kwargs) -> HarmonicBalanceResult:
     """Limit cycles of ``params`` in the HWIL loop of ``controller`` by harmonic balance.
 
-    ``controller`` is any :class:`models.ClosedLoop`: the PD of paper 002 eq. 7, with a compensator
+    ``controller`` is any :class:`tvcid.models.ClosedLoop`: the PD of paper 002 eq. 7, with a compensator
     ``F(s)`` and/or a bending mode, continuous or held at ``sample_rate`` (the hold as its first
     harmonic). See :class:`ActuatorDescribingLoop` for the loop and
-    :func:`~discovery.describing.harmonic_balance.solve_harmonic_balance` for ``kwargs``.
+    :func:`~tvcid.discovery.describing.harmonic_balance.solve_harmonic_balance` for ``kwargs``.
     """
     return ActuatorDescribingLoop(params, controller).limit_cycles(**kwargs)

@@ -3,7 +3,7 @@
 Convention: for the input ``A sin(wt)`` an element's output has the first harmonic
 ``b1 sin(wt) + a1 cos(wt)``; its describing function is the complex gain ``N = (b1 + j a1)/A``
 (paper 002 eq. 2), so a phase lag gives a negative imaginary part. Every width is a *half* width,
-as in :mod:`models.nonlinearities`; paper 002's backlash ``f`` is converted with
+as in :mod:`tvcid.models.nonlinearities`; paper 002's backlash ``f`` is converted with
 ``full_width=`` (``docs/models.md#conventions``).
 
 All functions accept scalars or arrays of amplitudes and return float (static odd elements) or

@@ -1,8 +1,8 @@
 """The nonlinear elements as callables on sampled signals, for the numeric describing function.
 
-Each element wraps the function of :mod:`models.nonlinearities` (the project's one definition of
+Each element wraps the function of :mod:`tvcid.models.nonlinearities` (the project's one definition of
 each element and its width convention) and knows its analytic describing function from
-:mod:`discovery.describing.analytic` when one exists. A :class:`Chain` applies elements in order;
+:mod:`tvcid.discovery.describing.analytic` when one exists. A :class:`Chain` applies elements in order;
 its describing function is computed numerically (a chain of memory elements has no closed form).
 Elements act on samples in time order, so memory (the play operator) is carried along.
 """
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.nonlinearities import dead_zone, friction_offset, play_operator, saturation
+from tvcid.models.nonlinearities import dead_zone, friction_offset, play_operator, saturation
 
 from . import analytic
 
@@ -55,7 +55,7 @@ class Saturation:
 
 @dataclass(frozen=True)
 class Relay:
-    """Ideal relay ``level*sign(q)``, i.e. ``FRIC(q) - q`` with :func:`models.nonlinearities.friction_offset`."""
+    """Ideal relay ``level*sign(q)``, i.e. ``FRIC(q) - q`` with :func:`tvcid.models.nonlinearities.friction_offset`."""
 
     level: float
 
@@ -119,8 +119,8 @@ class Chain:
     """Elements applied in order: ``Chain((DeadZone(z), FrictionOffset(off)))`` is ``FRIC(DZ(q))``.
 
     A chain has no analytic describing function (``analytic_df`` returns None) except through the
-    dedicated formulas of :mod:`discovery.describing.analytic`; use
-    :func:`discovery.describing.numeric.numeric_df`.
+    dedicated formulas of :mod:`tvcid.discovery.describing.analytic`; use
+    :func:`tvcid.discovery.describing.numeric.numeric_df`.
     """
 
     elements: tuple

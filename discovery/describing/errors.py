@@ -10,7 +10,7 @@ __all__ = [
 
 
 class DescribingFunctionError(ValueError):
-    """Base class of the errors raised by :mod:`discovery.describing`."""
+    """Base class of the errors raised by :mod:`tvcid.discovery.describing`."""
 
 
 class AmplitudeBelowDeadZoneError(DescribingFunctionError):

@@ -14,7 +14,7 @@ amplitude of a cycle and asking whether the growth rate ``sigma`` of ``s = sigma
 is negative; it holds for ``Phi`` analytic in ``s``, e.g. a rational ``L`` times ``exp(-s Td)``.
 
 :func:`lure_limit_cycles` is the classic single-nonlinearity loop (python-control's
-``describing_function_response``); :mod:`discovery.describing.actuator_loop` builds ``Phi`` for
+``describing_function_response``); :mod:`tvcid.discovery.describing.actuator_loop` builds ``Phi`` for
 an actuator hypothesis in the HWIL closed loop.
 """
 from __future__ import annotations
@@ -274,8 +274,8 @@ def lure_limit_cycles(
     linear : (num, den) or callable of s
         The linear part ``H``.
     nonlinearity : element or callable
-        An element of :mod:`discovery.describing.elements` (its analytic describing function, or
-        the numeric one for a :class:`~discovery.describing.elements.Chain`), or a function
+        An element of :mod:`tvcid.discovery.describing.elements` (its analytic describing function, or
+        the numeric one for a :class:`~tvcid.discovery.describing.elements.Chain`), or a function
         ``N(A)`` returning the describing function.
     amplitude_range, frequency_range, **kwargs
         As in :func:`solve_harmonic_balance`; amplitudes are those of the nonlinearity's input.
@@ -284,7 +284,7 @@ def lure_limit_cycles(
     --------
     python-control's documentation example (``H = 8/(s^3 + 2 s^2 + 2 s + 1)``, unit saturation):
 
-    >>> from discovery.describing.elements import Saturation
+    >>> from tvcid.discovery.describing.elements import Saturation
     >>> result = lure_limit_cycles(([8], [1, 2, 2, 1]), Saturation(1.0))
     >>> c = result.limit_cycles[0]
     >>> round(c.amplitude, 2), round(c.frequency, 3), c.stable

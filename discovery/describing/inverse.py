@@ -12,7 +12,7 @@ condition ``Gm(jw) Gp(jw) = -1`` (eqs. 6-18):
   only, so the family satisfies eq. 13 and eq. 14 up to a half-turn of phase; the paper says the
   real solution "must satisfy Eq. (12)".
 * :func:`solve_backlash_and_dead_zone`: the exact harmonic balance (eq. 12, phase and modulus),
-  for any hypothesis :class:`~discovery.describing.actuator_loop.ActuatorDescribingLoop` treats.
+  for any hypothesis :class:`~tvcid.discovery.describing.actuator_loop.ActuatorDescribingLoop` treats.
   At controller A (4.89e-3 rad at 8.57 rad/s) with paper 002's 7 ms output delay it has *no*
   solution: the phase condition would need a backlash describing function whose real part exceeds
   1, which no play operator has. It raises :class:`NoHarmonicBalanceSolution` saying so instead of
@@ -20,7 +20,7 @@ condition ``Gm(jw) Gp(jw) = -1`` (eqs. 6-18):
   feedback, 5.6 ms) it gives ``f = 1.237e-4`` (the paper printed 1.1625e-4).
 
 Widths are half widths; paper 002's ``f`` in eq. 5 is the half width (its section-6 value is a
-full width, see :func:`models.nonlinearities.backlash_half_width_from_full`).
+full width, see :func:`tvcid.models.nonlinearities.backlash_half_width_from_full`).
 """
 from __future__ import annotations
 
@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from models.experiments import ClosedLoop
-from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+from tvcid.models.experiments import ClosedLoop
+from tvcid.models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 
 from . import analytic
 from .actuator_loop import ActuatorDescribingLoop, describe_controller, vehicle_controller_response
@@ -108,7 +108,7 @@ class BacklashDeadZoneFamily:
 
 def _check_params(params):
     if not isinstance(params, ActuatorParams):
-        raise TypeError(f"params must be an ActuatorParams (e.g. models.M002()), got {type(params).__name__}")
+        raise TypeError(f"params must be an ActuatorParams (e.g. tvcid.models.M002()), got {type(params).__name__}")
 
 
 def _paper002_structure(params: ActuatorParams, delay):
@@ -151,11 +151,11 @@ def paper002_family(
         ``K1``: measured cycle amplitude at the actuator output (rad).
     frequency : float
         ``w``: measured cycle frequency (rad/s).
-    controller : models.ClosedLoop
+    controller : tvcid.models.ClosedLoop
         ``Kp, Kd, mu`` of ``Gp`` (eq. 7): a continuous PD without compensator or bending mode.
-    params : models.ActuatorParams
+    params : tvcid.models.ActuatorParams
         Structure (dead zone on the error, delay at the output), linear part
-        ``gain/(s^2 + damping s + stiffness)`` and ``feedback_gain``; :class:`models.M002` is
+        ``gain/(s^2 + damping s + stiffness)`` and ``feedback_gain``; :class:`tvcid.models.M002` is
         paper 002's eq. 1. Its widths are ignored.
     delay : float, optional
         Output delay ``Td`` (s); default ``params.delay``.
@@ -277,12 +277,12 @@ def solve_backlash_and_dead_zone(
     ----------
     amplitude, frequency : float
         Measured cycle at the actuator output (rad, rad/s).
-    controller : models.ClosedLoop
+    controller : tvcid.models.ClosedLoop
         Any controller: ``Gp`` is :func:`~.actuator_loop.vehicle_controller_response`
         (compensator, bending mode, a hold as its first harmonic).
-    params : models.ActuatorParams
-        Structure, linear part, delay and its position (e.g. :class:`models.M002` for paper 002,
-        :class:`models.M001i` for paper 001 section 2); its backlash and dead-zone values are
+    params : tvcid.models.ActuatorParams
+        Structure, linear part, delay and its position (e.g. :class:`tvcid.models.M002` for paper 002,
+        :class:`tvcid.models.M001i` for paper 001 section 2); its backlash and dead-zone values are
         ignored.
 
     Returns

@@ -10,7 +10,7 @@ operator settle on its periodic orbit) gives the Fourier coefficients
 crossings (relay, friction offset) symmetric, so for continuous elements and those jumps the error
 falls as ``1/n^2``: with the default 8192 samples per period it is below 1e-5 for the papers'
 elements (``tests/test_describing_functions.py`` checks 1e-4 against
-:mod:`discovery.describing.analytic`). A jump away from the zero crossings, such as the friction
+:mod:`tvcid.discovery.describing.analytic`). A jump away from the zero crossings, such as the friction
 offset after a dead zone, converges as ``1/n`` only (1e-3 at 8192 samples just above the dead
 zone): pass ``samples_per_period=2**16`` there. Only rate-independent elements are meaningful
 here: the describing function does not depend on the frequency.
@@ -32,7 +32,7 @@ def numeric_df(element, amplitude, samples_per_period=DEFAULT_SAMPLES_PER_PERIOD
     ----------
     element : callable
         Maps an array of input samples in time order to the output samples (e.g.
-        :class:`discovery.describing.elements.PlayOperator` or a ``Chain``).
+        :class:`tvcid.discovery.describing.elements.PlayOperator` or a ``Chain``).
     amplitude : float or array_like
         Input amplitude(s) ``A`` (> 0).
     samples_per_period : int

@@ -1,7 +1,7 @@
 """How far a harmonic-balance prediction is from the simulated cycle of the same hypothesis.
 
 The describing function replaces each nonlinearity by its first-harmonic gain; the simulator
-(:func:`models.simulate`) does not. :func:`compare_with_simulation` runs both and reports the
+(:func:`tvcid.models.simulate`) does not. :func:`compare_with_simulation` runs both and reports the
 differences, so a user sees the size of the approximation before using a prediction. Measured
 (``tests/test_describing_harmonic_balance.py``): M002 at controller A, DF 5.905e-3 rad at 8.878
 rad/s against a simulated first harmonic of 5.52e-3 at 8.60 (+7.0 % and +3.3 %); controller B,
@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from models.experiments import ClosedLoop
-from models.hypotheses import ActuatorParams
-from models.simulate import simulate
+from tvcid.models.experiments import ClosedLoop
+from tvcid.models.hypotheses import ActuatorParams
+from tvcid.models.simulate import simulate
 
 from .actuator_loop import predict_limit_cycles
 from .errors import NoHarmonicBalanceSolution
@@ -33,7 +33,7 @@ class SimulationComparison:
     predicted_amplitude, predicted_frequency : float
         Harmonic balance (first-harmonic amplitude of ``delta``, rad; rad/s).
     simulated_first_harmonic, simulated_amplitude, simulated_frequency : float
-        From :func:`models.features.limit_cycle_features` of the simulation: first harmonic and
+        From :func:`tvcid.models.features.limit_cycle_features` of the simulation: first harmonic and
         ``(max - min)/2`` of ``delta`` (rad), frequency from mean crossings (rad/s).
     """
 

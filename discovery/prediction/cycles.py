@@ -3,14 +3,14 @@
 Paper 002 (section 1) motivates the whole identification by the design of the attitude loop: the
 lead and notch filters shape the limit cycle, so the designer needs the cycle's amplitude and
 frequency, and how sure they are, under a controller that was never tested. Here every posterior
-draw is simulated in closed loop through the batch kernel (:func:`models.simulate_batch`) and the
-cycle measured as ``docs/models.md#conventions`` defines it (:func:`models.limit_cycle_features`);
+draw is simulated in closed loop through the batch kernel (:func:`tvcid.models.simulate_batch`) and the
+cycle measured as ``docs/models.md#conventions`` defines it (:func:`tvcid.models.limit_cycle_features`);
 the spread over the draws is the band. The describing function of the median model is given beside
 it.
 
 The shortcut: a pilot run of the median model at each setting, ``pilot``
 seconds long, gives the state on its cycle; every draw starts there and runs a short ``transient``
-before the measured ``window``. ``benchmark`` in :mod:`studies.benchmarks.prediction` measures how far
+before the measured ``window``. ``benchmark`` in :mod:`tvcid.studies.benchmarks.prediction` measures how far
 it lands from full-length runs.
 """
 from __future__ import annotations
@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.features import InsufficientPeriodsError, limit_cycle_features
-from models.kernel import SIGNALS
-from models.simulate import simulate_batch
+from tvcid.models.features import InsufficientPeriodsError, limit_cycle_features
+from tvcid.models.kernel import SIGNALS
+from tvcid.models.simulate import simulate_batch
 
 from .settings import ControllerSetting
 

@@ -3,7 +3,7 @@
 Paper 002 broke the dead-zone/backlash ridge of one limit cycle by adding a second controller
 setting and open-loop tests; this module asks the question before the test is run. Each candidate
 is simulated for every posterior draw and seen through the likelihood term a fit would give it
-(:func:`discovery.calibration.likelihood.make_term`: limit-cycle features or the phase-aligned
+(:func:`tvcid.discovery.calibration.likelihood.make_term`: limit-cycle features or the phase-aligned
 waveform in closed loop, the output error in open loop), built on a synthetic record of the median
 model with the posterior's noise; its observables are whitened by that term's noise model.
 
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.experiments import OpenLoop
+from tvcid.models.experiments import OpenLoop
 
 from ..calibration.priors import SIGMA
 from .settings import ControllerSetting
@@ -281,7 +281,7 @@ def rank_experiments(draws, candidates, params=None, noise=None, seed=0, n_truth
     ValueError
         For a parameter that was not sampled, or no noise level to assume.
     """
-    from models.synthetic import synthetic_recording
+    from tvcid.models.synthetic import synthetic_recording
 
     from ..calibration.likelihood import make_term
 

@@ -2,7 +2,7 @@
 
 Both commands checkpoint their chain in an HDF5 file whose ``tvcid`` group records the set-up
 (``config``: the hypothesis with every fixed value, the sampled names and their priors). That is all
-a prediction needs: the draws become complete :class:`models.ActuatorParams`, without the
+a prediction needs: the draws become complete :class:`tvcid.models.ActuatorParams`, without the
 recordings.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.hypotheses import ActuatorParams, params_from_dict
+from tvcid.models.hypotheses import ActuatorParams, params_from_dict
 
 from ..calibration.priors import SIGMA, LogUniform, Uniform
 
@@ -135,7 +135,7 @@ def load_posterior_draws(directory, n_draws=200, seed=0) -> PosteriorDraws:
     """Read ``n_draws`` posterior draws from a ``tvcid fit`` or ``tvcid discover`` directory.
 
     The first ``2 tau`` steps (at most half the chain) are discarded, as
-    :meth:`discovery.calibration.Posterior.from_sampler` does, and ``n_draws`` are drawn without
+    :meth:`tvcid.discovery.calibration.Posterior.from_sampler` does, and ``n_draws`` are drawn without
     replacement (with replacement if the chain holds fewer) by a seeded generator.
 
     Raises

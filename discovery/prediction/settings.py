@@ -1,6 +1,6 @@
 """A controller setting by named values, so that a grid can vary any one of them.
 
-:class:`models.ClosedLoop` holds the compensator as a transfer function; a map over a lead's
+:class:`tvcid.models.ClosedLoop` holds the compensator as a transfer function; a map over a lead's
 corner or a notch's centre needs the named values the filter was built from.
 """
 from __future__ import annotations
@@ -8,8 +8,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from models.controllers import BendingMode, TransferFunction
-from models.experiments import ClosedLoop
+from tvcid.models.controllers import BendingMode, TransferFunction
+from tvcid.models.experiments import ClosedLoop
 
 __all__ = ["GRID_KEYS", "ControllerSetting", "parse_grid"]
 
@@ -20,7 +20,7 @@ GRID_KEYS = ("kp", "kd", "mu", "lead_zero", "lead_pole", "notch_frequency", "not
 
 @dataclass(frozen=True)
 class ControllerSetting:
-    """``u = -Kp (1 + Kd s) F(s) theta_m`` by named values (see :mod:`models.controllers`).
+    """``u = -Kp (1 + Kd s) F(s) theta_m`` by named values (see :mod:`tvcid.models.controllers`).
 
     Parameters
     ----------

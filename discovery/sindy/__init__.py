@@ -15,7 +15,7 @@ Pipeline stages, one module each:
 
 :func:`discover_structure` runs the whole pipeline.
 """
-from models.recording import load_recordings
+from tvcid.models.recording import load_recordings
 
 from .candidates import Candidate
 from .estimator import DEFAULT_FORMS, WeakSINDyActuator

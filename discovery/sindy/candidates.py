@@ -1,14 +1,14 @@
 """Structure proposals: a fitted form, its terms, thresholds and inclusion probabilities.
 
-Each proposal converts into a :class:`models.ActuatorParams`, so that it can be simulated as a
-full closed-loop model (:mod:`discovery.sindy.ranking`).
+Each proposal converts into a :class:`tvcid.models.ActuatorParams`, so that it can be simulated as a
+full closed-loop model (:mod:`tvcid.discovery.sindy.ranking`).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
 
-from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+from tvcid.models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 
 __all__ = ["Candidate"]
 
@@ -20,7 +20,7 @@ class Candidate:
     Attributes
     ----------
     form : str
-        Name of its :class:`discovery.sindy.forms.StructureForm`.
+        Name of its :class:`tvcid.discovery.sindy.forms.StructureForm`.
     terms : dict of str -> float
         Selected library terms and coefficients of the weak equation
         ``delta''' = sum_j coef_j * term_j`` (terms not selected are absent).
@@ -35,9 +35,9 @@ class Candidate:
         Information criterion of the weak fit (lower is better).
     params : dict
         The block parameters recovered (``gain`` K1, ``damping`` K2, ``stiffness`` K3,
-        ``feedback_gain`` K, ``friction_offset``, ...), as :class:`models.ActuatorParams` fields.
+        ``feedback_gain`` K, ``friction_offset``, ...), as :class:`tvcid.models.ActuatorParams` fields.
     score : float or None
-        Simulation score from :func:`discovery.sindy.ranking.rank_by_simulation` (lower is better).
+        Simulation score from :func:`tvcid.discovery.sindy.ranking.rank_by_simulation` (lower is better).
     """
 
     form: str
@@ -57,7 +57,7 @@ class Candidate:
         return self.params["gain"] / stiffness if stiffness else math.nan
 
     def to_params(self, **overrides) -> ActuatorParams:
-        """The proposal as a :class:`models.ActuatorParams` (a ``custom`` hypothesis).
+        """The proposal as a :class:`tvcid.models.ActuatorParams` (a ``custom`` hypothesis).
 
         ``overrides`` set fields the fit does not determine, e.g. ``x0`` for a closed-loop run.
 

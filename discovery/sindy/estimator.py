@@ -2,9 +2,9 @@
 
 An sklearn-style estimator (``__init__`` stores arguments, ``fit`` validates and returns
 ``self``, learned attributes end in ``_``). For every structure form
-(:mod:`discovery.sindy.forms`) it
+(:mod:`tvcid.discovery.sindy.forms`) it
 
-1. builds the weak system of the recordings (:mod:`discovery.sindy.weak`);
+1. builds the weak system of the recordings (:mod:`tvcid.discovery.sindy.weak`);
 2. scans the parameters that enter nonlinearly (dead zone ``z``, backlash ``r``, delay ``Td``, ...)
    coarse-then-fine on the profile residual, the linear coefficients solved at every point by
    bias-compensated normal equations when the sensor noise level is given;
@@ -25,8 +25,8 @@ import pysindy as ps
 from scipy.optimize import minimize
 from sklearn.base import BaseEstimator
 
-from models.features import cycle_crossings
-from models.recording import load_recordings
+from tvcid.models.features import cycle_crossings
+from tvcid.models.recording import load_recordings
 
 from .candidates import Candidate
 from .forms import MOVING_FRACTION, TARGET, form_by_name
@@ -385,7 +385,7 @@ class WeakSINDyActuator(ThresholdScan, BaseEstimator):
         return block, -c.get("L[sign(delta')]", 0.0)
 
     def _velocity_params(self, form, block, c_eff, dead_zone, backlash):
-        from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+        from tvcid.models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
 
         c = c_eff + block["gain"] * block["feedback_gain"] * backlash / block["stiffness"]
         return ActuatorParams(

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal as sps
 
-from models.linear import bandpass_transfer_function
+from tvcid.models.linear import bandpass_transfer_function
 
 from .library import play_along
 from .weak import weak_integrals
@@ -140,7 +140,7 @@ class StructureForm:
 
         Parameters
         ----------
-        prepared : discovery.sindy.weak.PreparedSignals
+        prepared : tvcid.discovery.sindy.weak.PreparedSignals
         thresholds : dict
             Values of :meth:`threshold_names` (``feedback_gain`` optional, default 1).
         lifted : bool
@@ -155,7 +155,7 @@ class StructureForm:
         columns : dict of str -> ndarray
         noise_weights : dict of str -> ndarray
             Coarse quadrature weights of the columns (and ``TARGET``) linear in ``delta``, for the
-            bias compensation of :mod:`discovery.sindy.estimator`.
+            bias compensation of :mod:`tvcid.discovery.sindy.estimator`.
         """
         cache = {} if cache is None else cache
         p = prepared

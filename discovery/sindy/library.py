@@ -1,11 +1,11 @@
 """A pysindy feature library of the actuator's nonlinearities.
 
-The elements are those of ``docs/models.md#conventions`` and :mod:`models.nonlinearities`: the dead
+The elements are those of ``docs/models.md#conventions`` and :mod:`tvcid.models.nonlinearities`: the dead
 zone ``DZ_z`` (paper 002 eq. 3), the saturation ``sat_s`` (paper 001 section 3), the sign of the
 friction offset ``FRIC(q) = q + off*sign(q)`` (paper 001 section 3), the backlash as a play operator
 of half width ``r`` (paper 002 eqs. 4-5; a memory term computed along the trajectory) and the
 delayed command ``u(t - Td)`` (papers 002, 001, 000). Thresholds and the delay enter nonlinearly, so
-they are fixed arguments of the library; :mod:`discovery.sindy.threshold_scan` scans them.
+they are fixed arguments of the library; :mod:`tvcid.discovery.sindy.threshold_scan` scans them.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from numba import njit
 from pysindy.feature_library.base import BaseFeatureLibrary, x_sequence_or_item
 from pysindy.utils import AxesArray
 
-from models.nonlinearities import dead_zone, saturation
+from tvcid.models.nonlinearities import dead_zone, saturation
 
 __all__ = [
     "ActuatorLibrary",
@@ -57,7 +57,7 @@ def play_along(x, half_width, initial=None):
     """Backlash ``play_r(x)`` along a sampled trajectory (``docs/models.md#conventions``, numba
     loop).
 
-    Same rule as :func:`models.nonlinearities.play_operator`: ``b_k = min(max(b_{k-1}, x_k - r),
+    Same rule as :func:`tvcid.models.nonlinearities.play_operator`: ``b_k = min(max(b_{k-1}, x_k - r),
     x_k + r)``. The default initial memory is ``x_0`` (the play centred at the start).
     """
     x = np.ascontiguousarray(x, dtype=float)
@@ -113,7 +113,7 @@ class ActuatorLibrary(BaseFeatureLibrary):
     Input columns are ``(delta, u)`` sampled uniformly at ``1/dt``; memory (play operator) and
     delay terms are computed along the sample order, so rows must be in time order. Usable with
     ``pysindy.SINDy(feature_library=ActuatorLibrary(...), optimizer=ps.STLSQ())`` or, as
-    :mod:`discovery.sindy.weak` does, by calling :meth:`transform` and handing the weak system to a
+    :mod:`tvcid.discovery.sindy.weak` does, by calling :meth:`transform` and handing the weak system to a
     pysindy optimizer.
 
     Parameters

@@ -1,11 +1,11 @@
 """Ranking structure proposals by simulating them as full models.
 
-Every proposal is converted into a :class:`models.ActuatorParams` and run through the experiment of
-every recording with :func:`models.simulate_batch`: the HWIL closed loop of a limit-cycle record
+Every proposal is converted into a :class:`tvcid.models.ActuatorParams` and run through the experiment of
+every recording with :func:`tvcid.models.simulate_batch`: the HWIL closed loop of a limit-cycle record
 (vehicle and PD controller from the sidecar), or the recorded command replayed open loop. The score
 compares the runs with the data on limit-cycle features (amplitude and frequency,
 ``docs/models.md#conventions``) and on the waveform
-(:func:`discovery.sindy.simulation.simulation_score`).
+(:func:`tvcid.discovery.sindy.simulation.simulation_score`).
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from models.recording import load_recordings
+from tvcid.models.recording import load_recordings
 
 from .simulation import MAX_SIMULATED, score_on_recordings
 

@@ -2,7 +2,7 @@
 simulation stage of the threshold scan.
 
 A recording's experiment is rebuilt from its sidecar (the HWIL closed loop) or by replaying its
-command open loop; :func:`models.simulate_batch` runs many parameter sets at once.
+command open loop; :func:`tvcid.models.simulate_batch` runs many parameter sets at once.
 """
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import weakref
 
 import numpy as np
 
-from models.features import InsufficientPeriodsError, limit_cycle_features
-from models.recording import Recording
-from models.simulate import DEFAULT_DT, simulate_batch
+from tvcid.models.features import InsufficientPeriodsError, limit_cycle_features
+from tvcid.models.recording import Recording
+from tvcid.models.simulate import DEFAULT_DT, simulate_batch
 
 from .library import command_jumps
 
@@ -35,11 +35,11 @@ def replay_experiment(recording, t_end=None):
 
     ``OpenLoop.from_samples`` interpolates linearly between samples, which would smear a square
     command's edge over one sample and shift it by half a sample; across a jump
-    (:func:`discovery.sindy.library.command_jumps`) the previous value is held up to the next
-    sample instead, as :func:`discovery.sindy.library.delayed_command` reconstructs it. A
-    command without jumps is read by a cubic spline (:func:`models.commands.command_from_samples`).
+    (:func:`tvcid.discovery.sindy.library.command_jumps`) the previous value is held up to the next
+    sample instead, as :func:`tvcid.discovery.sindy.library.delayed_command` reconstructs it. A
+    command without jumps is read by a cubic spline (:func:`tvcid.models.commands.command_from_samples`).
     """
-    from models.experiments import OpenLoop
+    from tvcid.models.experiments import OpenLoop
 
     exact = recording.experiment()
     if exact.waveform != "samples":  # the sidecar's own command reproduces u
@@ -50,7 +50,7 @@ def replay_experiment(recording, t_end=None):
         keep = t <= t_end + 1e-12
         t, u = t[keep], u[keep]
     jumps = np.flatnonzero(command_jumps(u))
-    if not jumps.size and u.size >= 4:  # smooth: a spline, not chords (models.commands)
+    if not jumps.size and u.size >= 4:  # smooth: a spline, not chords (tvcid.models.commands)
         return OpenLoop.from_samples(t, u, interpolation="cubic")
     if jumps.size:
         eps = 1e-7 * (t[1] - t[0])
@@ -61,7 +61,7 @@ def replay_experiment(recording, t_end=None):
 
 #: Replays of open-loop recordings by recording and length: the same experiment object is
 #: simulated again and again in the simulation stage, so its stage command is built once
-#: (:func:`models.simulate._stage_command` memoises it on the experiment).
+#: (:func:`tvcid.models.simulate._stage_command` memoises it on the experiment).
 _REPLAYS = weakref.WeakKeyDictionary()
 
 

@@ -5,7 +5,7 @@
 * :mod:`.harmonics` -- harmonic table with the harmonics raised above a smooth decay flagged;
 * :mod:`.noise_floor` -- the flat floor over a band and the matching band-limited white noise.
 
-Every function takes ``(t, delta)`` arrays or a :class:`models.recording.Recording`.
+Every function takes ``(t, delta)`` arrays or a :class:`tvcid.models.recording.Recording`.
 """
 from .amplitude import AmplitudeSpectrum, amplitude_spectrum
 from .harmonics import HarmonicTable, harmonic_table

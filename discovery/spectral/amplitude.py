@@ -58,7 +58,7 @@ def amplitude_spectrum(source, delta=None, derivative=False, detrend=True) -> Am
 
     Parameters
     ----------
-    source : models.recording.Recording or array_like
+    source : tvcid.models.recording.Recording or array_like
         A recording, or the times ``t`` (s) with ``delta`` given as the second argument.
     delta : array_like, optional
         Output samples (rad) when ``source`` is ``t``.

@@ -2,7 +2,7 @@
 
 Paper 000 section 4.3: the output spectrum is flat between 20 and 100 Hz (Fig. 11), and a
 band-limited white noise block with its power "chosen to match the real data" is added to the
-output. The model is :mod:`models.noise`: held Gaussian samples of duration ``1/(2 band)`` and
+output. The model is :mod:`tvcid.models.noise`: held Gaussian samples of duration ``1/(2 band)`` and
 variance ``power * 2 * band`` (Simulink's convention, ``power`` the two-sided PSD height in
 rad^2/Hz).
 
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.features import InsufficientPeriodsError
+from tvcid.models.features import InsufficientPeriodsError
 
 from .harmonics import whole_periods
 from .samples import SpectralInputError, as_uniform_samples
@@ -49,7 +49,7 @@ DEFAULT_NOISE_BAND_HZ = 500.0
 
 
 def model_noise_psd(frequency_hz, power, noise_band, sample_rate):
-    """Expected one-sided PSD (rad^2/Hz) of :mod:`models.noise` noise sampled at ``sample_rate``."""
+    """Expected one-sided PSD (rad^2/Hz) of :mod:`tvcid.models.noise` noise sampled at ``sample_rate``."""
     f = np.asarray(frequency_hz, dtype=float)
     hold = sample_rate / (2.0 * noise_band)
     variance = power * 2.0 * noise_band
@@ -74,7 +74,7 @@ class NoiseFloor:
     amplitude : float
         Median one-sided FFT amplitude (rad) over the band, as read off an amplitude spectrum.
     power : float
-        ``noise_power`` (rad^2/Hz, Simulink convention) of :class:`models.ActuatorParams` whose
+        ``noise_power`` (rad^2/Hz, Simulink convention) of :class:`tvcid.models.ActuatorParams` whose
         noise, with ``noise_band``, has this floor.
     noise_band : float
         Band (Hz) of the matched noise.
@@ -127,7 +127,7 @@ def noise_floor(
 
     Parameters
     ----------
-    source : models.recording.Recording or array_like
+    source : tvcid.models.recording.Recording or array_like
         A recording, or ``t`` (s) with ``delta`` (rad).
     band_hz : (float, float)
         Band (Hz) where the spectrum is flat (default 20-100 Hz, paper 000 Fig. 11).

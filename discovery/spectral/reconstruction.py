@@ -66,7 +66,7 @@ def lowpass_reconstruction(source, delta=None, cutoff_hz=DEFAULT_CUTOFF_HZ) -> L
 
     Parameters
     ----------
-    source : models.recording.Recording or array_like
+    source : tvcid.models.recording.Recording or array_like
         A recording, or ``t`` (s) with ``delta`` (rad).
     cutoff_hz : float
         Highest frequency kept (Hz); must lie between the bin spacing and the Nyquist frequency.

@@ -1,6 +1,6 @@
-"""Input of the spectral functions: ``(t, delta)`` arrays or a :class:`models.recording.Recording`.
+"""Input of the spectral functions: ``(t, delta)`` arrays or a :class:`tvcid.models.recording.Recording`.
 
-Recordings are read with :func:`models.recording.load_recording` (the only reader of recording
+Recordings are read with :func:`tvcid.models.recording.load_recording` (the only reader of recording
 files); this module only checks that a record can be Fourier-analysed: uniformly sampled, finite,
 long enough.
 """
@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.recording import Recording
+from tvcid.models.recording import Recording
 
 __all__ = ["SpectralInputError", "UniformSamples", "as_uniform_samples"]
 
@@ -53,7 +53,7 @@ def as_uniform_samples(source, delta=None, min_samples=8) -> UniformSamples:
     else:
         if delta is None:
             raise SpectralInputError(
-                f"expected a models.recording.Recording or the arrays (t, delta); got {type(source).__name__} alone"
+                f"expected a tvcid.models.recording.Recording or the arrays (t, delta); got {type(source).__name__} alone"
             )
         t, x = source, delta
         name = "record"

@@ -8,7 +8,7 @@ Stages, one module each:
   determine;
 * :mod:`.search` -- one structure's batch objective, global search, least-squares refinement,
   local spread;
-* :mod:`.structure_search` -- every structure of :func:`models.structures.structure_space`
+* :mod:`.structure_search` -- every structure of :func:`tvcid.models.structures.structure_space`
   searched and refined in-sample (search sizes, staged searches, nested fits, seeds, repairs);
 * :mod:`.tasks` -- the classes' global searches as self-contained tasks of an executor (this
   process, or a Dask cluster);

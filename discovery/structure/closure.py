@@ -11,7 +11,7 @@ A set is *closed* when it holds one structure, or when its calibrated members ag
   between two draws of the same member (their difference is inside their own spread), or below
   :data:`.discrimination.DECIDES` (no recording of the test could tell them apart);
 * the limit cycle at controller settings the recordings did not use
-  (:func:`discovery.prediction.set_prediction.predict_cycle_over_set`: both oscillate or both not,
+  (:func:`tvcid.discovery.prediction.set_prediction.predict_cycle_over_set`: both oscillate or both not,
   and their medians of amplitude and frequency differ by no more than a difference of two
   measurements allows, each member's 90 % half-width and what a recording of the cycle resolves
   added in quadrature).
@@ -50,7 +50,7 @@ def _within(r):
 def menu_agreement(member_sets: dict, candidate, noise_sd, dt=5e-4, seed=0, reference=None) -> dict:
     """Whether the members agree on one test (the module's rule).
 
-    ``member_sets``: structure name -> list of :class:`models.ActuatorParams` (posterior draws);
+    ``member_sets``: structure name -> list of :class:`tvcid.models.ActuatorParams` (posterior draws);
     ``reference`` (default: the first member's first set) makes the target. Returns ``{"name",
     "agree", "pairs": [{"members", "cross", "within", "agree"}]}`` or, where the test cannot be
     simulated for that model, ``{"name", "skipped"}``."""
@@ -122,23 +122,23 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
     Parameters
     ----------
     member_draws : dict
-        Structure name -> :class:`discovery.prediction.draws.PosteriorDraws`
-        (:func:`discovery.prediction.draws.load_set_draws` of a discover directory).
-    candidates : sequence of :class:`discovery.prediction.design.Candidate`
+        Structure name -> :class:`tvcid.discovery.prediction.draws.PosteriorDraws`
+        (:func:`tvcid.discovery.prediction.draws.load_set_draws` of a discover directory).
+    candidates : sequence of :class:`tvcid.discovery.prediction.design.Candidate`
         The menu (:func:`.discrimination.default_candidates`).
-    settings : sequence of :class:`discovery.prediction.settings.ControllerSetting`
+    settings : sequence of :class:`tvcid.discovery.prediction.settings.ControllerSetting`
     noise_sd : float
         Sensor noise sd (rad) of the simulated tests.
     n_draws : int
         Posterior draws per member (the first ``n_draws`` of each, which
-        :func:`~discovery.prediction.draws.load_set_draws` already drew at random).
+        :func:`~tvcid.discovery.prediction.draws.load_set_draws` already drew at random).
     resolution : dict, optional
         What a recording resolves of a cycle
-        (:func:`discovery.prediction.set_prediction.measurement_resolution`), by which the
+        (:func:`tvcid.discovery.prediction.set_prediction.measurement_resolution`), by which the
         predicted cycles' bands are widened before they are compared.
     """
-    from discovery.prediction.cycles import PredictionConfig
-    from discovery.prediction.set_prediction import predict_cycle_over_set
+    from tvcid.discovery.prediction.cycles import PredictionConfig
+    from tvcid.discovery.prediction.set_prediction import predict_cycle_over_set
 
     names = list(member_draws)
     if len(names) <= 1:

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.hypotheses import ActuatorParams, DeadZonePosition
-from models.structures import Structure
+from tvcid.models.hypotheses import ActuatorParams, DeadZonePosition
+from tvcid.models.structures import Structure
 
 __all__ = ["Coordinate", "SearchSpace", "UnknownParameterError", "LINEAR_FIELDS"]
 
@@ -73,7 +73,7 @@ class SearchSpace:
 
     Parameters
     ----------
-    structure : models.structures.Structure
+    structure : tvcid.models.structures.Structure
     base : ActuatorParams
         Supplies every field the search does not set (initial conditions, band of the filter).
     fixed : dict

@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 
-from discovery.calibration.likelihood import estimate_noise
-from discovery.calibration.likelihood.features import settling_gain
-from models.features import (
+from tvcid.discovery.calibration.likelihood import estimate_noise
+from tvcid.discovery.calibration.likelihood.features import settling_gain
+from tvcid.models.features import (
     crossing_hysteresis,
     cycle_crossings,
     fourier_harmonics,
@@ -187,7 +187,7 @@ def settles(t, d, ups) -> bool:
 
     Its peak-to-peak over each two periods follows an exponential approach that fits
     ``SETTLING_GAIN`` better than a constant, in units of the sensor noise estimated from the
-    record (:func:`discovery.calibration.likelihood.features.settling_gain`, the calibration's
+    record (:func:`tvcid.discovery.calibration.likelihood.features.settling_gain`, the calibration's
     test of the same thing), over at least ``MIN_SETTLING_CROSSINGS`` crossings. A cycle born
     near its bifurcation grows slowly, by a per cent or two per period after tens of seconds; its
     tail then sits well under the settled cycle, which a comparison with the settled cycle reads

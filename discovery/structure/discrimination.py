@@ -2,7 +2,7 @@
 
 :class:`.estimator.StructureDiscovery` reports the structures whose held-out scores the recordings
 cannot separate (:func:`.indistinguishable.indistinguishable_set`). This module asks which further
-test would separate them. Each candidate test (:class:`discovery.prediction.design.Candidate`: an
+test would separate them. Each candidate test (:class:`tvcid.discovery.prediction.design.Candidate`: an
 open-loop square, sine or step, or a controller setting) is recorded synthetically from the best
 member with the recordings' sensor noise and turned into the discovery's own target
 (:func:`.targets.make_target`: limit-cycle features, or the output error of a simulation from
@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models.experiments import CONTROLLER_A, CONTROLLER_B, OpenLoop
-from models.structures import Structure
+from tvcid.models.experiments import CONTROLLER_A, CONTROLLER_B, OpenLoop
+from tvcid.models.structures import Structure
 
 from ..calibration.priors import SIGMA
 from ..prediction.design import Candidate, DesignRanking, rank_experiments
@@ -148,9 +148,9 @@ def discriminating_tests(members, candidates=None, noise_sd=1e-5, dt=5e-4, seed=
 
     Parameters
     ----------
-    members : sequence of models.ActuatorParams
+    members : sequence of tvcid.models.ActuatorParams
         Fitted parameters of the structures to tell apart, the best first (each a different
-        structure: :meth:`models.structures.Structure.of_params`).
+        structure: :meth:`tvcid.models.structures.Structure.of_params`).
     candidates : sequence of Candidate, optional
         Tests to weigh (default :func:`default_candidates`).
     noise_sd : float
@@ -231,8 +231,8 @@ def _target_of(params, cand, noise_sd, dt, seed, path, spent=None):
     """The discovery's target of ``params``' synthetic record of ``cand`` (a closed-loop record
     after ``CLOSED_LEAD`` s), or the reason there is none (no cycle, a diverging run); the
     record's simulation is counted in ``spent``."""
-    from models.simulate import SimulationDiverged, step_for_rate
-    from models.synthetic import synthetic_recording
+    from tvcid.models.simulate import SimulationDiverged, step_for_rate
+    from tvcid.models.synthetic import synthetic_recording
 
     closed = cand.kind == "closed"
     if spent is not None:  # at the step synthetic_recording takes; a diverging run at its length
@@ -330,9 +330,9 @@ def design_over_set(member_draws: dict, candidates, params=None, noise=None, see
     """Rank ``candidates`` for a set of structures the recordings could not tell apart.
 
     Each member (``member_draws``: structure name ->
-    :class:`discovery.prediction.draws.PosteriorDraws`, e.g.
-    :func:`discovery.prediction.draws.load_set_draws`) ranks the candidates by
-    :func:`discovery.prediction.design.rank_experiments` on the parameters every member samples
+    :class:`tvcid.discovery.prediction.draws.PosteriorDraws`, e.g.
+    :func:`tvcid.discovery.prediction.draws.load_set_draws`) ranks the candidates by
+    :func:`tvcid.discovery.prediction.design.rank_experiments` on the parameters every member samples
     (or ``params``); a candidate's information gain and expected width ratios are the members'
     means (equal weights, as in the set's posterior), and each member's gain is kept. Beside it,
     the pairs of members the candidate would tell apart at their median models
@@ -343,7 +343,7 @@ def design_over_set(member_draws: dict, candidates, params=None, noise=None, see
 
     Returns
     -------
-    discovery.prediction.design.DesignRanking
+    tvcid.discovery.prediction.design.DesignRanking
         Rows with ``pairs_decided`` (of ``n_pairs``) and each member's gain and width ratios
         (``members``) beside the means.
 

@@ -2,9 +2,9 @@
 
 Pipeline (:meth:`StructureDiscovery.fit`):
 
-1. **Structure space** -- :func:`models.structures.structure_space` (36 structures after pruning,
+1. **Structure space** -- :func:`tvcid.models.structures.structure_space` (36 structures after pruning,
    fewer when the user fixes a structural choice).
-2. **Screening and seeds** -- weak-form SINDy (:mod:`discovery.sindy`) proposes parameters for the
+2. **Screening and seeds** -- weak-form SINDy (:mod:`tvcid.discovery.sindy`) proposes parameters for the
    structures its forms describe; they enter the first population of the global search of the
    matching structure. Where the data do not support a form, SINDy says so and the search runs
    unseeded; nothing downstream depends on SINDy being right.
@@ -42,9 +42,9 @@ import time
 
 import numpy as np
 
-from models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
-from models.recording import Recording, load_recording
-from models.structures import Structure, shared_choices, structure_space
+from tvcid.models.hypotheses import ActuatorParams, DeadZonePosition, DelayPosition
+from tvcid.models.recording import Recording, load_recording
+from tvcid.models.structures import Structure, shared_choices, structure_space
 
 from ..speed import cpu_seconds
 from ..threads import one_blas_thread
@@ -126,7 +126,7 @@ class StructureDiscovery:
         Structures (best in-sample first) that always get the out-of-sample ranking; any further
         structure whose in-sample cost is within :func:`.ranking.in_sample_screen` of the best's
         is ranked too, so that the reported set is not cut at a fixed size.
-    executor : discovery.executors.Executor, optional
+    executor : tvcid.discovery.executors.Executor, optional
         Runs the global searches of the classes' largest structures
         (:meth:`.structure_search.StructureSearch.search_classes`), e.g. on a Dask cluster;
         default: one after the other in this process. The result is the same wherever they run.
@@ -140,7 +140,7 @@ class StructureDiscovery:
         The best and every structure the data cannot tell from it (merged ones included).
     decided_ : dict
         Structural choice -> the value every structure of ``indistinguishable_`` shares, ``None``
-        where they differ (the recordings leave it open; :func:`models.structures.shared_choices`).
+        where they differ (the recordings leave it open; :func:`tvcid.models.structures.shared_choices`).
     pruned_ : dict
         Structure name -> why it was not fitted.
     repaired_ : list of str
@@ -161,7 +161,7 @@ class StructureDiscovery:
     cpu_seconds_ : dict
         CPU seconds per stage (``sindy``, ``global`` and ``nested``, or ``refit``; ``ranking``,
         ``total``): this process's and its ended children's
-        (:func:`discovery.speed.cpu_seconds`), with those of the global searches that ran in
+        (:func:`tvcid.discovery.speed.cpu_seconds`), with those of the global searches that ran in
         other processes.
     simulated_seconds_ : dict
         Seconds simulated per stage (``global`` and ``nested``, or ``refit``; ``ranking``), each
@@ -194,7 +194,7 @@ class StructureDiscovery:
         recordings) replaces SINDy's screening and the global searches by least squares from
         those optima (:meth:`.structure_search.StructureSearch.refit_from`): the experiment
         loop's update after new recordings."""
-        with one_blas_thread():  # the kernels own the cores (:mod:`discovery.threads`)
+        with one_blas_thread():  # the kernels own the cores (:mod:`tvcid.discovery.threads`)
             return self._fit(recordings, previous)
 
     def _fit(self, recordings, previous=None):
@@ -298,7 +298,7 @@ class StructureDiscovery:
 
     def _sindy_seeds(self, recs):
         """SINDy's proposals as parameter objects, by structure name, and the reason for none."""
-        from discovery.sindy import WeakSINDyActuator
+        from tvcid.discovery.sindy import WeakSINDyActuator
 
         noise = float(np.median([self._noise_of(r) for r in recs]))
         try:
@@ -316,6 +316,6 @@ class StructureDiscovery:
 
     @staticmethod
     def _noise_of(rec):
-        from discovery.calibration.likelihood import estimate_noise
+        from tvcid.discovery.calibration.likelihood import estimate_noise
 
         return estimate_noise(rec.delta)

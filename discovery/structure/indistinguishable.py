@@ -10,7 +10,7 @@
 * :func:`_contains` -- one structure is another with components added (at those components' zero
   it is the other).
 
-What every member shares is :func:`models.structures.shared_choices` of the set's structures.
+What every member shares is :func:`tvcid.models.structures.shared_choices` of the set's structures.
 """
 from __future__ import annotations
 
@@ -113,7 +113,7 @@ def indistinguishable_margin(best_units, other_units, n_recordings, floors=None)
     margin exactly when the records are short; the t quantile carries that uncertainty (for one
     recording, ``t_q(1) = 13.97``: 7 times the two standard errors). On the discovery
     benchmark's draws the margin's miss rate and the set's size are measured by
-    ``python -m studies.benchmarks.discovery --rederive`` (docs/results.md).
+    ``python -m tvcid.studies.benchmarks.discovery --rederive`` (docs/results.md).
 
     The floors add in quadrature like the folds' noise, not linearly: a linear sum lets
     recordings that do not discriminate widen the margin in proportion to their number

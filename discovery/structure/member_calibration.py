@@ -1,9 +1,9 @@
 """One member of the set, calibrated: its priors, its ensemble and its MCMC.
 
-Each distinct member of the indistinguishable set (:mod:`discovery.structure.indistinguishable`)
+Each distinct member of the indistinguishable set (:mod:`tvcid.discovery.structure.indistinguishable`)
 is calibrated on its own (:func:`calibrate_member`), every parameter its structure has sampled, the
 linear block included, within the structure search's box widened to hold the member's fit
-(:func:`member_priors`); :mod:`discovery.structure.set_posterior` then mixes the members.
+(:func:`member_priors`); :mod:`tvcid.discovery.structure.set_posterior` then mixes the members.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ __all__ = ["MEMBER_DELAY_FLOOR", "calibrate_member", "member_delay_floor", "memb
            "member_walkers"]
 
 #: The floor (s) of a member's delay prior: one step of the calibration's default 5e-4 s, the
-#: kernel's shortest delay (:func:`discovery.calibration.priors.step_under_delay`), under the
+#: kernel's shortest delay (:func:`tvcid.discovery.calibration.priors.step_under_delay`), under the
 #: shortest delay a rig has (0.8 ms, the benchmark generator's ``RANGES['wide']``).
 MEMBER_DELAY_FLOOR = 5e-4
 
@@ -23,7 +23,7 @@ def member_delay_floor(delay) -> float:
     ``min(MEMBER_DELAY_FLOOR, delay / 2)``.
 
     The calibration's step follows the floor, halved until one step fits under it
-    (:func:`discovery.calibration.priors.step_under_delay`), so only a member fitted under
+    (:func:`tvcid.discovery.calibration.priors.step_under_delay`), so only a member fitted under
     1 ms runs at a finer step (2.5e-4 s for a fit down to the structure search's one step of
     5e-4 s, twice the cost of every simulation); the others keep the default step and a prior
     that reaches 0.5 ms.
@@ -36,11 +36,11 @@ def member_delay_floor(delay) -> float:
 
 def member_priors(params, structure, names, delay_floor=None):
     """Priors of one member's sampled parameters: the structure search's box
-    (:data:`discovery.structure.coordinates.BOUNDS`) in natural units, each widened to hold the
+    (:data:`tvcid.discovery.structure.coordinates.BOUNDS`) in natural units, each widened to hold the
     member's fit; the delay's from ``delay_floor`` (default :func:`member_delay_floor` of the
     fit's delay, lowered to 0.9 times the fit where that is lower)."""
-    from discovery.calibration.priors import LogUniform, Uniform
-    from discovery.structure.coordinates import BOUNDS
+    from tvcid.discovery.calibration.priors import LogUniform, Uniform
+    from tvcid.discovery.structure.coordinates import BOUNDS
 
     g0 = params.gain / params.stiffness  # the block's static gain, rad/s per rad of error
     velocity = structure.dead_zone_position.value == "velocity"
@@ -91,8 +91,8 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     resumed chain's earlier steps are not counted again)."""
     import warnings
 
-    from discovery.calibration import Calibration
-    from discovery.calibration.runner import ConvergenceWarning
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.discovery.calibration.runner import ConvergenceWarning
 
     fixed = fixed or {}
     names = [n for n in structure.parameter_names() if n not in fixed

@@ -218,9 +218,9 @@ def importance_draws(proposal, log_prior, log_lik, records, n, rng, inflation=No
 
 def member_importance_draws(posterior, n=EVIDENCE_DRAWS, seed=0) -> ImportanceDraws:
     """:func:`importance_draws` of one calibrated member: the proposal fitted to its posterior
-    draws (:attr:`discovery.calibration.Posterior.internal`), each point's log-likelihood per
+    draws (:attr:`tvcid.discovery.calibration.Posterior.internal`), each point's log-likelihood per
     recording without the discrepancy factor
-    (:meth:`discovery.calibration.log_posterior.LogPosterior.pointwise`, summed per record), its
+    (:meth:`tvcid.discovery.calibration.log_posterior.LogPosterior.pointwise`, summed per record), its
     simulations counted in the member's cost.
 
     Where the ratios at the member's own temperatures are unreliable (:attr:`Evidence.reliable`:
@@ -230,8 +230,8 @@ def member_importance_draws(posterior, n=EVIDENCE_DRAWS, seed=0) -> ImportanceDr
     proposal's density, so the mean over both rounds averages two estimates each exact in
     expectation (the mixture's density would not be: the second proposal sits on the first
     round's heaviest points and would lower exactly their ratios)."""
-    from discovery.calibration.log_posterior import term_size
-    from discovery.calibration.posterior import _uninflated
+    from tvcid.discovery.calibration.log_posterior import term_size
+    from tvcid.discovery.calibration.posterior import _uninflated
 
     cal = posterior.calibration
     if cal is None:

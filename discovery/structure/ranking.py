@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.hypotheses import ActuatorParams
-from models.structures import Structure
+from tvcid.models.hypotheses import ActuatorParams
+from tvcid.models.structures import Structure
 
 from .indistinguishable import indistinguishable_set, margin_floors
 from .search import Objective, concurrent_map, progress_bar, refine
@@ -35,7 +35,7 @@ class StructureFit:
 
     Attributes
     ----------
-    structure : models.structures.Structure
+    structure : tvcid.models.structures.Structure
     params : ActuatorParams
         Every field, the structure's enums set, absent components zeroed.
     theta : ndarray

@@ -13,7 +13,7 @@
 Threads: the batch kernel releases the GIL, so the recordings of one evaluation are simulated
 concurrently (a refinement's one-set batches otherwise keep one core busy), and so are the
 refinements of a search's distinct candidates (:func:`refine_all`) and other independent tasks
-(:func:`concurrent_map`), all through :func:`discovery.threads.thread_map`.
+(:func:`concurrent_map`), all through :func:`tvcid.discovery.threads.thread_map`.
 :func:`progress_bar` is a bar such tasks may advance.
 """
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import differential_evolution, least_squares
 from scipy.stats import qmc
 
-from discovery.threads import thread_map
+from tvcid.discovery.threads import thread_map
 
 __all__ = ["Objective", "FitResult", "global_search", "refine", "refine_all", "concurrent_map",
            "local_sd", "distinct_members", "progress_bar"]
@@ -57,7 +57,7 @@ class Objective:
         again where a limit cycle is simulated from its second start.
     simulated_steps : float
         Kernel steps of the same runs, each run's ``t_end / dt`` of the simulator it used (as
-        :attr:`discovery.calibration.log_posterior.LogPosterior.simulated_steps` counts them).
+        :attr:`tvcid.discovery.calibration.log_posterior.LogPosterior.simulated_steps` counts them).
     """
 
     def __init__(self, targets):

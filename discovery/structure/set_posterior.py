@@ -1,7 +1,7 @@
 """The posterior over the set of structures the recordings cannot tell apart.
 
-Each distinct member of the indistinguishable set (:mod:`discovery.structure.indistinguishable`)
-is calibrated on its own (:mod:`discovery.structure.member_calibration`), every parameter the
+Each distinct member of the indistinguishable set (:mod:`tvcid.discovery.structure.indistinguishable`)
+is calibrated on its own (:mod:`tvcid.discovery.structure.member_calibration`), every parameter the
 recordings inform sampled, the linear block included; where the set leaves a component open
 (backlash, friction offset, band-pass loop) and no distinct member has it, the richer structure
 merged into one is calibrated too.
@@ -19,7 +19,7 @@ physical quantities they share:
   -3 dB frequency of ``K1/(s^3 + K2 s^2 + K3 s + K K1)``, the position loop without its delay and
   nonlinearities).
 
-The weights come from the data (:mod:`discovery.structure.set_weights`); the equal-weight
+The weights come from the data (:mod:`tvcid.discovery.structure.set_weights`); the equal-weight
 mixture is kept beside them as the alternative the report states.
 
 A quantity *depends on the structure* when the spread of the members' medians exceeds half the
@@ -31,7 +31,7 @@ of the 90 % interval its prior implies (the member's priors sampled and mapped t
 :func:`member_quantities`, in the quantity's own coordinate: log where its values are positive
 and span over a decade): composite quantities are judged on their own draws, not through the
 parameters they are made of. Beside its interval, each quantity has the range the recordings
-*allow* (:func:`discovery.calibration.profile_range.allowed_range`): where its profile log
+*allow* (:func:`tvcid.discovery.calibration.profile_range.allowed_range`): where its profile log
 posterior stays within 1.92 nats of the best, the members' ranges joined; an end the prior sets
 is *open* (the prior's floor or ceiling).
 """
@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from discovery.calibration.profile_range import ALLOWED_DROP, allowed_range, in_log_coordinate
-from discovery.calibration.step_error import widen_draws
+from tvcid.discovery.calibration.profile_range import ALLOWED_DROP, allowed_range, in_log_coordinate
+from tvcid.discovery.calibration.step_error import widen_draws
 
 from .set_weights import DECIDING_SHARE
 
@@ -58,7 +58,7 @@ QUANTITY_UNITS = {
     "backlash": "rad", "friction_offset": "rad/s", "bandpass_gain": "1", "delay": "s",
     "dc_gain": "rad/rad", "bandwidth": "rad/s",
 }
-#: The quantity of each optional component (:data:`models.structures.COMPONENT_FIELDS`).
+#: The quantity of each optional component (:data:`tvcid.models.structures.COMPONENT_FIELDS`).
 COMPONENT_QUANTITIES = {"friction": "friction_offset", "backlash": "backlash",
                         "bandpass": "bandpass_gain"}
 #: A quantity depends on the structure when the members' medians spread by more than this
@@ -99,7 +99,7 @@ def linear_block_dc_gain_and_bandwidth(gain, damping, stiffness, feedback_gain):
 
 def member_quantities(params: dict, draws: dict) -> dict:
     """The combined quantities of one member: its fitted ``params`` (a dict of
-    :class:`models.ActuatorParams` fields) with the sampled fields replaced by ``draws`` (name ->
+    :class:`tvcid.models.ActuatorParams` fields) with the sampled fields replaced by ``draws`` (name ->
     array, natural units); every array the same length. A component's quantity is there only
     where the member has the component (sampled, or nonzero in ``params``)."""
     n = len(next(iter(draws.values()))) if draws else 1
@@ -121,7 +121,7 @@ def member_quantities(params: dict, draws: dict) -> dict:
 
 def prior_quantities(params: dict, priors: dict, n=PRIOR_DRAWS, seed=0) -> dict:
     """The combined quantities under a member's priors alone: ``n`` draws of every prior in
-    ``priors`` (name -> :class:`discovery.calibration.priors.Prior`) mapped through
+    ``priors`` (name -> :class:`tvcid.discovery.calibration.priors.Prior`) mapped through
     :func:`member_quantities` with the unsampled fields at ``params``; the spread against which
     :func:`combine` judges whether the recordings pin a quantity."""
     rng = np.random.default_rng(seed)
@@ -135,7 +135,7 @@ def richer_members(rows, decided) -> list:
     component the set leaves open (``decided[component] is None``) that no distinct member has,
     the best-scored structure merged into a member that has it. ``rows`` are the ranking's rows
     (``structure``, ``indistinguishable_from_best``, ``merged_into``), best first."""
-    from models.structures import Structure
+    from tvcid.models.structures import Structure
 
     members = [r for r in rows if r["indistinguishable_from_best"]]
     distinct = [r for r in members if r["merged_into"] is None]
@@ -174,11 +174,11 @@ class MemberPosterior:
     Attributes
     ----------
     structure : str
-        Its name (:meth:`models.structures.Structure.parse` reads it).
+        Its name (:meth:`tvcid.models.structures.Structure.parse` reads it).
     quantities : dict
         Combined quantity -> draws (:func:`member_quantities`).
     summary : dict
-        Its calibration's summary (:meth:`discovery.calibration.Posterior.summary`): every
+        Its calibration's summary (:meth:`tvcid.discovery.calibration.Posterior.summary`): every
         sampled parameter's quantiles, convergence, ``at_prior_bound``.
     score_over_margin : float
         ``(score - best score) / margin``: at most 1 for a distinct member of the set.
@@ -188,7 +188,7 @@ class MemberPosterior:
         Combined quantity -> draws under the priors alone (:func:`prior_quantities`).
     step_error : dict, optional
         Combined quantity -> how far its median moves when the integration step is halved
-        (:mod:`discovery.calibration.step_error`).
+        (:mod:`tvcid.discovery.calibration.step_error`).
     """
 
     structure: str
@@ -323,13 +323,13 @@ NEGLIGIBLE_WEIGHT = 0.01
 
 def partly_present(q) -> bool:
     """Whether the members with combined quantity ``q``'s component and those without it both
-    keep at least :data:`~discovery.structure.set_weights.DECIDING_SHARE` of the weight."""
+    keep at least :data:`~tvcid.discovery.structure.set_weights.DECIDING_SHARE` of the weight."""
     return DECIDING_SHARE <= q.get("present", 1.0) <= 1.0 - DECIDING_SHARE
 
 
 def decided_absent(q) -> bool:
     """Whether the weights decide combined quantity ``q``'s component absent: the members with
-    it hold under :data:`~discovery.structure.set_weights.DECIDING_SHARE` of the weight (and
+    it hold under :data:`~tvcid.discovery.structure.set_weights.DECIDING_SHARE` of the weight (and
     the set does not leave it open to uncalibrated members)."""
     return q.get("present", 1.0) < DECIDING_SHARE and not q.get("left_open")
 
@@ -386,7 +386,7 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
         ceiling]`` of the members' priors, mapped to the quantity), ``step_error`` (the
         members' step errors averaged by their weights: a draw's expected error), ``widened``
         (some member's draws were widened to its own step error before the mixing,
-        :func:`discovery.calibration.step_error.widen_draws`: a member's interval narrower than
+        :func:`tvcid.discovery.calibration.step_error.widen_draws`: a member's interval narrower than
         twice its error becomes at least its median +- the error, within the quantity's
         support, ``support``: ``[floor, ceiling]``, ``None`` for an open end) with
         ``step_error_widened`` (the largest error that widened one) and the

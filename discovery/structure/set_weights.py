@@ -1,15 +1,15 @@
 """The weights of the set's members: each structure's posterior probability, from its evidence.
 
-The set (:mod:`discovery.structure.indistinguishable`) holds the structures whose held-out scores
+The set (:mod:`tvcid.discovery.structure.indistinguishable`) holds the structures whose held-out scores
 the ranking cannot separate from the best; each member is calibrated on its own
-(:func:`discovery.structure.member_calibration.calibrate_member`). A member's weight is its
+(:func:`tvcid.discovery.structure.member_calibration.calibrate_member`). A member's weight is its
 posterior probability given the recordings, with every member equally probable beforehand:
 ``w_m = Z_m / sum_k Z_k``, ``Z_m`` its evidence (the likelihood averaged over its prior), each
 estimated by importance sampling from the member's chain
-(:mod:`discovery.structure.member_evidence`).
+(:mod:`tvcid.discovery.structure.member_evidence`).
 
 **A common temperature.** Each member's chain samples its likelihood divided, recording by
-recording, by its own discrepancy factor (:func:`discovery.calibration.likelihood.base.tempered`):
+recording, by its own discrepancy factor (:func:`tvcid.discovery.calibration.likelihood.base.tempered`):
 a worse member gets a larger factor, which would flatten exactly the misfit that should cost it
 weight. The evidences are therefore all taken at one temperature per recording, the smallest
 factor any member needs there (1 where some member fits that recording within its noise): a
@@ -206,7 +206,7 @@ def weighed_choices(decided, weights, set_structures=()) -> dict:
     ----------
     decided : dict
         Choice -> its value where the set's structures agree, else ``None``
-        (:func:`models.structures.shared_choices`).
+        (:func:`tvcid.models.structures.shared_choices`).
     weights : dict
         Calibrated member (structure name) -> weight.
     set_structures : iterable of str
@@ -218,7 +218,7 @@ def weighed_choices(decided, weights, set_structures=()) -> dict:
         Choice -> ``{"value": v or None, "by": "set" | "weights" | "open", "weights": {value:
         share}}`` (values as the report shows them: ``"on"``/``"off"`` for a component).
     """
-    from models.structures import Structure
+    from tvcid.models.structures import Structure
 
     def shown(v):
         return v if isinstance(v, str) else ("on" if v else "off")

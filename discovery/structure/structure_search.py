@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq, least_squares
 
-from models.hypotheses import KICK_X0, DeadZonePosition, DelayPosition
-from models.linear import second_order_response
-from models.structures import Structure
+from tvcid.models.hypotheses import KICK_X0, DeadZonePosition, DelayPosition
+from tvcid.models.linear import second_order_response
+from tvcid.models.structures import Structure
 
 from .indistinguishable import TOL_ABS, _contains
 from .ranking import StructureFit
@@ -91,7 +91,7 @@ class SearchSizes:
     rank_nfev: int
 
 
-#: ``standard`` is what the discovery benchmark measures (``studies.benchmarks.discovery``) and what
+#: ``standard`` is what the discovery benchmark measures (``tvcid.studies.benchmarks.discovery``) and what
 #: ``tvcid discover`` runs by default; ``thorough`` searches about 1.8x as many parameter sets
 #: (M000's four records: 123,000 against 69,000 simulations, 816 s against 507 s on 2 idle cores)
 #: and is not covered by the benchmark.
@@ -116,7 +116,7 @@ class StructureSearch:
         Structure -> :class:`.coordinates.SearchSpace` of every structure to fit.
     progress : bool
         Progress bars (tqdm).
-    executor : discovery.executors.Executor, optional
+    executor : tvcid.discovery.executors.Executor, optional
         Runs :meth:`search_classes`' searches (:mod:`.tasks`); default: one after the other in
         this process.
 
@@ -447,7 +447,7 @@ def delay_moved(params, position):
 
     Inside the second-order block's loop (``before_first_integrator``,
     ``y'' = [K1 e - K2 y' - K3 y](t - Td)``) the block is ``K1 / (s^2 e^{s Td} + K2 s + K3)``;
-    after it, ``K1 e^{-s Td} / (s^2 + K2 s + K3)`` (:func:`models.linear.second_order_response`).
+    after it, ``K1 e^{-s Td} / (s^2 + K2 s + K3)`` (:func:`tvcid.models.linear.second_order_response`).
     The moved block is the one whose frequency response matches the given one over
     ``MATCHED_BAND`` of the given block's natural frequency ``sqrt(K3)`` (log gain and phase, least
     squares), started from the first-order match (:func:`_first_order_moved`). The first-order

@@ -21,9 +21,9 @@ Each recording then counts alike, however many samples it holds.
   phase-aligned waveform is not. A constant sensor offset only moves the mean, which is not
   compared.
 * :class:`OutputTarget` (open loop): the output error of a simulation from rest with the replayed
-  command (:meth:`models.recording.Recording.experiment`), the constant sensor offset profiled out
+  command (:meth:`tvcid.models.recording.Recording.experiment`), the constant sensor offset profiled out
   (its least-squares value is the mean residual); unit: the sensor noise estimated from the record
-  (:func:`discovery.calibration.likelihood.estimate_noise`) with a floor of 0.1 % of its rms.
+  (:func:`tvcid.discovery.calibration.likelihood.estimate_noise`) with a floor of 0.1 % of its rms.
 
 Each target has a coarse counterpart (:meth:`CycleTarget.coarse`, :meth:`OutputTarget.coarse`):
 the same comparison over fewer periods or the record's first part, a fraction of the simulated
@@ -41,11 +41,11 @@ import threading
 
 import numpy as np
 
-from discovery.calibration.likelihood import estimate_noise
-from models.batch import BatchSimulator, output_rate_for
-from models.edge_timing import edge_timing_for
-from models.features import cycle_crossings
-from models.cycle_state import RecordedCycleState
+from tvcid.discovery.calibration.likelihood import estimate_noise
+from tvcid.models.batch import BatchSimulator, output_rate_for
+from tvcid.models.edge_timing import edge_timing_for
+from tvcid.models.features import cycle_crossings
+from tvcid.models.cycle_state import RecordedCycleState
 
 from .cycle_tail import (
     N_HARMONICS,
@@ -90,7 +90,7 @@ PERIODS = 6
 #: record's tail (30 % more time is simulated). The record's features average over its whole tail
 #: (20-60 periods); a cycle that wanders (a band-pass loop not locked to it, a controller held at
 #: 200 Hz) gives a short window's features far from that mean, by where the window falls: on M000
-#: held at 200 Hz and recorded at 200 Hz (:mod:`studies.benchmarks.heldout_cases`) the truth costs
+#: held at 200 Hz and recorded at 200 Hz (:mod:`tvcid.studies.benchmarks.heldout_cases`) the truth costs
 #: 0.28-0.65 on the first cycle from windows of 6 periods, 0.04-0.10 from 12 and 0.04-0.05 from
 #: 24, while periodic wrong structures fit at 0.04-0.1; a drawn truth with two band-pass cycles at
 #: 200 Hz (set-coverage draw 1000 of the wide ranges) costs 0.84 from windows of 12 periods
@@ -144,7 +144,7 @@ class CycleTarget(_Target):
 
     Parameters
     ----------
-    recording : models.recording.Recording
+    recording : tvcid.models.recording.Recording
     dt : float
         RK4 step of the simulations (s).
     keep : float
@@ -284,7 +284,7 @@ class CycleTarget(_Target):
 
     def initial_conditions(self, params=None):
         """Actuator initial conditions (fields of ActuatorParams) of a simulation of ``params``:
-        the record's cycle state's (:meth:`models.cycle_state.RecordedCycleState.initial_conditions`;
+        the record's cycle state's (:meth:`tvcid.models.cycle_state.RecordedCycleState.initial_conditions`;
         with the record's rate ``y = x'`` alone, a model with coexisting cycles settled on one the
         record does not show on benchmark draw 1005: cost 89 at the truth, 0.17 with this start).
         """
@@ -403,7 +403,7 @@ class OutputTarget(_Target):
 
     A piecewise-constant command known only as samples (a square wave, a step) is simulated once
     with its edges on the solver's grid and read at each parameter set's best edge timing among
-    those its samples allow (:class:`models.edge_timing.EdgeTiming`, the same
+    those its samples allow (:class:`tvcid.models.edge_timing.EdgeTiming`, the same
     nuisance the calibration integrates out): no replay's choice is read as a delay.
     """
 

@@ -4,7 +4,7 @@
 class; each search (:func:`fit_top`) draws from its own generator, seeded up front, and gets all
 it needs as arguments: the targets, the search sizes, the structure's search space, its starts
 and its seed. So it runs the same in this process (the default) or on a Dask worker
-(:class:`discovery.executors.DaskExecutor`), where its arguments and result travel pickled.
+(:class:`tvcid.discovery.executors.DaskExecutor`), where its arguments and result travel pickled.
 
 The targets pickle (their simulators hold arrays); an :class:`.search.Objective` does not (it
 holds a lock), so each task builds its own around copies of the targets and hands back what it

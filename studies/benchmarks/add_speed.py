@@ -1,9 +1,9 @@
 """Cost of ``tvcid discover --add`` against a fresh run on the same recordings (goal: at most a
 third, the same ranking within the set's margin).
 
-``python -m studies.benchmarks.add_speed [--seed S] [--out DIR]``
+``python -m tvcid.studies.benchmarks.add_speed [--seed S] [--out DIR]``
 
-The recordings are the speed benchmark's (:mod:`studies.benchmarks.discover_speed`: M000's limit
+The recordings are the speed benchmark's (:mod:`tvcid.studies.benchmarks.discover_speed`: M000's limit
 cycles at controllers A and B, 40 s, an open-loop square and sine, 10 s, measured-style
 sidecars). An earlier run ranks the structures on the two cycles and the square; ``--add`` then
 adds the sine (:func:`tvcid.pipeline.add_recordings`); a fresh run ranks them on all four
@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from models.strict_json import write_json
+from tvcid.models.strict_json import write_json
 
 from ..common import code_commit
 from .discover_speed import write_recordings

@@ -3,7 +3,7 @@
 Case: M002 at controller A, one 10 s limit-cycle record (the last 10 s of a 20 s run at
 dt = 2e-4, 1 kHz), independent Gaussian sensor noise of sd 1e-4 rad (seeded); posterior of
 (backlash f, dead_zone zm, delay Td, sigma) with the phase-aligned waveform likelihood at its
-default step (``discovery.calibration.calibration.DEFAULT_DT``; the figures below were measured
+default step (``tvcid.discovery.calibration.calibration.DEFAULT_DT``; the figures below were measured
 at 5e-4 s), 10 walkers (2.5 per parameter: the Laplace independence move carries most steps; 16
 walkers cost a median 41,120 simulated s over the same seven seeds, 10 walkers 28,952), warm
 start and the calibration's transient (6 s given, a shorter one chosen where it is as accurate:
@@ -18,7 +18,7 @@ log-likelihood error of the dt = 5e-4 likelihood (against dt = 2e-4) and of the 
 steps; ``simulated_seconds_at_5e-4`` is the same cost in seconds at the 5e-4 s step the goal is
 stated at, since a finer step costs more per simulated second).
 
-Ridge case: :func:`studies.benchmarks.scenarios.ridge_scenario` (paper 001's placement without the
+Ridge case: :func:`tvcid.studies.benchmarks.scenarios.ridge_scenario` (paper 001's placement without the
 band-pass loop, a drawn truth, limit cycles at A and B of 40 s at 1 kHz, data from the reference
 path read back as measured), calibrated as ``tvcid fit`` does by default (waveform likelihood,
 16 walkers, 4000-step cap) on (dead zone, backlash, delay, friction offset) from a start 20 %
@@ -33,12 +33,12 @@ seeds with a fixed 12 s transient too and reports how far each posterior lies fr
 ``--continuation`` continues each run from the nearest stored run's cycle
 (``Calibration(continuation=True)``; with ``--transient 6``: within 0.10, median 35,729 s).
 
-Usage: ``python -m studies.benchmarks.calibration [--case m002|ridge|all] [--seeds 1,2,3,4,5,6,7]
+Usage: ``python -m tvcid.studies.benchmarks.calibration [--case m002|ridge|all] [--seeds 1,2,3,4,5,6,7]
 [--ridge-seeds 0] [--walkers 10] [--transient T] [--continuation] [--reference-transient 12]``;
 writes
 ``results/bench_calibration/bench.json`` and corner/trace plots. Other jobs on the machine inflate the wall time; the load average is recorded.
 The wall-time goals are judged against the batch kernel's reference measured in the same run
-(:meth:`studies.benchmarks.goals.Goal.speed`). The run ends with the goals of the cases it ran, one line each
+(:meth:`tvcid.studies.benchmarks.goals.Goal.speed`). The run ends with the goals of the cases it ran, one line each
 (M002: every seed converged, every seed within 40,000 simulated seconds, the slowest seed's wall
 time; ridge, per seed: converged within the step cap, every truth inside its 90 % interval, the
 wall time), and its exit status is 0 when all are met, 1 otherwise. Each case's numbers carry the
@@ -56,12 +56,12 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.calibration import Calibration
-from models.synthetic import synthetic_recording
-from models import CONTROLLER_A, M002
+from tvcid.discovery.calibration import Calibration
+from tvcid.models.synthetic import synthetic_recording
+from tvcid.models import CONTROLLER_A, M002
 
 from ..common import code_commit
-from models.strict_json import write_json
+from tvcid.models.strict_json import write_json
 
 from .goals import Goal, kernel_reference
 from .goals import report as goal_report
@@ -155,7 +155,7 @@ def run_ridge_case(seed, workdir):
     """The ridge case for one drawn truth (see the module docstring)."""
     import math
 
-    from studies.benchmarks.scenarios import RIDGE_PARAMETERS, ridge_scenario, write_recordings
+    from tvcid.studies.benchmarks.scenarios import RIDGE_PARAMETERS, ridge_scenario, write_recordings
 
     scenario = ridge_scenario(seed)
     paths = write_recordings(scenario, workdir / f"ridge_{seed}")

@@ -1,16 +1,16 @@
 """Coverage benchmark of the calibration: do the 90 % intervals hold the truth 90 % of the time?
 
-``python -m studies.benchmarks.coverage [--quick] [--likelihood features|waveform] [--draws N] [--seed S]
+``python -m tvcid.studies.benchmarks.coverage [--quick] [--likelihood features|waveform] [--draws N] [--seed S]
 [--jobs J | --dask ADDRESS] [--indices I] [--widening] [--out DIR]``
 
-Hypothesis: with the right structure, :class:`discovery.calibration.Calibration` returns 90 %
+Hypothesis: with the right structure, :class:`tvcid.discovery.calibration.Calibration` returns 90 %
 intervals that contain the truth in 80-97 % of seeded draws per parameter, and the truth's rank
 among the posterior samples is uniform (simulation-based calibration). Deciding figure:
 ``DIR/ranks.png`` (rank histograms per parameter; flat is calibrated, U-shaped is overconfident,
 a hump is underconfident) and the coverage table in ``DIR/bench.json``.
 
 Each draw comes from the generator shared with the discovery benchmark, within its ``papers``
-ranges (:func:`studies.benchmarks.scenarios.draw_scenario`: a truth over every structure, an
+ranges (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`: a truth over every structure, an
 experiment design with limit cycles at 1-3 controller settings, open-loop tests or none, 200 Hz or
 1 kHz acquisition, noise, sensor offset, quantisation); every third draw is forced onto a structure with a friction
 offset and a dead zone on the velocity signal (the ridge the limit cycle leaves between them).
@@ -38,7 +38,7 @@ whose factor is over 1 are calibrated again without the term (same seed, start a
 settings) and ``DIR/widening.json`` gives, per draw and parameter, the ratio of the 90 %
 intervals' widths with and without it (the goal: at most about 20 %).
 
-The run ends with its goals, one line each (:mod:`studies.benchmarks.goals`), and exits 0 when all are met,
+The run ends with its goals, one line each (:mod:`tvcid.studies.benchmarks.goals`), and exits 0 when all are met,
 1 otherwise: no draw failed; per parameter, the truth inside its 90 % interval in 80-97 % of the
 finished draws (not judged on ``--quick``'s short chains); with ``--widening``, every interval
 widened by at most 20 %. Every row names the commit of the code that ran it; ``widening.json``
@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.strict_json import write_json
+from tvcid.models.strict_json import write_json
 
 from ..common import code_commit
 from .draws import add_executor_options
@@ -116,7 +116,7 @@ def runs_with(index, config: Config) -> bool:
 
 def priors_for(structure):
     """The generator's ranges, widened by ``PRIOR_WIDENING``, for the sampled parameters."""
-    from discovery.calibration.priors import LogUniform, Uniform
+    from tvcid.discovery.calibration.priors import LogUniform, Uniform
 
     ranges = ranges_named(DRAW_RANGES)
     w = ranges.threshold_factor * PRIOR_WIDENING
@@ -140,7 +140,7 @@ def _start(truth, priors, rng, scatter):
 
 def coverage_scenario(index, config: Config):
     """Draw ``index``'s scenario: every third one on the dead zone / friction offset ridge."""
-    from models.structures import structure_space
+    from tvcid.models.structures import structure_space
 
     seed = config.seed + index
     structure = None
@@ -157,9 +157,9 @@ def coverage_scenario(index, config: Config):
 def run_draw(index, config: Config, workdir: Path, discrepancy=True) -> dict:
     """Calibrate draw ``index`` on its own recordings; ``discrepancy=False`` without the
     model-discrepancy factor that tempers the likelihood (:func:`widening`)."""
-    from discovery.calibration import Calibration
-    from discovery.calibration.runner import ConvergenceWarning
-    from models.structures import Structure
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.discovery.calibration.runner import ConvergenceWarning
+    from tvcid.models.structures import Structure
 
     seed = config.seed + index
     scenario = coverage_scenario(index, config)
@@ -219,10 +219,10 @@ CODE_COMMIT = code_commit()
 def run_draws(todo, config: Config, workdir: Path, jobs: int, record, discrepancy=True,
               dask=None) -> list:
     """:func:`run_draw` for every index in ``todo``, ``jobs`` at a time in worker processes or on
-    the Dask cluster ``dask`` (:func:`discovery.executors.executor_from`), ``record(row)`` as
+    the Dask cluster ``dask`` (:func:`tvcid.discovery.executors.executor_from`), ``record(row)`` as
     each finishes. A draw that raises is reported and skipped, not allowed to stop the others (a
     benchmark of an hour must keep what it finished); returns the failed indices."""
-    from discovery.executors import executor_from
+    from tvcid.discovery.executors import executor_from
 
     failed = []
     todo = list(todo)
@@ -483,7 +483,7 @@ def write_widening(path, plain, result, rows):
 
 
 if __name__ == "__main__":
-    from discovery.parallel import (
+    from tvcid.discovery.parallel import (
         run_interruptible,  # Ctrl-C, SIGTERM: workers stopped, one line, 130
     )
 

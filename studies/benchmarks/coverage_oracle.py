@@ -1,9 +1,9 @@
 """Is a coverage miss the data's own noise, or the method? An exact-edge oracle on a draw's open-loop records.
 
-``python -m studies.benchmarks.coverage_oracle INDEX [--renoise K] [--out DIR]``  (5-15 minutes a draw)
-``python -m studies.benchmarks.coverage_oracle INDEX [INDEX ...] --replay-only``
+``python -m tvcid.studies.benchmarks.coverage_oracle INDEX [--renoise K] [--out DIR]``  (5-15 minutes a draw)
+``python -m tvcid.studies.benchmarks.coverage_oracle INDEX [INDEX ...] --replay-only``
 
-Hypothesis: when the coverage benchmark (:mod:`studies.benchmarks.coverage`) puts a truth outside its
+Hypothesis: when the coverage benchmark (:mod:`tvcid.studies.benchmarks.coverage`) puts a truth outside its
 90 % interval because an open-loop record prefers another point, either the likelihood term is
 biased (the command's replay from 200 Hz samples, its edge-timing nuisance, the solver's step) or
 that record's noise realisation happens to favour the other point. An oracle separates the two:
@@ -11,7 +11,7 @@ it knows the square's exact edges (the generator's analytic command) and simulat
 the fit (:data:`ORACLE_DT`), so it has neither the replay nor the solver error. Deciding numbers,
 per open-loop record of draw ``INDEX``:
 
-* ``term_gain``: how much the calibration's own term (:class:`discovery.calibration.likelihood.
+* ``term_gain``: how much the calibration's own term (:class:`tvcid.discovery.calibration.likelihood.
   OpenLoopTerm`, at the benchmark's step and refinement) improves on the truth's log-likelihood by moving
   the sampled parameters (Nelder-Mead from the truth), and where to;
 * ``oracle_gain``: the same for the oracle on the same data;
@@ -22,7 +22,7 @@ per open-loop record of draw ``INDEX``:
   made the data) and the kernel on the noise-free response;
 * ``replay_chi_square``: what replaying the command from its samples adds to the chi-square at
   the truth, noise-free at the oracle's step, against the analytic command: read by its chords
-  (``chords``) and as :meth:`models.recording.Recording.experiment` replays it (``replayed``).
+  (``chords``) and as :meth:`tvcid.models.recording.Recording.experiment` replays it (``replayed``).
   ``--replay-only`` prints just this for several draws (seconds each): a sine's chords lower its
   fundamental, which at 200 Hz and 2.6 Hz adds 90 (draw 17). For a square it is the replayed
   edges' chi-square before the term integrates their timing out (thousands at 200 Hz; compare
@@ -48,10 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
-from models.strict_json import write_json
+from tvcid.models.strict_json import write_json
 
 #: Step (s) of the oracle's simulations: 10x finer than the features' 5e-4 s and the data's
-#: generator step (:data:`studies.benchmarks.scenarios.DATA_DT`) apart by the same factor.
+#: generator step (:data:`tvcid.studies.benchmarks.scenarios.DATA_DT`) apart by the same factor.
 ORACLE_DT = 5e-5
 #: Relative size of the Nelder-Mead start simplex around the truth.
 SIMPLEX = 0.03
@@ -70,11 +70,11 @@ def _maximise(cost, n):
 
 def oracle_check(index, renoise=6, workdir=Path("results/bench_coverage/data")):
     """The numbers of the module docstring for every open-loop record of draw ``index``."""
-    from discovery.calibration.likelihood import OpenLoopTerm
-    from models import SimulationDiverged, simulate
-    from models.recording import load_recording
-    from models.reference import simulate_reference
-    from models.structures import Structure
+    from tvcid.discovery.calibration.likelihood import OpenLoopTerm
+    from tvcid.models import SimulationDiverged, simulate
+    from tvcid.models.recording import load_recording
+    from tvcid.models.reference import simulate_reference
+    from tvcid.models.structures import Structure
 
     from .coverage import SAMPLED, Config, coverage_scenario, priors_for
     from .scenarios import DATA_DT, write_recordings
@@ -142,7 +142,7 @@ def oracle_check(index, renoise=6, workdir=Path("results/bench_coverage/data")):
 
 def replay_chi_square(truth, design, recording, sigma) -> dict:
     """Chi-square at the truth that the command's replay adds (module docstring), noise-free."""
-    from models import OpenLoop, simulate
+    from tvcid.models import OpenLoop, simulate
 
     t = recording.t - recording.t[0]
     end = float(t[-1])
@@ -163,7 +163,7 @@ def replay_chi_square(truth, design, recording, sigma) -> dict:
 
 def replay_table(indices, workdir=Path("results/bench_coverage/data")):
     """``replay_chi_square`` of every open-loop record of the draws ``indices``."""
-    from models.recording import load_recording
+    from tvcid.models.recording import load_recording
 
     from .coverage import Config, coverage_scenario
     from .scenarios import write_recordings
@@ -186,8 +186,8 @@ def step_ladder(truth, names, path, config, levels=4):
     """The features term of one closed-loop record at the truth, at the benchmark's step and
     ``levels - 1`` halvings of it: features, their step-doubling change and the whitened
     residuals (sd of the observed features)."""
-    from discovery.calibration import Calibration
-    from models.structures import Structure
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.models.structures import Structure
 
     from .coverage import priors_for
 

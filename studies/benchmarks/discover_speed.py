@@ -1,6 +1,6 @@
 """Speed of ``tvcid discover`` on four recordings of M000 (goal: <= 10 minutes on 2 cores).
 
-``python -m studies.benchmarks.discover_speed [--search standard|thorough] [--out DIR]``
+``python -m tvcid.studies.benchmarks.discover_speed [--search standard|thorough] [--out DIR]``
 
 The recordings are M000's (the bundled set's model and noise, ``data/generate.py``): limit cycles at
 controllers A and B of 40 s, an open-loop square (+-20 mrad, 1 Hz) and sine (20 mrad, 2 Hz) of 10 s,
@@ -11,11 +11,11 @@ per stage and per member of the set, the kernel steps (``simulated_steps``), the
 simulated seconds, the CPU seconds and the wall seconds (``stages``), beside the goal (600 s), the
 machine's cores, its load average before and after, the commit of the code, and two references
 measured in the same run. The batch kernel's wall time per simulated second
-(:func:`studies.benchmarks.goals.kernel_reference`: 64 closed-loop runs of M000 at the search's
+(:func:`tvcid.studies.benchmarks.goals.kernel_reference`: 64 closed-loop runs of M000 at the search's
 5e-4 s step), so that a slower machine can be told from a slower discovery
 (``discovery_in_kernel_seconds``: the discovery's wall time over that reference); the goal is judged
-on that ratio (:meth:`studies.benchmarks.goals.Goal.speed`). And the kernel's CPU seconds per step
-(:func:`discovery.speed.kernel_reference`) before and after the run: a run whose two references
+on that ratio (:meth:`tvcid.studies.benchmarks.goals.Goal.speed`). And the kernel's CPU seconds per step
+(:func:`tvcid.discovery.speed.kernel_reference`) before and after the run: a run whose two references
 differ by more than 10 %, or that starts at a 1-minute load average above 0.5, is flagged
 (``idle_check``, with the reason) and not judged as the speed. The last line printed is the goal,
 met or NOT met, or the flag; so is the exit status (0 met, 1 not, 2 flagged). Non-finite numbers
@@ -29,13 +29,13 @@ import sys
 import time
 from pathlib import Path
 
-from discovery.structure.structure_search import SEARCHES
-from models import CONTROLLER_A, CONTROLLER_B, OpenLoop, hypothesis, simulate
-from models.recording import recording_from_trajectory, save_recording
-from models.strict_json import write_json
+from tvcid.discovery.structure.structure_search import SEARCHES
+from tvcid.models import CONTROLLER_A, CONTROLLER_B, OpenLoop, hypothesis, simulate
+from tvcid.models.recording import recording_from_trajectory, save_recording
+from tvcid.models.strict_json import write_json
 
-from discovery.speed import idle_check
-from discovery.speed import kernel_reference as cpu_per_step
+from tvcid.discovery.speed import idle_check
+from tvcid.discovery.speed import kernel_reference as cpu_per_step
 
 from ..common import code_commit
 from .goals import Goal, kernel_reference
@@ -83,7 +83,7 @@ def record(summary, wall, load_average, before, after) -> dict:
     load_average : sequence of float
         :func:`os.getloadavg` at its start.
     before, after : float
-        :func:`discovery.speed.kernel_reference` (CPU seconds per kernel step) before and after.
+        :func:`tvcid.discovery.speed.kernel_reference` (CPU seconds per kernel step) before and after.
 
     Returns
     -------
@@ -91,7 +91,7 @@ def record(summary, wall, load_average, before, after) -> dict:
         ``wall_seconds``; ``stages`` (wall), ``cpu_seconds``, ``simulated_seconds`` and
         ``simulated_steps`` per stage; ``members`` (each member's structure, steps, simulated,
         CPU and wall seconds); the references and ``idle_check``
-        (:func:`discovery.speed.idle_check` on the 1-minute load average); the chain's
+        (:func:`tvcid.discovery.speed.idle_check` on the 1-minute load average); the chain's
         convergence and steps and the winner.
     """
     members = (summary.get("set_posterior") or {}).get("members") or ()

@@ -1,15 +1,15 @@
 """Discovery benchmark: random truths and designs, data from the reference path, read as measured.
 
-``python -m studies.benchmarks.discovery [--quick] [--draws N] [--seed S] [--ranges wide|papers]
+``python -m tvcid.studies.benchmarks.discovery [--quick] [--draws N] [--seed S] [--ranges wide|papers]
 [--jobs J | --dask ADDRESS] [--out DIR] [--rederive] [--floor-scan]``
 
-Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded, within the generator's
+Each draw (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`, seeded, within the generator's
 ``--ranges``) is a truth over every structure of the grammar and an experiment design (limit
 cycles at 1-3 controller settings, open-loop tests or none, 200 Hz to 2 kHz, noise, sensor offset,
 quantisation). Its recordings are made by
 the plain-Python reference simulator (a second implementation), written with measured-style
 sidecars (no hypothesis, no parameters, commands only as samples) and given to
-:class:`discovery.structure.StructureDiscovery`.
+:class:`tvcid.discovery.structure.StructureDiscovery`.
 
 Printed per structure class and overall, and written to ``DIR/bench.json``:
 
@@ -23,7 +23,7 @@ Printed per structure class and overall, and written to ``DIR/bench.json``:
   against 5 %;
 * per structural choice (dead-zone and delay position, friction, backlash, band-pass loop):
   decided right, decided wrong, or left open by the reported set (what the recordings decide,
-  :func:`models.structures.shared_choices`), as the fraction of all the draws' choices decided
+  :func:`tvcid.models.structures.shared_choices`), as the fraction of all the draws' choices decided
   right and the count decided wrong;
 * timings.
 
@@ -37,7 +37,7 @@ at every scale is held by its data, not by the margin), to ``DIR/floor_scan.json
 
 Goals: right winner or truth in a set of at most 3 in >= 90 % of draws; identifiable
 parameters within 5 % in >= 90 %. Every draw runs the ``standard`` search sizes
-(:data:`discovery.structure.structure_search.SEARCHES`, the default of ``tvcid discover``); without
+(:data:`tvcid.discovery.structure.structure_search.SEARCHES`, the default of ``tvcid discover``); without
 ``--quick`` SINDy seeds them, as in ``tvcid discover``. ``--quick`` (CI) runs a handful of draws
 without SINDy's seeds on the same data (full-length records at the generator's step: cut to 12 s, a band-pass cycle's
 wander rests on two pieces of six periods and draw 1000's truth misses its own record by 13.6 cost
@@ -60,11 +60,11 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.structure import StructureDiscovery
-from discovery.structure.coordinates import SearchSpace
-from discovery.structure.search import Objective, local_sd
-from models.strict_json import write_json
-from models.structures import CHOICES, Structure, shared_choices
+from tvcid.discovery.structure import StructureDiscovery
+from tvcid.discovery.structure.coordinates import SearchSpace
+from tvcid.discovery.structure.search import Objective, local_sd
+from tvcid.models.strict_json import write_json
+from tvcid.models.structures import CHOICES, Structure, shared_choices
 
 from ..common import code_commit
 from .draws import (
@@ -168,7 +168,7 @@ def run_draw(seed, out_dir, quick, ranges="wide"):
 
 def set_verdict(ranked, truth):
     """How a ranking (winner first, its indistinguishable set marked:
-    :func:`discovery.structure.indistinguishable.indistinguishable_set`) stands to the ``truth``
+    :func:`tvcid.discovery.structure.indistinguishable.indistinguishable_set`) stands to the ``truth``
     structure.
 
     Returns ``winner``; ``right_winner``; ``set`` (every structure in the set, merged ones too);
@@ -191,7 +191,7 @@ def set_verdict(ranked, truth):
 def as_well_as_truth(row, against="truth"):
     """The structures no fit-based rule can tell from the truth on ``row``'s recordings, reduced
     to the minimal ones (a structure containing another of them,
-    :func:`discovery.structure.indistinguishable._contains`, is that one at its added components'
+    :func:`tvcid.discovery.structure.indistinguishable._contains`, is that one at its added components'
     zero), the truth's own structure among them.
 
     ``against="truth"``: every ranked structure whose fitted in-sample cost is at most the cost of
@@ -206,7 +206,7 @@ def as_well_as_truth(row, against="truth"):
     bounds on the draws whose truth a set of at most 3 can hold. Rows without a stored truth
     cost give ``None``.
     """
-    from discovery.structure.indistinguishable import _contains
+    from tvcid.discovery.structure.indistinguishable import _contains
 
     if against not in ("truth", "fit"):
         raise ValueError(f"against must be 'truth' or 'fit', not {against!r}")
@@ -266,7 +266,7 @@ def guarded_draw(seed, out_dir, quick, ranges="wide"):
 
 def choice_verdicts(row):
     """Per structural choice: ``right`` or ``wrong`` where the reported set decides it (every
-    member shares one value, :func:`models.structures.shared_choices`), ``open`` where it does not."""
+    member shares one value, :func:`tvcid.models.structures.shared_choices`), ``open`` where it does not."""
     if not row.get("set"):
         return {c: "open" for c in CHOICES}
     decided = shared_choices(row["set"])
@@ -316,12 +316,12 @@ def summarise(rows, key=structure_class):
 
 
 def draw_floors(seed, out_dir, ranges="wide"):
-    """The margin floors (:func:`discovery.structure.indistinguishable.margin_floors`) of draw
+    """The margin floors (:func:`tvcid.discovery.structure.indistinguishable.margin_floors`) of draw
     ``seed``'s recordings (drawn within ``ranges``), regenerated into ``out_dir/drawNNN`` unless
     they are there."""
-    from discovery.structure.estimator import validate_recordings
-    from discovery.structure.indistinguishable import margin_floors
-    from discovery.structure.targets import make_target
+    from tvcid.discovery.structure.estimator import validate_recordings
+    from tvcid.discovery.structure.indistinguishable import margin_floors
+    from tvcid.discovery.structure.targets import make_target
 
     paths = write_recordings(draw_scenario(seed, ranges=ranges), Path(out_dir) / f"draw{seed:03d}",
                              reuse=True)
@@ -332,16 +332,16 @@ def draw_floors(seed, out_dir, ranges="wide"):
 def rederived(row, floors, commit=CODE_COMMIT):
     """``row`` with its indistinguishable set, winner and verdict derived again from its stored
     ranking (every ranked structure's held-out fold costs) by the current set rule
-    (:func:`discovery.structure.indistinguishable.indistinguishable_set`), with ``floors`` per
+    (:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_set`), with ``floors`` per
     recording.
 
     No search runs: the fits and scores are the row's own. Structures the row did not rank join
     the set where they contain a member (as in the discovery). A changed verdict keeps the old one
     under ``previous``; ``set_rule_check`` says which commit's rule and what changed.
     """
-    from discovery.structure.indistinguishable import indistinguishable_set
-    from discovery.structure.ranking import StructureFit
-    from models.structures import structure_space
+    from tvcid.discovery.structure.indistinguishable import indistinguishable_set
+    from tvcid.discovery.structure.ranking import StructureFit
+    from tvcid.models.structures import structure_space
 
     def fit(structure, score, cost, folds=None):
         return StructureFit(structure=structure, params=None, theta=np.zeros(1), cost=cost,
@@ -389,7 +389,7 @@ class FloorScan:
     ----------
     scales : tuple of float
         Factors on every recording's floor
-        (:func:`discovery.structure.indistinguishable.margin_floors`).
+        (:func:`tvcid.discovery.structure.indistinguishable.margin_floors`).
     right_or_in_set_le3, truth_in_set, mean_set_size : tuple of float
         Per scale, over the draws.
     misses : tuple of tuple of int
@@ -564,7 +564,7 @@ def discovery_goals(overall) -> list:
 
 
 if __name__ == "__main__":
-    from discovery.parallel import (
+    from tvcid.discovery.parallel import (
         run_interruptible,  # Ctrl-C, SIGTERM: workers stopped, one line, 130
     )
 

@@ -1,6 +1,6 @@
 """What the draw benchmarks share: finished rows read back for a rerun, the ``--jobs`` and
 ``--dask`` options, and the draws run one after the other, in worker processes that end with the
-benchmark, or on a Dask cluster (:mod:`discovery.executors`)."""
+benchmark, or on a Dask cluster (:mod:`tvcid.discovery.executors`)."""
 from __future__ import annotations
 
 import argparse
@@ -47,7 +47,7 @@ def add_ranges_option(parser):
 
 def _dask_address(text):
     """``--dask``'s value, checked as it is parsed (one line, naming the extra without Dask)."""
-    from discovery.executors import check_dask_address
+    from tvcid.discovery.executors import check_dask_address
 
     try:
         return check_dask_address(text)
@@ -68,14 +68,14 @@ def add_executor_options(parser, jobs_help):
 
 def run_draws(draw, seeds, out, quick, jobs, record, dask=None, ranges=None):
     """``draw(seed, out, quick)`` (with ``ranges=ranges`` when given) for every seed, ``jobs`` at
-    once in worker processes (:func:`discovery.parallel.process_pool`: they end with this process)
-    or on the Dask cluster ``dask`` (:func:`discovery.executors.executor_from`);
+    once in worker processes (:func:`tvcid.discovery.parallel.process_pool`: they end with this process)
+    or on the Dask cluster ``dask`` (:func:`tvcid.discovery.executors.executor_from`);
     ``record(seed, row)`` as each ends, in seed order."""
     seeds = list(seeds)
     n = len(seeds)
     if not n:
         return
-    from discovery.executors import executor_from
+    from tvcid.discovery.executors import executor_from
 
     if ranges is not None:
         draw = functools.partial(draw, ranges=ranges)

@@ -1,14 +1,14 @@
 """What one evaluated point of a member's posterior costs, record by record, and how far a
 simulated cycle's features move with the stretch they are read from.
 
-``python -m studies.benchmarks.evaluation_cost [--draws N] [--seed S] [--points P] [--out DIR]``
+``python -m tvcid.studies.benchmarks.evaluation_cost [--draws N] [--seed S] [--points P] [--out DIR]``
 
-Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, the generator's ``wide`` ranges,
+Each draw (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`, the generator's ``wide`` ranges,
 seeds 5000 on, which no test uses) has its recordings made by the reference simulator and read
 back as measured recordings; a member's likelihood is set up on them as ``tvcid discover``'s set
-stage sets it up (:class:`discovery.calibration.calibration.Calibration`, the features likelihood,
+stage sets it up (:class:`tvcid.discovery.calibration.calibration.Calibration`, the features likelihood,
 a 10 s window, the truth's structure and its priors), without sampling. Per record the row holds
-the kernel steps one point costs (:func:`discovery.speed.evaluation_steps`: a cycle's settling
+the kernel steps one point costs (:func:`tvcid.discovery.speed.evaluation_steps`: a cycle's settling
 before the window, its window and any run beyond it; an open-loop record's whole length at the
 step its edges and solver check chose, and the steps that choice added).
 
@@ -33,12 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.calibration import Calibration
-from discovery.speed import evaluation_steps
-from discovery.calibration.likelihood.features import cycle_features
-from discovery.structure.member_calibration import member_priors
-from models.batch import BatchSimulator
-from models.strict_json import write_json
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.speed import evaluation_steps
+from tvcid.discovery.calibration.likelihood.features import cycle_features
+from tvcid.discovery.structure.member_calibration import member_priors
+from tvcid.models.batch import BatchSimulator
+from tvcid.models.strict_json import write_json
 
 from ..common import code_commit
 from .draws import finished_rows

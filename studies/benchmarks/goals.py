@@ -11,7 +11,7 @@ run (:func:`kernel_reference`), so that a slower machine is told from a slower p
 target is the goal's seconds over :data:`NOMINAL_REFERENCE`, the reference's cost at which those
 seconds are read.
 
-The JSON a benchmark writes is strict: :func:`models.strict_json.write_json` writes NaN and infinities as ``null``
+The JSON a benchmark writes is strict: :func:`tvcid.models.strict_json.write_json` writes NaN and infinities as ``null``
 (``json`` would write the tokens ``NaN`` and ``Infinity``, which are not JSON).
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ def kernel_reference(repeats=3) -> float:
     The unit of the speed goals (:meth:`Goal.speed`): a wall time over this is the number of
     simulated seconds the kernel's batch would have run in it on the same machine at that time.
     """
-    from models import CONTROLLER_A, hypothesis, simulate_batch
+    from tvcid.models import CONTROLLER_A, hypothesis, simulate_batch
 
     sets = [hypothesis("M000").replace(backlash=1e-4 * (1 + 0.01 * i)) for i in range(64)]
     simulate_batch(sets[:2], CONTROLLER_A, 1.0, dt=5e-4, rate=None)  # compile / load the cache

@@ -1,6 +1,6 @@
 """Three held-out cases, rerun as a user ran them: does ``tvcid discover`` name their structure?
 
-``python -m studies.benchmarks.heldout_cases [--case NAME ...] [--seed N] [--quick] [--no-mcmc] [--out DIR]``
+``python -m tvcid.studies.benchmarks.heldout_cases [--case NAME ...] [--seed N] [--quick] [--no-mcmc] [--out DIR]``
 
 Hypothesis: on these three recordings sets, each a paper's model recorded with a design a user
 ran, the discovery names the generating structure, or reports a set of structures it cannot tell
@@ -9,7 +9,7 @@ numbers: per case, ``truth_in_set``, ``right_winner`` and the relative errors of
 structure's fit in ``results/heldout_cases/summary.json``.
 
 The recordings are made by the plain-Python reference path
-(:func:`studies.benchmarks.scenarios.write_recordings`, a second implementation at 5e-5 s) and
+(:func:`tvcid.studies.benchmarks.scenarios.write_recordings`, a second implementation at 5e-5 s) and
 written with measured-style sidecars (no hypothesis, no parameters, commands only as samples);
 2e-5 rad of white sensor noise where the design gives none:
 
@@ -23,7 +23,7 @@ written with measured-style sidecars (no hypothesis, no parameters, commands onl
   the delay from two cycles).
 
 This is a check on three cases, not the measure of the method: the discovery benchmark
-(:mod:`studies.benchmarks.discovery`) draws truths and designs at random.
+(:mod:`tvcid.studies.benchmarks.discovery`) draws truths and designs at random.
 """
 from __future__ import annotations
 
@@ -34,12 +34,12 @@ import sys
 import time
 from pathlib import Path
 
-from models import hypothesis
-from models.strict_json import write_json
-from models.structures import Structure
+from tvcid.models import hypothesis
+from tvcid.models.strict_json import write_json
+from tvcid.models.structures import Structure
 
 from ..common import code_commit
-from models.synthetic import Acquisition
+from tvcid.models.synthetic import Acquisition
 
 from .scenarios import CONTROLLERS, RecordingDesign, Scenario, write_recordings
 

@@ -1,12 +1,12 @@
 """Benchmark of the calibration's likelihood terms simulated in threads (one per recording).
 
-``python -m studies.benchmarks.likelihood_threads [--quick] [--seed N] [--out DIR]``
+``python -m tvcid.studies.benchmarks.likelihood_threads [--quick] [--seed N] [--out DIR]``
 
 The log posterior of paper 000's model on the four bundled M000 recordings (two limit cycles
 through their features, two open-loop tests through the output error; every parameter of the
 structure sampled, as the set's calibration does) is evaluated at one point (what the start's
 searches evaluate) and at a batch of 40 (a step of the ensemble), with the terms simulated
-concurrently (:func:`discovery.threads.thread_map`) and in a plain loop, interleaved, the median
+concurrently (:func:`tvcid.discovery.threads.thread_map`) and in a plain loop, interleaved, the median
 of the repeats kept. Every figure is a ratio measured in this run on this machine. Where a
 point's time goes is printed and kept too (:func:`term_costs`): each recording's share of the
 batch, the seconds it simulates per point and at which step.
@@ -25,16 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
-import discovery.threads as threads
-from models import M000
-from models.recording import load_recording
-from models.strict_json import write_json
-from models.structures import Structure
+import tvcid.discovery.threads as threads
+from tvcid.data import path as bundled_path
+from tvcid.models import M000
+from tvcid.models.recording import load_recording
+from tvcid.models.strict_json import write_json
+from tvcid.models.structures import Structure
 
 from ..common import code_commit
 from .goals import Goal, report
 
-DATA = Path(__file__).resolve().parents[2] / "data"
+DATA = bundled_path()
 RECORDINGS = ("m000_closed_A", "m000_closed_B", "m000_open_square", "m000_open_sine")
 #: Points of a batch (a step of an ensemble of 40 walkers).
 BATCH = 40
@@ -44,8 +45,8 @@ GOALS = {"point": 1.3, "batch": 1.0}
 
 def log_posterior():
     """The set member calibration's log posterior of M000 on the bundled recordings."""
-    from discovery.calibration import Calibration
-    from discovery.structure.member_calibration import member_priors, member_walkers
+    from tvcid.discovery.calibration import Calibration
+    from tvcid.discovery.structure.member_calibration import member_priors, member_walkers
 
     truth = M000()
     structure = Structure.of_params(truth)

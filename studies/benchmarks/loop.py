@@ -1,9 +1,9 @@
 """Does following the suggested tests close the set? The experiment-loop benchmark.
 
-``python -m studies.benchmarks.loop [--quick] [--draws N] [--seed S] [--ranges wide|papers]
+``python -m tvcid.studies.benchmarks.loop [--quick] [--draws N] [--seed S] [--ranges wide|papers]
 [--jobs J | --dask ADDRESS] [--out DIR] [--reuse SET_COVERAGE_DIR]``
 
-For each draw of the discovery benchmark (:func:`studies.benchmarks.scenarios.draw_scenario`,
+For each draw of the discovery benchmark (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`,
 the same seeds and ``--ranges``), ``tvcid discover`` runs on the draw's recordings (:func:`tvcid.pipeline.discover`,
 the set calibrated); then, up to ``--rounds`` times while the set is not closed, the suggested
 next test is recorded from the truth by the plain-Python reference path, measured by the draw's
@@ -12,9 +12,9 @@ sensor and read back as a measured recording, and added to the run
 
 * the set (its unmerged members), whether it holds the truth's structure;
 * the fit ceiling: the minimal structures that fit the recordings at least as well as the true
-  parameters themselves (:func:`studies.benchmarks.discovery.as_well_as_truth`); no rule based on
+  parameters themselves (:func:`tvcid.studies.benchmarks.discovery.as_well_as_truth`); no rule based on
   the fit can report a set smaller than that;
-* whether the set is *closed* (:func:`discovery.structure.closure.set_closure`): one structure,
+* whether the set is *closed* (:func:`tvcid.discovery.structure.closure.set_closure`): one structure,
   or members whose posterior responses to every test of the menu and whose predicted cycles at
   three controller settings the recordings did not use agree within their bands.
 
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.strict_json import write_json
+from tvcid.models.strict_json import write_json
 
 from ..common import code_commit
 from .discovery import as_well_as_truth, cost_at_truth
@@ -88,7 +88,7 @@ QUICK = LoopConfig(rounds=1, max_steps=150, closure_draws=8)
 def unseen_settings(seed, controller_rate, n=UNSEEN_SETTINGS):
     """``n`` controller settings drawn over the scenario generator's range for a free setting
     (Kp U(4, 12), Kd U(0.04, 0.08), mu U(4, 14)) by ``default_rng([seed, 7])``."""
-    from discovery.prediction.settings import ControllerSetting
+    from tvcid.discovery.prediction.settings import ControllerSetting
 
     rng = np.random.default_rng([seed, 7])
     return [ControllerSetting(float(rng.uniform(4, 12)), float(rng.uniform(0.04, 0.08)),
@@ -98,12 +98,12 @@ def unseen_settings(seed, controller_rate, n=UNSEEN_SETTINGS):
 
 def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     """What round ``k`` of a draw leaves: the set, the truth in it, the fit ceiling, closure."""
-    from discovery.prediction.draws import load_set_draws
-    from discovery.prediction.set_prediction import measurement_resolution
-    from discovery.structure.closure import set_closure
-    from discovery.structure.discrimination import default_candidates
-    from discovery.structure.targets import make_target
-    from models.recording import load_recordings
+    from tvcid.discovery.prediction.draws import load_set_draws
+    from tvcid.discovery.prediction.set_prediction import measurement_resolution
+    from tvcid.discovery.structure.closure import set_closure
+    from tvcid.discovery.structure.discrimination import default_candidates
+    from tvcid.discovery.structure.targets import make_target
+    from tvcid.models.recording import load_recordings
     from tvcid.pipeline import median_sensor_noise
 
     truth = scenario.structure
@@ -160,7 +160,7 @@ def reuse_round_zero(reuse, seed, draw_dir, run_dir) -> bool:
 def run_draw(seed, out_dir, quick, config=None, ranges="wide", reuse=None) -> dict:
     """The draw's discovery, then up to ``config.rounds`` suggested tests added; round 0 copied
     from ``reuse`` where that holds the draw's discovery (:func:`reuse_round_zero`)."""
-    from discovery.structure.discrimination import default_candidates
+    from tvcid.discovery.structure.discrimination import default_candidates
     from tvcid.pipeline import add_recordings, discover
 
     config = config or (QUICK if quick else FULL)
@@ -247,7 +247,7 @@ def main(argv=None) -> int:
                      1, "results/bench_loop")
     parser.add_argument("--reuse", metavar="DIR", default=None,
                         help="take each draw's round 0 from the set-coverage benchmark's output "
-                             "DIR (python -m studies.benchmarks.set_coverage --out DIR, the same "
+                             "DIR (python -m tvcid.studies.benchmarks.set_coverage --out DIR, the same "
                              "seeds and --ranges), where it holds the draw's discovery")
     args = parser.parse_args(argv)
     rounds = (QUICK if args.quick else FULL).rounds
@@ -272,6 +272,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    from discovery.parallel import run_interruptible
+    from tvcid.discovery.parallel import run_interruptible
 
     raise SystemExit(run_interruptible(main))

@@ -1,9 +1,9 @@
 """Does the suggested test decide what the recordings could not? The next-test check.
 
-``python -m studies.benchmarks.next_test [--seeds 1004,1009,1010,1011,1016] [--out DIR]``
+``python -m tvcid.studies.benchmarks.next_test [--seeds 1004,1009,1010,1011,1016] [--out DIR]``
 
 Hypothesis: where the discovery leaves several structures indistinguishable,
-:func:`discovery.structure.discrimination.discriminating_tests` (the default menu, at the
+:func:`tvcid.discovery.structure.discrimination.discriminating_tests` (the default menu, at the
 recordings' highest rate and median estimated noise, the members refitted) predicts which pairs
 of structures the best test of the menu would decide. Checked by running that test: it is
 recorded from the draw's truth by the plain-Python reference path with the draw's own sensor,
@@ -21,7 +21,7 @@ cores. Rows are written to ``DIR/bench.json`` as they finish, each with the comm
 that ran it (non-finite numbers as ``null``); a rerun keeps finished draws.
 
 Goals: none (a hypothesis checked by its deciding numbers); the run ends by saying so
-(:func:`studies.benchmarks.goals.report`) and exits 0.
+(:func:`tvcid.studies.benchmarks.goals.report`) and exits 0.
 """
 from __future__ import annotations
 
@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.structure import StructureDiscovery
-from discovery.structure.discrimination import default_candidates, discriminating_tests
-from models.strict_json import write_json
+from tvcid.discovery.structure import StructureDiscovery
+from tvcid.discovery.structure.discrimination import default_candidates, discriminating_tests
+from tvcid.models.strict_json import write_json
 
 from ..common import code_commit
 from .discovery import set_verdict

@@ -1,6 +1,6 @@
 """Benchmark of the limit-cycle prediction: speed, shortcut accuracy, coverage.
 
-Cases are drawn by the shared scenario generator (:func:`studies.benchmarks.scenarios.draw_truth`): a truth
+Cases are drawn by the shared scenario generator (:func:`tvcid.studies.benchmarks.scenarios.draw_truth`): a truth
 with the dead zone on the error and no band-pass loop that oscillates at controllers A and B and at
 a third setting (Kp 7.5, Kd 0.075, mu 8), calibrated (dead zone, backlash and delay where present,
 and sigma; features likelihood, 16 walkers, 700 steps) on 12 s closed-loop records at A and B made
@@ -22,11 +22,11 @@ Measured:
   solver's step-doubling error at the median model) brackets the generating model's cycle
   (amplitude and frequency measured the same way, at the simulator's default step).
 
-Usage: ``python -m studies.benchmarks.prediction [--quick] [--seed N] [--jobs J | --dask ADDRESS]``
+Usage: ``python -m tvcid.studies.benchmarks.prediction [--quick] [--seed N] [--jobs J | --dask ADDRESS]``
 (``--jobs``, ``--dask``: the coverage cases calibrated at once, after the map); writes
 ``results/bench_prediction/bench.json`` (with the commit of the code; non-finite numbers as
 ``null``). The load average is recorded (other jobs inflate times). The speed goal is judged
-against the batch kernel's reference measured in the same run (:meth:`studies.benchmarks.goals.Goal.speed`),
+against the batch kernel's reference measured in the same run (:meth:`tvcid.studies.benchmarks.goals.Goal.speed`),
 scaled to the map's runs (300 s per 80,000; ``--quick``'s small map gets its share); the run
 ends with that goal, met or NOT met, and exits 0 when it is met, 1 otherwise.
 """
@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.calibration import Calibration
-from discovery.executors import executor_from
-from discovery.prediction import (
+from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.executors import executor_from
+from tvcid.discovery.prediction import (
     ControllerSetting,
     PredictionConfig,
     cycle_map,
@@ -51,10 +51,10 @@ from discovery.prediction import (
     predict_cycle,
     simulate_cycles,
 )
-from models import ClosedLoop, simulate
-from models.strict_json import write_json
-from models.structures import Structure, structure_space
-from models.synthetic import synthetic_recording
+from tvcid.models import ClosedLoop, simulate
+from tvcid.models.strict_json import write_json
+from tvcid.models.structures import Structure, structure_space
+from tvcid.models.synthetic import synthetic_recording
 
 from ..common import code_commit
 from .draws import add_executor_options
@@ -122,7 +122,7 @@ def measured_cycle(truth, setting, window=4.0, rate=250.0):
 
 def shortcut_accuracy(draws, settings, config, full_transient):
     """Per-draw and per-quantile relative differences, shortcut vs full-length runs."""
-    from discovery.prediction.cycles import CYCLE, _pilot_state
+    from tvcid.discovery.prediction.cycles import CYCLE, _pilot_state
 
     full_config = replace(config, transient=full_transient, pilot=0.0)
     median = draws.median_params()
@@ -192,7 +192,7 @@ def coverage_row(s, config: Config, pconfig, out: Path, case=None) -> dict:
 
 def run(config: Config, seed: int, out: Path, jobs: int = 1, dask=None) -> dict:
     """The benchmark; the coverage cases other than ``seed``'s ``jobs`` at a time in worker
-    processes, or on the Dask cluster ``dask`` (:func:`discovery.executors.executor_from`)."""
+    processes, or on the Dask cluster ``dask`` (:func:`tvcid.discovery.executors.executor_from`)."""
     out.mkdir(parents=True, exist_ok=True)
     pconfig = PredictionConfig()
     reference = kernel_reference()

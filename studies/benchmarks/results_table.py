@@ -1,6 +1,6 @@
 """``docs/results.md``: the claims the benchmark records hold, rendered from the records.
 
-``python -m studies.benchmarks.results_table [--check] [--records DIR] [--out FILE]``
+``python -m tvcid.studies.benchmarks.results_table [--check] [--records DIR] [--out FILE]``
 
 Reads the stored benchmark rows (``studies/benchmarks/records/*.json``, :data:`CLAIMS`) and writes one
 table, a row per claim: the claim; its current value, computed from the record's rows by the
@@ -9,7 +9,7 @@ that produces the record; the test that checks that computation (it must exist i
 :func:`find_test`); and the commits the rows were made at, "rows at N commits" where they
 come from several. ``--check`` writes nothing and exits 1 when the file differs from the
 rendering (so a quoted number cannot drift from its record). A record must be strict JSON (no
-``NaN`` or ``Infinity`` tokens: the benchmarks write ``null``, :func:`models.strict_json.write_json`).
+``NaN`` or ``Infinity`` tokens: the benchmarks write ``null``, :func:`tvcid.models.strict_json.write_json`).
 """
 from __future__ import annotations
 
@@ -360,43 +360,43 @@ CLAIMS = (
     Claim("calibration coverage, features likelihood (true structure given, seeded draws): the "
           "truth inside its 90 % interval, per parameter (goal 80-97 %)",
           coverage_features, lambda r: r["bench_coverage"]["rows"],
-          "python -m studies.benchmarks.coverage --jobs 2", "bench_coverage",
+          "python -m tvcid.studies.benchmarks.coverage --jobs 2", "bench_coverage",
           "tests/test_bench_coverage.py::"
           "test_stored_record_covers_the_truth_80_to_97_percent_per_parameter"),
     Claim("calibration coverage draws: chains converged, discrepancy factor",
           coverage_chains, lambda r: r["bench_coverage"]["rows"],
-          "python -m studies.benchmarks.coverage --jobs 2", "bench_coverage",
+          "python -m tvcid.studies.benchmarks.coverage --jobs 2", "bench_coverage",
           "tests/test_bench_coverage.py::"
           "test_summary_counts_coverage_ranks_and_inflation_of_known_rows"),
     Claim("calibration coverage, waveform likelihood (`tvcid fit`'s default): the truth inside "
           "its 90 % interval, per parameter (goal 80-97 %)",
           coverage_waveform, lambda r: r["bench_coverage_waveform"]["rows"],
-          "python -m studies.benchmarks.coverage --likelihood waveform --jobs 2",
+          "python -m tvcid.studies.benchmarks.coverage --likelihood waveform --jobs 2",
           "bench_coverage_waveform",
           "tests/test_bench_coverage.py::"
           "test_quick_run_with_the_waveform_likelihood_enters_each_record_its_own_way"),
     Claim("the discrepancy term widens right models' 90 % intervals by at most 20 % (rows with "
           "the term from `bench_coverage.json`)",
           coverage_widening, lambda r: _widening(r)[1],
-          "python -m studies.benchmarks.coverage --widening --jobs 2",
+          "python -m tvcid.studies.benchmarks.coverage --widening --jobs 2",
           "bench_coverage_widening",
           "tests/test_bench_coverage.py::"
           "test_widening_compares_interval_widths_with_and_without_the_discrepancy_term"),
     Claim("discovery on random truths and designs (quick searches, seeds 1000-1029)",
           discovery_quick, lambda r: r["bench_discovery_quick"]["rows"],
-          "python -m studies.benchmarks.discovery --quick --draws 30 --ranges papers --jobs 2",
+          "python -m tvcid.studies.benchmarks.discovery --quick --draws 30 --ranges papers --jobs 2",
           "bench_discovery_quick",
           "tests/test_bench_discovery.py::"
           "test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth"),
     Claim("discovery's fit ceiling: draws where at most 3 minimal structures fit the recordings "
           "as well as the truth itself (what a fit-based set rule can reach)",
           discovery_ceiling, lambda r: r["bench_discovery_quick"]["rows"],
-          "python -m studies.benchmarks.discovery --quick --draws 30 --ranges papers --jobs 2",
+          "python -m tvcid.studies.benchmarks.discovery --quick --draws 30 --ranges papers --jobs 2",
           "bench_discovery_quick",
           "tests/test_bench_discovery.py::test_structures_fitting_as_well_as_the_truth_bound_the_set"),
     Claim("discovery on fresh draws the set rule is not weighed on",
           discovery_fresh, lambda r: r["bench_discovery_fresh"]["rows"],
-          "python -m studies.benchmarks.discovery --quick --seed 1030 --draws 10 --ranges papers "
+          "python -m tvcid.studies.benchmarks.discovery --quick --seed 1030 --draws 10 --ranges papers "
           "--jobs 2",
           "bench_discovery_fresh",
           "tests/test_bench_discovery.py::"
@@ -404,7 +404,7 @@ CLAIMS = (
     Claim("the set rule on short recordings (5-15 s each, 200 Hz to 2 kHz): the truth's "
           "structure in the reported set, and the set's median size",
           discovery_short, lambda r: r["bench_discovery_short"]["rows"],
-          "python -m studies.benchmarks.discovery --quick --ranges short --seed 4000 --draws 40 "
+          "python -m tvcid.studies.benchmarks.discovery --quick --ranges short --seed 4000 --draws 40 "
           "--jobs 2, then --rederive",
           "bench_discovery_short",
           "tests/test_discover.py::"
@@ -414,13 +414,13 @@ CLAIMS = (
           "and part, and how far a simulated cycle's features move with the stretch they are "
           "read from",
           evaluation_cost, lambda r: r["bench_evaluation_cost"]["rows"],
-          "python -m studies.benchmarks.evaluation_cost --draws 12 --points 12",
+          "python -m tvcid.studies.benchmarks.evaluation_cost --draws 12 --points 12",
           "bench_evaluation_cost",
           "tests/test_work_counts.py::test_stored_evaluation_cost_record_is_its_rows_summary"),
     Claim("the next test `tvcid discover` names, recorded from the truth, on the discovery "
           "benchmark's misses: the set after the discovery runs again",
           next_test, lambda r: r["bench_next_test"]["rows"],
-          "python -m studies.benchmarks.next_test --seeds 1004,1009,1016", "bench_next_test",
+          "python -m tvcid.studies.benchmarks.next_test --seeds 1004,1009,1016", "bench_next_test",
           "tests/test_discrimination.py::test_discover_names_the_test_that_would_decide_its_set"),
     Claim("coverage of what `tvcid discover` prints (the combined 90 % interval where pinned, "
           "the range the recordings allow where not, present or absent), structure and linear "
@@ -428,25 +428,25 @@ CLAIMS = (
           "every printed quantity over >= 30 draws, no printed interval narrower than twice its "
           "step error)",
           set_coverage, lambda r: r["bench_set_coverage"]["rows"],
-          "python -m studies.benchmarks.set_coverage --seed 3000 --draws 10 --jobs 2",
+          "python -m tvcid.studies.benchmarks.set_coverage --seed 3000 --draws 10 --jobs 2",
           "bench_set_coverage",
           "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
           "_under_thirty"),
     Claim("`tvcid discover` on four M000 recordings (two 40 s limit cycles, two 10 s open-loop "
           "tests), the set's calibration included (goal 600 s on 2 cores)",
           discover_speed, lambda r: [r["bench_discover_speed"]],
-          "python -m studies.benchmarks.discover_speed", "bench_discover_speed",
+          "python -m tvcid.studies.benchmarks.discover_speed", "bench_discover_speed",
           "tests/test_results_table.py::test_speed_claim_judges_the_stored_run_in_reference_seconds"),
 )
 
 HEADER = """# Results
 
-<!-- Written by `python -m studies.benchmarks.results_table` from studies/benchmarks/records/*.json: do not edit. -->
+<!-- Written by `python -m tvcid.studies.benchmarks.results_table` from studies/benchmarks/records/*.json: do not edit. -->
 
 Each value is computed from a benchmark's stored rows (`studies/benchmarks/records/`, described in its
 `README.md`) by the benchmark's own functions, with the benchmark's goal met or NOT met where it
 has one; the rows' commits, and the generator's ranges of the draws
-(`studies/benchmarks/scenarios.py`), are in the last column. `python -m studies.benchmarks.results_table --check`
+(`studies/benchmarks/scenarios.py`), are in the last column. `python -m tvcid.studies.benchmarks.results_table --check`
 exits 1 when this file differs from that rendering (`tests/test_results_table.py`).
 
 | claim | current value | the command that produces it | the test that checks it | record commit(s), ranges |
@@ -487,7 +487,7 @@ def main(argv=None) -> int:
     if args.check:
         same = out.is_file() and out.read_text() == text
         print(f"{out}: " + ("up to date" if same else
-                            "differs from the records' rendering: python -m studies.benchmarks.results_table"))
+                            "differs from the records' rendering: python -m tvcid.studies.benchmarks.results_table"))
         return 0 if same else 1
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)

@@ -1,10 +1,10 @@
 """One seeded generator of random truths and experiment designs, shared by benchmarks and tests.
 
-Used by :mod:`studies.benchmarks.discovery`, :mod:`studies.benchmarks.coverage` and the tests. Two
+Used by :mod:`tvcid.studies.benchmarks.discovery`, :mod:`tvcid.studies.benchmarks.coverage` and the tests. Two
 sets of ranges (:data:`RANGES`); ``wide``, the default, is what a user's actuator and rig may be,
 ``papers`` stays near the papers' rig:
 
-* structure: uniform over :func:`models.structures.structure_space` (36 kept structures);
+* structure: uniform over :func:`tvcid.models.structures.structure_space` (36 kept structures);
 * linear block: paper 001's ``K1 = 305500``, ``K2 = 202.1``, ``K3 = 14520`` each times U(0.7, 1.3);
   ``K = 1.0697`` times U(0.85, 1.15) (paper 000's block, ``A B``, ``B``, ``C A B``, lies within
   0.1 % of paper 001's, so this spans both papers' blocks and the ones between);
@@ -22,7 +22,7 @@ sets of ranges (:data:`RANGES`); ``wide``, the default, is what a user's actuato
 * ``short``: ``wide`` with every record 5-15 s long (short recordings at the rig).
 
 Truths are redrawn until they oscillate at every closed-loop setting of the design. The recordings
-are made by the plain-Python reference path (:func:`models.reference.simulate_reference`, a second
+are made by the plain-Python reference path (:func:`tvcid.models.reference.simulate_reference`, a second
 implementation) and written with measured-style sidecars: no hypothesis, no parameters, commands
 only as samples.
 """
@@ -35,14 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
-from models import ClosedLoop, OpenLoop, SimulationDiverged, simulate
-from models.features import InsufficientPeriodsError
-from models.hypotheses import KICK_X0, ActuatorParams
-from models.recording import save_recording
-from models.reference import simulate_reference
-from models.strict_json import dumps, write_json
-from models.structures import Structure, structure_space
-from models.synthetic import Acquisition
+from tvcid.models import ClosedLoop, OpenLoop, SimulationDiverged, simulate
+from tvcid.models.features import InsufficientPeriodsError
+from tvcid.models.hypotheses import KICK_X0, ActuatorParams
+from tvcid.models.recording import save_recording
+from tvcid.models.reference import simulate_reference
+from tvcid.models.strict_json import dumps, write_json
+from tvcid.models.structures import Structure, structure_space
+from tvcid.models.synthetic import Acquisition
 
 __all__ = ["RecordingDesign", "Acquisition", "Scenario", "Ranges", "RANGES", "draw_truth", "draw_design",
            "draw_scenario", "oscillates", "write_recordings", "write_recording", "ridge_scenario",
@@ -58,7 +58,7 @@ ACCEPT_DT = 2e-4
 #: ``tests/test_scenarios.py::test_the_data_step_keeps_the_solver_error_under_the_smallest_noise``).
 DATA_DT = 5e-5
 #: Seconds at the end of a 30 s run over which a truth's cycle must be settled
-#: (:func:`discovery.structure.cycle_tail.stationary_tail`).
+#: (:func:`tvcid.discovery.structure.cycle_tail.stationary_tail`).
 MIN_SETTLED = 8.0
 
 
@@ -193,7 +193,7 @@ def oscillates(params, experiment) -> bool:
     Settled as discovery reads a record: its stationary tail (the periods whose peak-to-peak stays
     within 15 % of the last ones') covers at least ``MIN_SETTLED`` s.
     """
-    from discovery.structure.cycle_tail import NoCycleError, stationary_tail
+    from tvcid.discovery.structure.cycle_tail import NoCycleError, stationary_tail
 
     try:
         tr = simulate(params, experiment, 30.0, dt=ACCEPT_DT)
@@ -270,7 +270,7 @@ def ridge_scenario(seed, duration=40.0, noise_sd=1e-4, ranges="wide") -> Scenari
     integrator), the thresholds, delay, friction offset and linear block drawn as :func:`draw_truth`
     does within ``ranges``; limit cycles at controllers A and B, ``duration`` s each at 1 kHz,
     white sensor noise."""
-    from models import M001f
+    from tvcid.models import M001f
 
     structure = Structure.of_params(M001f().replace(bandpass_gain=0.0))
     rng = np.random.default_rng(seed)
@@ -343,7 +343,7 @@ def write_recording(scenario: Scenario, index, path, dt=None):
 
 
 def design_of(candidate, rate) -> RecordingDesign:
-    """A test of the next-test menu (:class:`discovery.structure.discrimination.CandidateTest`) as
+    """A test of the next-test menu (:class:`tvcid.discovery.structure.discrimination.CandidateTest`) as
     a recording of the generator's designs, acquired at ``rate`` (Hz)."""
     exp = candidate.experiment
     if candidate.kind == "closed":

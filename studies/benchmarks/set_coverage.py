@@ -1,9 +1,9 @@
 """Coverage of what ``tvcid discover`` prints: structure and linear block unknown.
 
-``python -m studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--ranges wide|papers]
+``python -m tvcid.studies.benchmarks.set_coverage [--quick] [--draws N] [--seed S] [--ranges wide|papers]
 [--jobs J | --dask ADDRESS] [--out DIR] [--rejudge]``
 
-Each draw (:func:`studies.benchmarks.scenarios.draw_scenario`, seeded; the discovery benchmark's
+Each draw (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`, seeded; the discovery benchmark's
 seeds by default) is a truth over every structure of the grammar and a test design over the
 generator's ranges (``wide`` by default: thresholds and delays over a decade; limit cycles at
 1-3 controller settings, continuous or held at 200 Hz, open-loop squares, sines and staircases or
@@ -13,9 +13,9 @@ samples); the whole ``tvcid discover`` runs on them (:func:`tvcid.pipeline.disco
 structure search, the set, the calibration of every member and their combination.
 
 The row judges what the report prints for every quantity of the combined posterior
-(:func:`discovery.structure.set_posterior.combine`: the dead zone at each place, the threshold,
+(:func:`tvcid.discovery.structure.set_posterior.combine`: the dead zone at each place, the threshold,
 the backlash, the friction offset, the band-pass gain, the delay, the DC gain and the bandwidth),
-each by one rule of :mod:`studies.benchmarks.set_judge`, named in the row: ``interval`` (a pinned
+each by one rule of :mod:`tvcid.studies.benchmarks.set_judge`, named in the row: ``interval`` (a pinned
 quantity on its printed 90 % interval), ``allowed`` (a not-pinned one on the range the
 recordings allow, an open end judged on the prior's bound on its side, stored per quantity as
 ``prior_bounds``), ``absent`` (a component the truth lacks: not printed present) and ``lacking``
@@ -43,7 +43,7 @@ resumes; rows of an earlier layout, judged on the interval alone, are run again,
 without ``can_fail`` are judged again from the row); each names the commit that sampled its
 chains (``commit``) and, where different, the one that judged it (``judged_commit``).
 ``--rejudge`` judges every row of ``DIR/bench.json`` again from the row alone
-(:func:`studies.benchmarks.set_judge.rejudge_row`: no recording, no chain), records the judging
+(:func:`tvcid.studies.benchmarks.set_judge.rejudge_row`: no recording, no chain), records the judging
 commit and prints the table. A draw's directory without its row (``DIR/drawNNNN``, from an
 interrupted run or copied from an earlier one) is resumed as ``discover`` resumes: its recordings
 read back, its ranking, next test and finished chains carried over, the step errors, weights and
@@ -62,8 +62,8 @@ from pathlib import Path
 
 import numpy as np
 
-from discovery.structure.set_posterior import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
-from models.strict_json import write_json
+from tvcid.discovery.structure.set_posterior import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
+from tvcid.models.strict_json import write_json
 
 from ..common import code_commit
 from .draws import add_draw_options, run_benchmark
@@ -440,6 +440,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    from discovery.parallel import run_interruptible
+    from tvcid.discovery.parallel import run_interruptible
 
     raise SystemExit(run_interruptible(main))

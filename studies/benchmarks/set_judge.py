@@ -1,6 +1,6 @@
 """The set-coverage benchmark's judge: one printed quantity against its truth, by one rule.
 
-:mod:`studies.benchmarks.set_coverage` draws a truth, runs ``tvcid discover`` and judges each
+:mod:`tvcid.studies.benchmarks.set_coverage` draws a truth, runs ``tvcid discover`` and judges each
 quantity of the combined posterior here (:func:`quantity_entry`); :func:`rejudge_row` judges a
 stored row again from what the row holds, without its chains.
 
@@ -36,8 +36,8 @@ from __future__ import annotations
 
 import math
 
-from discovery.structure.coordinates import BOUNDS
-from discovery.structure.set_posterior import COMPONENT_QUANTITIES, printed_present_or_absent
+from tvcid.discovery.structure.coordinates import BOUNDS
+from tvcid.discovery.structure.set_posterior import COMPONENT_QUANTITIES, printed_present_or_absent
 
 #: The rules a judged quantity is judged by (the module docstring).
 RULES = ("interval", "allowed", "absent", "lacking")
@@ -49,7 +49,7 @@ STEP_SLACK = 1e-3
 #: bounds, fresh rows store their own (``prior_bounds``).
 DELAY_FLOORS = (1.2e-3, 6e-4)
 #: Per quantity, the prior's floors and ceilings ``member_priors`` sets whatever the fit (the
-#: box of :data:`discovery.structure.coordinates.BOUNDS`; a fit within 1.5x of an edge widens
+#: box of :data:`tvcid.discovery.structure.coordinates.BOUNDS`; a fit within 1.5x of an edge widens
 #: it). The velocity dead zone's box is scaled by the fit's gain, the friction offset's by its
 #: dead zone, and the linear block's quantities are composites: none has a fixed edge.
 FIXED_PRIOR_EDGES = {

@@ -11,8 +11,8 @@ Every figure is a ratio or a cost measured in this run on this machine (no store
   with dt;
 * throughput of a batch of 64 parameter sets on all cores against one core (goal: >= 1.8x on 2).
 
-Usage: ``python -m studies.benchmarks.simulator [--quick] [--seed N]``; prints each goal met or NOT
-met (:mod:`studies.benchmarks.goals`; the exit status is 1 if any is not) and writes
+Usage: ``python -m tvcid.studies.benchmarks.simulator [--quick] [--seed N]``; prints each goal met or NOT
+met (:mod:`tvcid.studies.benchmarks.goals`; the exit status is 1 if any is not) and writes
 ``results/bench_simulator/bench.json`` (non-finite numbers as ``null``) with the commit of the
 code that ran.
 """
@@ -28,12 +28,12 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from models import CONTROLLER_A, HYPOTHESES, hypothesis, simulate, simulate_batch
-from models.reference import simulate_reference
-from models.simulate import DEFAULT_DT
+from tvcid.models import CONTROLLER_A, HYPOTHESES, hypothesis, simulate, simulate_batch
+from tvcid.models.reference import simulate_reference
+from tvcid.models.simulate import DEFAULT_DT
 
 from ..common import code_commit
-from models.strict_json import write_json
+from tvcid.models.strict_json import write_json
 
 from .goals import Goal, report
 
@@ -155,7 +155,7 @@ def main(argv=None):
 
 
 def simulator_goals(rows, accuracy, batch) -> dict:
-    """:data:`GOALS` as :class:`studies.benchmarks.goals.Goal` s, by key, from this run's figures."""
+    """:data:`GOALS` as :class:`tvcid.studies.benchmarks.goals.Goal` s, by key, from this run's figures."""
     m000 = next(r for r in rows if r["hypothesis"] == "M000")
     default = next(r for r in accuracy["rows"] if r["dt"] == DEFAULT_DT)
     return {

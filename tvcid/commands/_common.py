@@ -5,9 +5,9 @@ import argparse
 import contextlib
 import json
 
-from models.controllers import BendingMode, TransferFunction
-from models.experiments import CONTROLLER_A, ClosedLoop
-from models.strict_json import jsonable
+from tvcid.models.controllers import BendingMode, TransferFunction
+from tvcid.models.experiments import CONTROLLER_A, ClosedLoop
+from tvcid.models.strict_json import jsonable
 
 
 def parse_assignments(pairs):
@@ -29,9 +29,9 @@ def parse_assignments(pairs):
 
 
 def dask_address(text):
-    """``--dask``'s value (:func:`discovery.executors.check_dask_address`), refused as it is
+    """``--dask``'s value (:func:`tvcid.discovery.executors.check_dask_address`), refused as it is
     parsed with one line: a bad address, or Dask not installed (naming the extra)."""
-    from discovery.executors import check_dask_address
+    from tvcid.discovery.executors import check_dask_address
 
     try:
         return check_dask_address(text)

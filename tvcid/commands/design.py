@@ -35,10 +35,10 @@ def register(sub):
 
 
 def run(args) -> int:
-    from discovery.prediction import load_set_draws
-    from discovery.prediction.design import load_candidates, rank_experiments
-    from discovery.structure.discrimination import design_over_set
-    from models.strict_json import write_json
+    from tvcid.discovery.prediction import load_set_draws
+    from tvcid.discovery.prediction.design import load_candidates, rank_experiments
+    from tvcid.discovery.structure.discrimination import design_over_set
+    from tvcid.models.strict_json import write_json
 
     candidates = load_candidates(args.candidates)
     params = [n.strip() for n in args.params.split(",") if n.strip()] if args.params else None

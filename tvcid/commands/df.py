@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from discovery.describing import (
+from tvcid.discovery.describing import (
     FAMILY_BACKLASH_HALF_WIDTHS,
     NoHarmonicBalanceSolution,
     compare_with_simulation,
@@ -11,8 +11,8 @@ from discovery.describing import (
     predict_limit_cycles,
     solve_backlash_and_dead_zone,
 )
-from models.experiments import CONTROLLER_A, ClosedLoop
-from models.hypotheses import HYPOTHESES, hypothesis
+from tvcid.models.experiments import CONTROLLER_A, ClosedLoop
+from tvcid.models.hypotheses import HYPOTHESES, hypothesis
 
 from ._common import (
     add_compensator_options,

@@ -1,7 +1,7 @@
 """``tvcid features``: limit-cycle features of a recording."""
 from __future__ import annotations
 
-from models.recording import load_recording
+from tvcid.models.recording import load_recording
 
 from ._common import about_file, positive_seconds, print_json
 

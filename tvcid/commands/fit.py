@@ -6,8 +6,8 @@ import sys
 import warnings
 from pathlib import Path
 
-from models.hypotheses import HYPOTHESES
-from models.strict_json import write_json
+from tvcid.models.hypotheses import HYPOTHESES
+from tvcid.models.strict_json import write_json
 
 from ._common import parse_assignments
 
@@ -64,8 +64,8 @@ def register(sub):
 
 
 def run(args) -> int:
-    from discovery.calibration import Calibration, ConvergenceWarning, parse_prior
-    from discovery.parallel import map_pool
+    from tvcid.discovery.calibration import Calibration, ConvergenceWarning, parse_prior
+    from tvcid.discovery.parallel import map_pool
 
     from ..figures import write_posterior_figures
 
@@ -91,7 +91,7 @@ def run(args) -> int:
             cal.fit(args.files)
     post = cal.posterior_
     post.to_json(out / "summary.json")
-    from discovery.calibration import predictive_check
+    from tvcid.discovery.calibration import predictive_check
 
     check = predictive_check(cal, seed=args.seed)
     write_json(out / "check.json", check.to_dict())

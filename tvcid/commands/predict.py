@@ -58,7 +58,7 @@ def register(sub):
 def setting_from_args(args):
     """The :class:`ControllerSetting` of the options; one --lead and one --notch stay named so
     that a grid can vary them."""
-    from discovery.prediction import ControllerSetting
+    from tvcid.discovery.prediction import ControllerSetting
 
     from ._common import _numbers, compensator_from_args
 
@@ -79,15 +79,15 @@ def setting_from_args(args):
 
 
 def run(args) -> int:
-    from discovery.prediction import (
+    from tvcid.discovery.prediction import (
         PredictionConfig,
         cycle_map,
         load_set_draws,
         parse_grid,
         predict_cycle,
     )
-    from models import strict_json
-    from models.strict_json import write_json
+    from tvcid.models import strict_json
+    from tvcid.models.strict_json import write_json
 
     grid = dict(parse_grid(g) for g in args.grid)
     if len(grid) != len(args.grid):
@@ -164,16 +164,16 @@ def _band(q, scale, unit) -> str:
 
 def _run_over_set(args, members, setting, grid, config) -> int:
     """Every member of a discover directory's set predicts; the mixture's band, and whether the
-    members agree (:mod:`discovery.prediction.set_prediction`)."""
-    from discovery.prediction.draws import load_set_weights
-    from discovery.prediction.set_prediction import (
+    members agree (:mod:`tvcid.discovery.prediction.set_prediction`)."""
+    from tvcid.discovery.prediction.draws import load_set_weights
+    from tvcid.discovery.prediction.set_prediction import (
         MIXTURE_RULE,
         cycle_map_over_set,
         predict_cycle_over_set,
         run_resolution,
     )
-    from models import strict_json
-    from models.strict_json import write_json
+    from tvcid.models import strict_json
+    from tvcid.models.strict_json import write_json
 
     weights = load_set_weights(args.directory)
     resolution = run_resolution(args.directory, seed=args.seed)

@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.experiments import OpenLoop
-from models.hypotheses import HYPOTHESES, hypothesis
-from models.recording import MAX_ANGLE, recording_from_trajectory, save_recording
-from models.simulate import DEFAULT_DT, DEFAULT_RATE, simulate
+from tvcid.models.experiments import OpenLoop
+from tvcid.models.hypotheses import HYPOTHESES, hypothesis
+from tvcid.models.recording import MAX_ANGLE, recording_from_trajectory, save_recording
+from tvcid.models.simulate import DEFAULT_DT, DEFAULT_RATE, simulate
 
 from ._common import add_controller_options, closed_loop_from_args, parse_assignments
 

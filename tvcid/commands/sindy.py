@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 
-from discovery.sindy import DEFAULT_FORMS, FORMS, discover_structure
+from tvcid.discovery.sindy import DEFAULT_FORMS, FORMS, discover_structure
 
 from ._common import print_json
 

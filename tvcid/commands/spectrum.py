@@ -1,8 +1,8 @@
 """``tvcid spectrum``: FFT analysis of a recording as papers 001 and 000 did it."""
 from __future__ import annotations
 
-from discovery.spectral import harmonic_table, lowpass_reconstruction, noise_floor
-from models.recording import load_recording
+from tvcid.discovery.spectral import harmonic_table, lowpass_reconstruction, noise_floor
+from tvcid.models.recording import load_recording
 
 from ._common import about_file, positive_seconds, print_json
 
@@ -51,7 +51,7 @@ def run(args) -> int:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        from discovery.spectral import amplitude_spectrum
+        from tvcid.discovery.spectral import amplitude_spectrum
 
         fig, axes = plt.subplots(2, 2, figsize=(11, 7))
         amplitude_spectrum(*source_args, derivative=True).plot(ax=axes[0, 0], max_hz=50)

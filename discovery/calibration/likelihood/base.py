@@ -1,7 +1,7 @@
 """The interface of a likelihood term, and what the terms share.
 
 A term is the likelihood of one recording (:class:`LikelihoodTerm`); the log posterior adds the
-terms' log-likelihoods up (:class:`discovery.calibration.log_posterior.LogPosterior`). Shared here:
+terms' log-likelihoods up (:class:`tvcid.discovery.calibration.log_posterior.LogPosterior`). Shared here:
 the sensor-noise estimate (:func:`estimate_noise`), the residuals' statistics and the discrepancy
 factors at the maximum a posteriori (:func:`waveform_inflation`, :func:`features_inflation`), and
 the tempering by which a term's log-likelihood is divided by its factor (:func:`tempered`).
@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from models.features import white_noise_sd
+from tvcid.models.features import white_noise_sd
 
 __all__ = [
     "LikelihoodTerm",
@@ -35,7 +35,7 @@ DISCREPANCY_P = 0.05
 class LikelihoodTerm(abc.ABC):
     """The likelihood of one recording, vectorised over parameter sets.
 
-    What every term implements; :class:`discovery.calibration.calibration.Calibration` and the log
+    What every term implements; :class:`tvcid.discovery.calibration.calibration.Calibration` and the log
     posterior use terms through it. A diverging, invalid or non-oscillating simulation gets
     ``-inf``, never an exception.
 
@@ -78,7 +78,7 @@ class LikelihoodTerm(abc.ABC):
 
 def estimate_noise(delta) -> float:
     """Sensor-noise sd of a recorded signal from its second differences (robust MAD; exact for
-    white noise): :func:`models.features.white_noise_sd`."""
+    white noise): :func:`tvcid.models.features.white_noise_sd`."""
     return white_noise_sd(delta)
 
 

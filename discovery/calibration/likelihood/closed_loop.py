@@ -9,15 +9,15 @@ import math
 
 import numpy as np
 
-from models.batch import (
+from tvcid.models.batch import (
     CONTINUATION_RADIUS,
     BatchSimulator,
     Continuation,
     output_rate_for,
     warm_start_state,
 )
-from models.cycle_state import RecordedCycleState
-from models.features import cycle_crossings
+from tvcid.models.cycle_state import RecordedCycleState
+from tvcid.models.features import cycle_crossings
 
 from .base import LikelihoodTerm, estimate_noise
 
@@ -29,10 +29,10 @@ MIN_AMPLITUDE_RATIO = 0.2
 
 def _crossings(t, x, level):
     """Upward crossings of ``level`` by a simulated cycle ``x``, by the rule the record's own
-    crossings follow (:func:`models.features.upward_mean_crossings` with
-    :func:`models.features.crossing_hysteresis`): a ripple or a small second lobe at the level
+    crossings follow (:func:`tvcid.models.features.upward_mean_crossings` with
+    :func:`tvcid.models.features.crossing_hysteresis`): a ripple or a small second lobe at the level
     (the band-pass loop's, a controller held at 200 Hz) adds no crossing there
-    (:func:`models.features.cycle_crossings`), where counting
+    (:func:`tvcid.models.features.cycle_crossings`), where counting
     every crossing of the level reads the cycle at a higher frequency than the record's and its
     harmonics at that wrong frequency (``tests/test_calibration_core.py``)."""
     return cycle_crossings(t, x, level)
@@ -53,7 +53,7 @@ class _ClosedLoopTerm(LikelihoodTerm):
 
     Every run starts on the record's cycle: the warm start's reference run, and every run where
     that reference run does not oscillate, start from the loop's state on the recorded cycle
-    (:class:`models.cycle_state.RecordedCycleState`, the vehicle included), as the structure
+    (:class:`tvcid.models.cycle_state.RecordedCycleState`, the vehicle included), as the structure
     search's do. From the vehicle at rest, a model whose cycle coexists with a stable rest
     settles at rest and its likelihood is -inf however well its cycle fits.
     """
@@ -94,7 +94,7 @@ class _ClosedLoopTerm(LikelihoodTerm):
         self.n = self.tau.size
         self.sim_t_end = self._run_end()
         self.simulator = None
-        #: :class:`models.batch.Continuation` of the runs, or ``None`` (every run from the shared
+        #: :class:`tvcid.models.batch.Continuation` of the runs, or ``None`` (every run from the shared
         #: start)
         self.continuation = None
 
@@ -118,7 +118,7 @@ class _ClosedLoopTerm(LikelihoodTerm):
         return params.replace(**self.cycle_state.initial_conditions(params))
 
     def warm_start_of(self, params, dt, t_ref=20.0, rms_target=None):
-        """:func:`models.batch.warm_start_state` of ``params`` from the recorded cycle's state,
+        """:func:`tvcid.models.batch.warm_start_state` of ``params`` from the recorded cycle's state,
         scaled to ``rms_target`` (default: the recorded cycle's size)."""
         return warm_start_state(self.on_cycle(params), self.experiment, dt, t_ref=t_ref,
                                 rms_target=self.start_rms if rms_target is None else rms_target)
@@ -149,7 +149,7 @@ class _ClosedLoopTerm(LikelihoodTerm):
     def continue_runs(self, radius=CONTINUATION_RADIUS):
         """Start each run from the end state of the stored run nearest its parameters, when one
         is within ``radius`` (relative, every field): a walker's proposal continues its walker's
-        cycle (:class:`models.batch.Continuation`). Returns ``self``."""
+        cycle (:class:`tvcid.models.batch.Continuation`). Returns ``self``."""
         self.continuation = Continuation(radius=radius)
         return self
 

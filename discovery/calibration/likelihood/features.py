@@ -16,8 +16,8 @@ import math
 
 import numpy as np
 
-from models.batch import CONTINUATION_RADIUS, BatchSimulator
-from models.features import (
+from tvcid.models.batch import CONTINUATION_RADIUS, BatchSimulator
+from tvcid.models.features import (
     InsufficientPeriodsError,
     limit_cycle_features,
     whole_period_harmonics,
@@ -47,7 +47,7 @@ IMPRINT_WINDOWS = 4
 
 
 def cycle_features(t, x, names=DEFAULT_FEATURES):
-    """Features of a noise-free cycle, by :func:`models.features.limit_cycle_features`'s rules.
+    """Features of a noise-free cycle, by :func:`tvcid.models.features.limit_cycle_features`'s rules.
 
     Frequency from the mean period between the first and last upward mean crossing (the
     record's trigger rule, :func:`.closed_loop._crossings`), harmonic

@@ -3,7 +3,7 @@
 Open-loop recordings are compared sample by sample with no shift (the command sets the phase),
 simulated from rest with the recorded command, the sensor's constant offset profiled out. A
 piecewise-constant command known only as samples has its edge timing integrated out
-(:mod:`models.edge_timing`); the edges are simulated on the step's grid or where they are,
+(:mod:`tvcid.models.edge_timing`); the edges are simulated on the step's grid or where they are,
 whichever is closer to a fine simulation (:meth:`OpenLoopTerm.edge_loads`).
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from models.batch import BatchSimulator, output_rate_for
+from tvcid.models.batch import BatchSimulator, output_rate_for
 
 from .base import LikelihoodTerm, estimate_noise, waveform_inflation
 from .solver import _WaveformSolverError
@@ -29,7 +29,7 @@ class OpenLoopTerm(_WaveformSolverError, LikelihoodTerm):
     The sensor's constant offset is profiled out of the residuals (their mean removed), as a
     measured record carries one (HWIL: ~1.5e-4 rad). A piecewise-constant command known only as
     samples (a square wave, a step) has an edge timing the samples leave open within up to a
-    sample; it is integrated out under a uniform prior (:class:`models.edge_timing.EdgeTiming`), so
+    sample; it is integrated out under a uniform prior (:class:`tvcid.models.edge_timing.EdgeTiming`), so
     that neither a replay's choice nor its error is read as a delay.
     """
 
@@ -46,7 +46,7 @@ class OpenLoopTerm(_WaveformSolverError, LikelihoodTerm):
         self.dt = float(dt)
         # the sidecar's analytic command when it reproduces u (sharp square edges), else u replayed
         self._recorded_experiment = recording.experiment()
-        #: simulated edges on the step grid, then shifted (:mod:`models.edge_timing`); cleared by
+        #: simulated edges on the step grid, then shifted (:mod:`tvcid.models.edge_timing`); cleared by
         #: :meth:`setup` when the response does not settle between edges
         self.edges_on_grid = True
         self.edge_loads_ = None
@@ -65,7 +65,7 @@ class OpenLoopTerm(_WaveformSolverError, LikelihoodTerm):
 
     def _time_edges(self, dt):
         """The edge timing and the simulated experiment, edges on the grid of step ``dt``."""
-        from models.edge_timing import edge_timing_for
+        from tvcid.models.edge_timing import edge_timing_for
 
         exp = self._recorded_experiment
         self.timing = edge_timing_for(exp, self.recording.t, self.recording.u, dt,
@@ -162,7 +162,7 @@ class OpenLoopTerm(_WaveformSolverError, LikelihoodTerm):
         model a discrepancy factor of 6.1 and its dead zone and delay outside intervals 0.2 %
         wide.
         """
-        from models.edge_timing import EdgeTiming
+        from tvcid.models.edge_timing import EdgeTiming
 
         end = float(self.tau[-1])
         failed = {"grid": 0.0, "centre": math.inf, "grid_at_timing": 0.0,

@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 
-from models.batch import BatchSimulator
+from tvcid.models.batch import BatchSimulator
 
 from .base import waveform_inflation
 from .closed_loop import MIN_AMPLITUDE_RATIO, _ClosedLoopTerm, _crossings
@@ -40,7 +40,7 @@ PERIOD_MISMATCH_LIMIT = 3.0
 #: cycle.
 SETTLING_PERTURBATION = 0.2
 #: Seconds of the run that finds the warm start of :meth:`WaveformTerm.settling_load`
-#: (:func:`models.batch.warm_start_state`'s default).
+#: (:func:`tvcid.models.batch.warm_start_state`'s default).
 SETTLING_REFERENCE = 20.0
 
 
