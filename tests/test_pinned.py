@@ -80,3 +80,21 @@ def test_a_members_pinned_figure_draws_its_joined_pairs_over_the_df_family(tmp_p
     alone = {"pinned": [c for c in pinned["pinned"] if len(c["terms"]) == 1], "free": 2}
     assert write_pinned_figure(post, alone, tmp_path / "none.png") is None
     assert not (tmp_path / "none.png").exists()
+
+
+def test_the_pinned_figure_reads_a_ranking_rows_parameters(tmp_path):
+    """The set stage passes a ranking row's parameters as a dict."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from tvcid.figures import write_pinned_figure
+    from tvcid.models import M002
+    from tvcid.models.recording import load_recording
+
+    names = ("dead_zone", "backlash", "delay", "friction_offset")
+    draws = _ridge_draws(np.random.default_rng(5), n=500)
+    pinned = pinned_combinations(draws, names, PRIORS).to_dict()
+    rec = load_recording(Path(__file__).resolve().parents[1] / "data" / "m000_closed_A.csv")
+    path = write_pinned_figure(SimpleNamespace(samples=draws, names=names), pinned,
+                               tmp_path / "p.png", [rec], M002().to_dict())
+    assert path.exists()

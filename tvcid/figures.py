@@ -35,7 +35,7 @@ def write_pinned_figure(post, pinned, path, recordings=(), params=None, max_pane
     """The draws of one member over the parameters its pinned combinations join, pair by pair
     (``pinned``: :class:`tvcid.discovery.calibration.pinned.PinnedMap` as a dict): each combination's
     leading term against its next two, at most ``max_panels`` panels. Where the dead zone acts on
-    the error (paper 002's structure, ``params``), the backlash / dead-zone pair carries paper
+    the error (paper 002's structure, ``params``: ActuatorParams or a ranking row's dict), the backlash / dead-zone pair carries paper
     002's describing-function family (:func:`tvcid.discovery.calibration.ridge.df_family`), placed by
     the first limit cycle of ``recordings``. Writes ``path`` and returns it, or ``None`` where no
     combination joins two parameters."""
@@ -52,6 +52,10 @@ def write_pinned_figure(post, pinned, path, recordings=(), params=None, max_pane
     for c in combos:
         names = list(c["terms"])
         pairs += [(names[0], n) for n in names[1:3] if (names[0], n) not in pairs]
+    if isinstance(params, dict):  # a ranking row's parameters
+        from tvcid.models import params_from_dict
+
+        params = params_from_dict("custom", params)
     on_error = params is not None and str(getattr(params.dead_zone_position, "value", "")) == "error"
     family = on_error and any({"backlash", "dead_zone"} <= set(c["terms"]) for c in combos)
     if family and not {("backlash", "dead_zone"), ("dead_zone", "backlash")} & set(pairs):
