@@ -125,9 +125,10 @@ def test_evaluation_steps_split_a_points_cost_by_record_and_part(tmp_path):
 
 def test_stored_evaluation_cost_record_is_its_rows_summary():
     """The evaluation-cost record's table is what its rows give; the parts' shares add to one;
-    every cycle record's settling and window are counted, and a run's features, read over exact
-    whole periods, move from one window to the next by less than the data's sd in the median
-    where the record does not settle."""
+    every cycle record's settling and window are counted; and what docs/limits.md reads from it
+    holds: the runs have not finished settling by their windows (a run's features move by about
+    two of the data's sd from one window to the next, in the median), and the open-loop records'
+    finer steps cost more than those records at the given step."""
     from tvcid.studies.benchmarks.evaluation_cost import summarise
 
     record = json.loads((RECORDS / "bench_evaluation_cost.json").read_text())
@@ -141,4 +142,5 @@ def test_stored_evaluation_cost_record_is_its_rows_summary():
             assert sum(rec["parts"].values()) == pytest.approx(rec["steps"])
             if rec["kind"] == "cycle":
                 assert rec["parts"]["settle"] > 0 and rec["parts"]["window"] > 0
-    assert table["next_window_sd"]["median"] < 1.0
+    assert 1.0 < table["next_window_sd"]["median"] < 4.0
+    assert table["steps_by_part"]["open:refined"] > table["steps_by_part"]["open:record"]

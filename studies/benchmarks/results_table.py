@@ -212,8 +212,8 @@ def evaluation_cost(records):
             f"the limit cycles' settling before their windows, "
             f"{_pct(share.get('cycle:window', 0))} to their 10 s windows, "
             f"{_pct(share.get('open:record', 0) + share.get('open:refined', 0))} to open-loop "
-            f"records (of which {_pct(share.get('open:refined', 0))} the finer steps their edges "
-            "and solver checks chose)")
+            f"records, {_pct(share.get('open:refined', 0))} of all in the finer steps their edges "
+            "and solver checks chose")
     if nxt:
         text += (f"; at points {100 * rows_spread(records):.2g} % from the truth, a run's features move from one 10 s window "
                  f"to the next by a median {nxt['median']:.2g} of the data's sd (largest "
