@@ -87,9 +87,7 @@ def evaluation_steps(terms) -> list:
         length), ``steps`` and ``parts``: a cycle's ``settle`` (the transient before the
         compared window), ``window`` and ``beyond`` (what a run simulates past the window); an
         open-loop record's ``record``, and, where its edges or solver check divided the step,
-        ``refined``: the steps beyond what the term's given step would take. A term that reads
-        its cycle short (:meth:`~tvcid.discovery.calibration.likelihood.features.FeatureTerm.read_short`)
-        is listed at its whole window: what a point costs without the short read.
+        ``refined``: the steps beyond what the term's given step would take.
     """
     rows = []
     for term in terms:
