@@ -142,8 +142,9 @@ def test_commits_are_named_once_or_counted_when_rows_come_from_several():
 
 def test_speed_claim_judges_the_stored_run_in_reference_seconds():
     """The speed claim: the stored run's wall time judged against 600 s in kernel-reference
-    seconds of the same run (met at half the budget, NOT met at twice it), with the search's and
-    the chains' seconds and simulated seconds."""
+    seconds of the same run (met at half the budget, NOT met at twice it; a run its idle check
+    flagged is shown as flagged, its goal not judged), with the search's and the chains' seconds,
+    simulated seconds and kernel steps."""
     from tvcid.studies.benchmarks.results_table import discover_speed
 
     record = json.loads((RECORDS / "bench_discover_speed.json").read_text())
@@ -152,9 +153,17 @@ def test_speed_claim_judges_the_stored_run_in_reference_seconds():
     search = stages["sindy"] + stages["global"] + stages["nested"] + stages["ranking"]
     assert f"structure search and ranking {search:.0f} s" in text
     assert f"the set's calibration {stages['mcmc']:.0f} s" in text and "million in the chains" in text
+    steps = record.get("simulated_steps")
+    if steps:
+        assert f"{steps['mcmc'] / 1e9:.3g} billion in the set's calibration" in text
+    flag = record.get("idle_check")
+    if flag and not flag["passed"]:  # a run on a busy machine is shown, its goal not judged
+        assert text.startswith("flagged, not the speed") and flag["reason"] in text
+    idle = {"passed": True}
     reference = record["kernel_seconds_per_simulated_second"]
     for wall, verdict in ((300 * reference / 2e-4, " met"), (1200 * reference / 2e-4, "NOT met")):
-        judged = discover_speed({"bench_discover_speed": {**record, "wall_seconds": wall}})
+        judged = discover_speed({"bench_discover_speed": {**record, "wall_seconds": wall,
+                                                          "idle_check": idle}})
         assert judged.split(";")[0].endswith(verdict), judged
 
 

@@ -151,7 +151,8 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     s = post.summary()
     kept = {k: s[k] for k in ("parameters", "converged", "tau", "correlation", "iterations",
                               "acceptance", "n_over_tau", "at_prior_bound", "laplace_move",
-                              "interval_drift")}
+                              "interval_drift", "sampler") + (("pareto_k", "rounds")
+                                                              if "pareto_k" in s else ())}
     kept["not_pinned"] = not_pinned(post, priors)
     kept["pinned"] = pinned_combinations(post.samples, post.names, priors).to_dict()
     step = measure_step_error(post, seed=seed, params=row["params"])

@@ -30,10 +30,14 @@ def _convergence_line(members) -> str:
     tail = ("" if not screened else " Screened by their weight, not run to convergence: "
             + ", ".join(f"`{m['structure']}`" for m in screened) + ".")
     if not late:
-        return ("Every calibrated structure's chain converged (more than 50 autocorrelation "
-                "times long)." if not screened else
-                "Every other calibrated structure's chain converged (more than 50 "
-                "autocorrelation times long)." + tail)
+        from tvcid.discovery.calibration.importance import GOOD_K
+        from tvcid.discovery.calibration.importance_stage import IMPORTANCE_TARGET_ESS
+
+        rule = ("converged (a chain more than 50 autocorrelation times long, or importance "
+                f"sampling with at least {IMPORTANCE_TARGET_ESS} effective points and Pareto k "
+                f"under {GOOD_K})")
+        return (f"Every calibrated structure's posterior {rule}." if not screened else
+                f"Every other calibrated structure's posterior {rule}." + tail)
     def alone(m):
         move = m["posterior"].get("laplace_move")
         return ("; without the Laplace move, whose proposal would be "
@@ -55,9 +59,9 @@ def _convergence_line(members) -> str:
 def _chain_cell(m) -> str:
     """A member's chain in the summary's table: converged, screened by its weight, or stopped at
     its cap with how far its intervals still move."""
-    if m["converged"]:
-        return "converged"
     post = m["posterior"]
+    if m["converged"]:
+        return _sampled_by(post)
     screened = post.get("screened")
     if screened:
         return (f"screened: under {100 * screened['share']:.0f} % of the weight after "
@@ -69,6 +73,15 @@ def _chain_cell(m) -> str:
              "chain's halves" if d else "")
     return (f"**stopped at its cap** ({post.get('iterations', '?')} steps): its intervals are lower "
             f"bounds on the width{moves}")
+
+
+def _sampled_by(post) -> str:
+    """How a converged member was sampled: its chain, or importance sampling with its
+    diagnostic."""
+    if post.get("sampler") != "importance":
+        return "converged"
+    return (f"importance sampled: {post['iterations']} points in {post.get('rounds', '?')} "
+            f"rounds, {post['n_over_tau']:.0f} effective, Pareto k {post['pareto_k']:.2f}")
 
 
 def _num(value, digits=4) -> str:
@@ -478,8 +491,10 @@ def discovery_report(summary) -> str:
     post = summary.get("posterior")
     if post:
         lines += ["## MCMC calibration of the best structure", "",
-                  f"Converged: {post['converged']} ({post['iterations']} steps, acceptance "
-                  f"{post['acceptance']:.2f}). Sampled: every parameter of the winner's structure "
+                  (f"Sampled by importance sampling ({_sampled_by(post).split(': ', 1)[1]})."
+                   if post.get("sampler") == "importance" else
+                   f"Converged: {post['converged']} ({post['iterations']} steps, acceptance "
+                   f"{post['acceptance']:.2f}).") + " Sampled: every parameter of the winner's structure "
                   "but the fixed ones, the linear block included; the sensor noise sd stays at the "
                   "records' noise estimate (second differences, rms over the records).", "",
                   "| parameter | median | 90 % interval |", "|---|---|---|"]

@@ -14,6 +14,7 @@ transients chosen per record, and the run with its checkpoint and resume. Where 
 from __future__ import annotations
 
 import json
+import time
 import warnings
 from pathlib import Path
 
@@ -33,6 +34,8 @@ from .likelihood.waveform import (
     WaveformTerm,
 )
 from .log_posterior import LogPosterior, check_parameter_names
+from .importance import ImportanceReport
+from .importance_stage import IMPORTANCE_TARGET_ESS, ImportanceStage
 from .moves import LaplaceAdaptation
 from .posterior import Posterior
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates, step_under_delay
@@ -83,7 +86,7 @@ SETTLING_LOAD_LIMIT = 2.0
 FALLBACK_TRANSIENT = 20.0
 
 
-class Calibration(StartSearch, LaplaceAdaptation):
+class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
     """Posterior over chosen parameters of a hypothesis, given one or more recordings.
 
     Parameters
@@ -194,6 +197,14 @@ class Calibration(StartSearch, LaplaceAdaptation):
         already is a global search's optimum on the same recordings (``tvcid discover``'s winner):
         a misfit left there is the model's, and both searches only repeat that search (M000's four
         records: 37 s and 20 s of the stage's 123 s, the same optimum).
+    importance : int
+        Points per round of the importance stage (:mod:`.importance_stage`); 0 (default) goes
+        straight to the chain. When on and the start's Laplace approximation is usable, rounds
+        of adaptive importance sampling from it come first; where their ratios are reliable
+        (Pareto ``k`` < 0.7 and ``IMPORTANCE_TARGET_ESS`` effective points) they are the
+        posterior (``posterior_.importance``, ``report_`` an
+        :class:`.importance.ImportanceReport`, ``sampler_`` None), else the chain starts from
+        their points. Learned attribute ``importance_`` (the run, or None).
     check_every : int
         Steps between convergence checks (``N > tau_factor * tau``; an autocorrelation estimate
         costs far less than a step's simulations, so the chain stops within 10 steps of where
@@ -208,7 +219,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
                  max_steps=4000, check_every=10, tau_factor=50.0, moves=None, pool=None,
                  backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
                  stop_when_converged=True, spread="axes", discrepancy=True, laplace_move=True,
-                 global_search=True):
+                 global_search=True, importance=0):
         self.hypothesis = hypothesis
         self.params = params
         self.priors = priors
@@ -238,6 +249,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
         self.discrepancy = discrepancy
         self.laplace_move = laplace_move
         self.global_search = global_search
+        self.importance = importance
 
     # -- set-up ---------------------------------------------------------------------------------
     def _default_dt(self, base, names, priors, start):
@@ -281,6 +293,7 @@ class Calibration(StartSearch, LaplaceAdaptation):
             "discrepancy": bool(self.discrepancy),
             # only when on, so that a checkpoint without the option resumes
             **({"continuation": True} if self.continuation else {}),
+            **({"importance": int(self.importance)} if self.importance else {}),
             **({"choose_transient": True} if self._chooses_transient() else {}),
             # only when a record fell back, so that a checkpoint without fallbacks resumes
             **({"fallbacks": sorted(self.fallbacks_)} if getattr(self, "fallbacks_", None) else {}),
@@ -498,6 +511,12 @@ class Calibration(StartSearch, LaplaceAdaptation):
                 f.require_group(H5_GROUP).attrs["transients"] = json.dumps(self.transients_)
 
     # -- fit ------------------------------------------------------------------------------------
+    def _store_laplace(self, backend):
+        """The Laplace proposal kept in the checkpoint (a resumed run proposes the same)."""
+        if backend is not None and self.laplace_ is not None:
+            with backend.open("a") as f:
+                f.require_group(H5_GROUP).attrs["laplace"] = json.dumps(self.laplace_)
+
     def fit(self, recordings):
         """Sample (or resume) the posterior; returns ``self``.
 
@@ -568,18 +587,32 @@ class Calibration(StartSearch, LaplaceAdaptation):
                 g.attrs["sigma"] = float(self.log_posterior_.sigma)
         initial = self._initial
         self.laplace_ = None
-        if backend is not None and _iteration(backend) > 0:  # resuming: the start's proposal
+        self.importance_ = None
+        chain_steps = _iteration(backend) if backend is not None else 0
+        if chain_steps > 0 or self._has_importance():  # resuming: the start's proposal
             with backend.open("r") as f:
                 stored = f[H5_GROUP].attrs.get("laplace") if H5_GROUP in f else None
             self.laplace_ = json.loads(stored) if stored else None
         else:
             initial = self._initial(np.random.default_rng(self.seed))
-            if backend is not None and self.laplace_ is not None:
-                with backend.open("a") as f:
-                    f.require_group(H5_GROUP).attrs["laplace"] = json.dumps(self.laplace_)
+            self._store_laplace(backend)
         # what finding the start cost (optimisation, curvature), beside the sampling
         self.start_simulated_seconds_ = float(self.log_posterior_.simulated_seconds)
         self.start_simulated_steps_ = float(self.log_posterior_.simulated_steps)
+        if chain_steps == 0 and self._importance_usable():
+            t0 = time.perf_counter()
+            new = self._run_importance()
+            report = ImportanceReport.of(self.importance_, IMPORTANCE_TARGET_ESS, new,
+                                         time.perf_counter() - t0)
+            if report.converged:  # the ratios are reliable: the run is the posterior
+                self.sampler_, self.report_ = None, report
+                self.posterior_ = Posterior.from_importance(self, self.importance_, report,
+                                                            seed=self.seed)
+                return self
+            walkers = self._walkers_from_importance(np.random.default_rng([int(self.seed), 17]))
+            if walkers is not None:  # the chain starts from the run's points
+                initial = walkers
+                self._store_laplace(backend)
         self.sampler_, self.report_ = run_ensemble(
             self.log_posterior_, initial, self.n_walkers, len(self.names_),
             self.max_steps, seed=self.seed, backend=backend, moves=self._moves(), pool=self.pool,

@@ -34,8 +34,11 @@ class Posterior:
     log_scale : tuple of bool
         Which coordinates are sampled in log.
     truths : dict name -> float or None
-    report : ConvergenceReport
+    report : ConvergenceReport or ImportanceReport
     burn, thin : int
+    importance : ImportanceRun or None
+        The weighted points behind ``samples`` when they were drawn by importance sampling
+        (:meth:`from_importance`); ``chain`` is then the resampled draws as one walker.
     """
 
     names: tuple
@@ -49,6 +52,24 @@ class Posterior:
     burn: int
     thin: int
     calibration: object = field(default=None, repr=False)
+    importance: object = field(default=None, repr=False)
+
+    #: Equally weighted draws resampled from an importance run (:meth:`from_importance`).
+    RESAMPLED = 4000
+
+    @classmethod
+    def from_importance(cls, calibration, run, report, seed=0, n=None):
+        """The posterior of an importance run (:mod:`.importance`): ``n`` draws resampled by
+        the weights (systematic resampling, seeded), ``chain`` those draws as one walker."""
+        lp = calibration.log_posterior_
+        idx = run.resample(np.random.default_rng([int(seed), 11]), int(n or cls.RESAMPLED))
+        z = run.points[idx]
+        nat = lp.natural(z)
+        return cls(
+            names=tuple(calibration.names_), samples=nat, internal=z,
+            log_prob=run.log_posterior[idx], chain=nat[:, None, :],
+            log_scale=tuple(p.log for p in lp.priors), truths=dict(calibration.truths_),
+            report=report, burn=0, thin=1, calibration=calibration, importance=run)
 
     @classmethod
     def from_sampler(cls, calibration, sampler, report, burn=None, thin=None, min_burn=0):
@@ -111,7 +132,13 @@ class Posterior:
 
     @property
     def map(self) -> dict:
-        """Highest-posterior sample of the whole chain (natural units)."""
+        """Highest-posterior sample of the whole chain, or of an importance run's points
+        (natural units)."""
+        if self.importance is not None:
+            run = self.importance
+            i = int(np.argmax(run.log_posterior))
+            x = self.calibration.log_posterior_.natural(run.points[i:i + 1])[0]
+            return dict(zip(self.names, x.tolist()))
         s = self.calibration.sampler_
         lp = s.get_log_prob()
         i, w = np.unravel_index(int(np.argmax(lp)), lp.shape)
@@ -129,7 +156,10 @@ class Posterior:
             }
         rep = self.report
         corr = self.correlation
+        extra = ({"sampler": "importance", "pareto_k": rep.pareto_k, "rounds": rep.rounds}
+                 if getattr(rep, "method", "") == "importance" else {"sampler": "ensemble"})
         return {
+            **extra,
             "parameters": params,
             "tau": dict(zip(self.names, [float(t) for t in rep.tau])),
             "converged": bool(rep.converged),
@@ -162,7 +192,11 @@ class Posterior:
         (log for log-uniform priors, as :func:`tvcid.discovery.structure.set_posterior.not_pinned`
         judges widths). A converged chain's halves agree to a few per cent of the width; a chain
         still wandering differs by a large part of it. ``None`` for a chain under 20 kept
-        steps."""
+        steps. For an importance run the halves are its points of even and odd index
+        (:meth:`.importance.ImportanceRun.interval_drift`)."""
+        if self.importance is not None:
+            d = self.importance.interval_drift()
+            return {"largest": d["largest"], "parameter": self.names[d["index"]]}
         kept = self.chain[self.burn:]
         if kept.shape[0] < 20:
             return None
@@ -235,13 +269,26 @@ class Posterior:
         )
 
     def plot_traces(self, axes=None):
-        """Every walker's trace per parameter, burn-in marked."""
+        """Every walker's trace per parameter, burn-in marked; for an importance run, its points
+        in the order drawn, shaded by weight, the rounds marked."""
         import matplotlib.pyplot as plt
 
         ndim = len(self.names)
         if axes is None:
             _, axes = plt.subplots(ndim, 1, figsize=(8, 1.8 * ndim), sharex=True, squeeze=False)
             axes = axes[:, 0]
+        if self.importance is not None:
+            run = self.importance
+            x = self.calibration.log_posterior_.natural(run.points)
+            w = run.weights
+            order = np.argsort(w)  # the heavy points drawn last, on top
+            for j, ax in enumerate(axes):
+                ax.scatter(order, x[order, j], c=w[order], s=3, cmap="viridis")
+                for edge in np.cumsum(run.counts)[:-1]:
+                    ax.axvline(edge, color="k", ls="--", lw=0.8)
+                ax.set_ylabel(self.names[j])
+            axes[-1].set_xlabel("point (rounds of importance sampling)")
+            return axes
         for j, ax in enumerate(axes):
             ax.plot(self.chain[:, :, j], lw=0.4, alpha=0.5)
             ax.axvline(self.burn, color="k", ls="--", lw=0.8)

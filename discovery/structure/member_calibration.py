@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["MEMBER_DELAY_FLOOR", "calibrate_member", "member_delay_floor", "member_priors",
-           "member_walkers"]
+__all__ = ["MEMBER_DELAY_FLOOR", "MEMBER_IMPORTANCE_ROUND", "calibrate_member",
+           "member_delay_floor", "member_priors", "member_walkers"]
 
 #: The floor (s) of a member's delay prior: one step of the calibration's default 5e-4 s, the
 #: kernel's shortest delay (:func:`tvcid.discovery.calibration.priors.step_under_delay`), under the
@@ -78,6 +78,12 @@ def member_walkers(n_parameters) -> int:
     return max(16, 2 * int(n_parameters) + 6)
 
 
+#: Points per round of a member's importance stage
+#: (:mod:`tvcid.discovery.calibration.importance_stage`): where its ratios are reliable the
+#: member's posterior costs a few rounds of these instead of a chain.
+MEMBER_IMPORTANCE_ROUND = 400
+
+
 def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_steps=2000,
                      backend=None, progress=False):
     """MCMC of one member of the set on ``recordings`` (features likelihood, 10 s windows):
@@ -86,9 +92,12 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     state). The step is the calibration's default 5e-4 s, halved until one step fits under the
     delay prior's floor (:func:`member_delay_floor`: a fit under 1 ms halves it). The sensor
     noise sd stays at the records' estimate: sampled, it mixes several times slower than the
-    physical parameters, and a misfit beyond the noise is the discrepancy factor's business. Returns ``(posterior, priors, simulated seconds)``: the last a dict,
-    ``start`` (the set-up and the start's searches) and ``sampling`` (this call's steps; a
-    resumed chain's earlier steps are not counted again)."""
+    physical parameters, and a misfit beyond the noise is the discrepancy factor's business.
+    Rounds of importance sampling from the start's Laplace approximation come first
+    (``MEMBER_IMPORTANCE_ROUND`` points each); where their ratios are reliable they are the
+    posterior, else the chain starts from their points. Returns ``(posterior, priors, simulated
+    seconds)``: the last a dict, ``start`` (the set-up and the start's searches) and
+    ``sampling`` (this call's steps; a resumed chain's earlier steps are not counted again)."""
     import warnings
 
     from tvcid.discovery.calibration import Calibration
@@ -106,7 +115,7 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
         cal = Calibration(params, params=sampled, priors=priors, start=start,
                           likelihood="features", window=10.0, n_walkers=member_walkers(len(names)),
                           max_steps=max_steps, seed=seed, backend=backend, progress=progress,
-                          global_search=False).fit(recordings)
+                          global_search=False, importance=MEMBER_IMPORTANCE_ROUND).fit(recordings)
     start = cal.start_simulated_seconds_
     return cal.posterior_, priors, {"start": start,
                                     "sampling": cal.log_posterior_.simulated_seconds - start,

@@ -32,11 +32,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import gammaln, logsumexp
 
-__all__ = ["Proposal", "ImportanceDraws", "Evidence", "importance_draws", "member_importance_draws",
-           "log_evidence", "GOOD_K", "EVIDENCE_DRAWS"]
+from tvcid.discovery.calibration.importance import GOOD_K, pareto_k
 
-#: Pareto ``k`` of the importance ratios below which the estimate is reliable.
-GOOD_K = 0.7
+__all__ = ["Proposal", "ImportanceDraws", "Evidence", "importance_draws", "member_importance_draws",
+           "run_draws", "log_evidence", "GOOD_K", "EVIDENCE_DRAWS"]
+
 #: Proposal points of a member's evidence (:func:`member_importance_draws`).
 EVIDENCE_DRAWS = 400
 #: Share of the proposal in its Student-t component (the rest in the kernels).
@@ -216,6 +216,18 @@ def importance_draws(proposal, log_prior, log_lik, records, n, rng, inflation=No
                            proposal.ndim, points=z)
 
 
+def run_draws(posterior) -> ImportanceDraws:
+    """The evidence draws of a member whose posterior is an importance run
+    (:attr:`tvcid.discovery.calibration.Posterior.importance`): its points, the rounds'
+    mixture density and each recording's untempered log-likelihood, at no further cost (the
+    run's simulations are counted in the member's sampling)."""
+    run = posterior.importance
+    lp = posterior.calibration.log_posterior_
+    return ImportanceDraws(tuple(t.name for t in lp.terms), run.log_prior, run.log_proposal,
+                           run.log_lik, tuple(float(v) for v in run.temperature),
+                           run.points.shape[1], points=run.points)
+
+
 def member_importance_draws(posterior, n=EVIDENCE_DRAWS, seed=0) -> ImportanceDraws:
     """:func:`importance_draws` of one calibrated member: the proposal fitted to its posterior
     draws (:attr:`tvcid.discovery.calibration.Posterior.internal`), each point's log-likelihood per
@@ -233,6 +245,8 @@ def member_importance_draws(posterior, n=EVIDENCE_DRAWS, seed=0) -> ImportanceDr
     from tvcid.discovery.calibration.log_posterior import term_size
     from tvcid.discovery.calibration.posterior import _uninflated
 
+    if getattr(posterior, "importance", None) is not None:
+        return run_draws(posterior)
     cal = posterior.calibration
     if cal is None:
         raise ValueError("member_importance_draws: the posterior has no calibration to evaluate "
@@ -342,19 +356,4 @@ def log_evidence(draws: ImportanceDraws, temperature=None) -> Evidence:
     mean = float(w.mean())
     ess = float(w.sum() ** 2 / np.sum(w * w))
     se = float(w.std(ddof=1) / math.sqrt(n) / mean) if n > 1 else math.inf
-    return Evidence(top + math.log(mean), se, ess, _pareto_k(log_w), n, tuple(t.tolist()))
-
-
-def _pareto_k(log_w) -> float:
-    """PSIS's Pareto ``k`` of importance ratios given as logs (arviz's ``psislw``)."""
-    import warnings
-
-    import arviz as az
-
-    finite = log_w[np.isfinite(log_w)]
-    if finite.size < 10:
-        return math.inf
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        _, k = az.psislw(finite - finite.max(), reff=1.0)
-    return float(np.asarray(k).ravel()[0])
+    return Evidence(top + math.log(mean), se, ess, pareto_k(log_w), n, tuple(t.tolist()))

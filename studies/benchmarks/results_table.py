@@ -325,6 +325,11 @@ def discover_speed(records):
                        if k in ("global", "nested", "refit", "ranking"))
         text += (f"; simulated {searched / 1e6:.2g} million seconds in the search, "
                  f"{simulated['mcmc'] / 1e6:.2g} million in the chains")
+    steps = r.get("simulated_steps") or {}
+    if steps:
+        searched = sum(v for k, v in steps.items() if k in ("global", "nested", "refit", "ranking"))
+        text += (f"; kernel steps {searched / 1e9:.3g} billion in the search, "
+                 f"{steps['mcmc'] / 1e9:.3g} billion in the set's calibration")
     return text
 
 
