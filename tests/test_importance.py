@@ -105,3 +105,28 @@ def test_curved_targets_are_refused(target):
     assert not run.reliable(IMPORTANCE_TARGET_ESS)
     assert run.pareto_k >= GOOD_K or run.ess < IMPORTANCE_TARGET_ESS
     assert math.isfinite(run.ess)
+
+
+def test_bounded_laplace_covariance_holds_flat_directions_to_the_ball():
+    """The importance stage's first proposal where the chain's Laplace move refuses one: the
+    inverse curvature where it is within 30 ball widths, the ball's own width along a flat
+    direction curving the wrong way, 30 widths along a barely curved one."""
+    from tvcid.discovery.calibration.optimum import bounded_laplace_covariance
+
+    rng = np.random.default_rng(4)
+    v = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    ball = np.diag([1e-2, 1e-3, 1e-4]) ** 2
+    b = np.sqrt(ball)
+    sd_w = np.array([0.5, 3.0, 100.0])  # in ball units: tighter, wider, far wider than 30
+    inner = (v / sd_w**2) @ v.T
+    hess = -np.linalg.inv(b) @ inner @ np.linalg.inv(b)
+    cov = bounded_laplace_covariance(hess, ball)
+    w = np.linalg.inv(b) @ cov @ np.linalg.inv(b)
+    got = np.sqrt(np.sort(np.linalg.eigvalsh(w)))
+    np.testing.assert_allclose(got, [0.5, 3.0, 30.0], rtol=1e-6)
+    inner_flat = (v * np.array([4.0, 1 / 9, -1.0])) @ v.T  # one direction curving the wrong way
+    flat = -np.linalg.inv(b) @ inner_flat @ np.linalg.inv(b)
+    w = np.linalg.inv(b) @ bounded_laplace_covariance(flat, ball) @ np.linalg.inv(b)
+    np.testing.assert_allclose(np.sqrt(np.sort(np.linalg.eigvalsh(w))), [0.5, 1.0, 3.0],
+                               rtol=1e-6)
+    assert bounded_laplace_covariance(np.full((3, 3), np.nan), ball) is None

@@ -144,3 +144,26 @@ def test_stored_evaluation_cost_record_is_its_rows_summary():
                 assert rec["parts"]["settle"] > 0 and rec["parts"]["window"] > 0
     assert 1.0 < table["next_window_sd"]["median"] < 4.0
     assert table["steps_by_part"]["open:refined"] > table["steps_by_part"]["open:record"]
+
+
+def test_two_runs_answers_are_compared_member_by_member():
+    """The speed benchmark's comparison of two runs' answers: an interval of a member carrying
+    weight moved by a quarter of its width is not the same answer, the same move in a member of
+    weight 0.01 is not judged, and a changed winner is named."""
+    from tvcid.studies.benchmarks.discover_speed import compare_answers
+
+    def run(winner, lo_a, lo_b, weight_b=0.01):
+        return {"winner": winner, "set": ["a", "b"], "members": {
+            "a": {"weight": 0.99, "intervals": {"delay": [lo_a, lo_a + 1.0]}},
+            "b": {"weight": weight_b, "intervals": {"delay": [lo_b, lo_b + 1.0]}}}}
+
+    before = run("a", 0.0, 0.0)
+    same = compare_answers(run("a", 0.05, 5.0), before)
+    assert same["same"] and same["largest_move"] == pytest.approx(0.1)
+    assert "b" not in same["moves"]  # under 5 % of the weight in both runs
+    moved = compare_answers(run("a", 0.125, 0.0), before)
+    assert not moved["same"] and moved["largest_move"] == pytest.approx(0.25)
+    heavy_b = compare_answers(run("a", 0.0, 0.3, weight_b=0.4), before)
+    assert not heavy_b["same"] and heavy_b["moves"]["b"]["delay"] == pytest.approx(0.6)
+    other = compare_answers(run("b", 0.0, 0.0), before)
+    assert not other["same"] and not other["same_winner"] and other["same_set"]

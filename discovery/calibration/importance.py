@@ -72,6 +72,21 @@ def weighted_quantiles(values, weights, q) -> np.ndarray:
     return np.interp(np.asarray(q, dtype=float), c, v)
 
 
+def _positive_definite(cov) -> np.ndarray:
+    """``cov`` symmetrised, its eigenvalues held at least ``1e-13`` of the largest, so that its
+    Cholesky factor exists (a covariance rebuilt from principal sds a million apart loses
+    definiteness to rounding)."""
+    cov = np.atleast_2d(np.asarray(cov, dtype=float))
+    cov = 0.5 * (cov + cov.T)
+    try:
+        np.linalg.cholesky(cov)
+        return cov
+    except np.linalg.LinAlgError:
+        vals, vecs = np.linalg.eigh(cov)
+        vals = np.maximum(vals, 1e-13 * max(float(np.max(vals)), 1e-300))
+        return (vecs * vals) @ vecs.T
+
+
 def tempered_power(log_w, min_ess) -> float:
     """The largest ``beta`` in (0, 1] whose weights ``exp(beta * log_w)`` keep ``min_ess``
     effective points (bisection; 1 when the untempered weights already do)."""
@@ -116,12 +131,16 @@ class StudentT:
     cov: np.ndarray
     dof: float = PROPOSAL_DOF
 
+    def __post_init__(self):
+        object.__setattr__(self, "mean", np.asarray(self.mean, dtype=float))
+        object.__setattr__(self, "cov", _positive_definite(self.cov))
+
     @property
     def ndim(self) -> int:
         return int(np.size(self.mean))
 
     def _chol(self):
-        return np.linalg.cholesky(np.atleast_2d(self.cov))
+        return np.linalg.cholesky(self.cov)
 
     def sample(self, rng, n) -> np.ndarray:
         """``n`` points ``(n, d)`` drawn with a ``numpy.random.Generator``."""
@@ -171,10 +190,8 @@ class StudentT:
         last proposal's (flat, or curving the wrong way: the points did not reach the posterior's
         edge there) the scale grows ``MAX_GROWTH`` times.
 
-        Where the weights are heavy-tailed because the proposal is too wide in a few
-        directions, the log posterior's values still carry its shape: on a member of M000's
-        speed benchmark (9 parameters, 2,000 points) the quadratic leaves 0.7 nats of a
-        15-nat spread, where the weights kept 7 effective points."""
+        Where the weights are heavy-tailed, the log posterior's values still carry its shape
+        (docs/methods/calibration.md, "Importance sampling before the chain")."""
         from scipy.stats import chi2
 
         ok = np.isfinite(log_post)

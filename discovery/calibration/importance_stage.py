@@ -32,10 +32,12 @@ class ImportanceStage:
     """Importance sampling of a calibration's posterior (:mod:`.importance`)."""
 
     def _importance_usable(self) -> bool:
-        """The stage is on and the start has a Laplace approximation it trusts (share > 0)."""
+        """The stage is on and the start has a proposal for it: the Laplace approximation the
+        move trusts (share > 0), or the curvature with its principal sds held within the prior
+        (``importance_cov``, :func:`.optimum.bounded_laplace_covariance`)."""
         info = getattr(self, "laplace_", None)
         return bool(getattr(self, "importance", 0)) and bool(info) \
-            and float(info.get("share", 1.0)) > 0.0
+            and (float(info.get("share", 1.0)) > 0.0 or "importance_cov" in info)
 
     def record_log_likelihoods(self, z) -> np.ndarray:
         """Each recording's untempered log-likelihood ``(m, r)`` at the points ``z`` (sampling
@@ -55,8 +57,9 @@ class ImportanceStage:
         call simulated."""
         lp = self.log_posterior_
         info = self.laplace_
+        cov = info["cov"] if float(info.get("share", 1.0)) > 0.0 else info["importance_cov"]
         start = StudentT(np.asarray(info["mean"], dtype=float),
-                         np.asarray(info["cov"], dtype=float) * START_SCALE**2)
+                         np.asarray(cov, dtype=float) * START_SCALE**2)
         temperature = [float(np.max(t.inflation)) for t in self.terms_]
         stored = self._stored_importance()
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from .priors import SIGMA
 
-__all__ = ["laplace_covariance"]
+__all__ = ["laplace_covariance", "bounded_laplace_covariance"]
 
 #: Largest principal sd of a usable Laplace approximation, as a fraction of the prior's extent.
 LAPLACE_MAX_FRACTION = 0.25
@@ -201,6 +201,24 @@ def laplace_covariance(lp, z0, hess, max_fraction=LAPLACE_MAX_FRACTION):
         return None
     vals, vecs = eig
     return (vecs / vals) @ vecs.T
+
+
+def bounded_laplace_covariance(hess, ball, max_growth=30.0):
+    """``(-hess)^-1`` in the coordinates of the walkers' starting ball (``ball``: its covariance,
+    ``axes @ axes.T``), each principal sd there held to ``max_growth`` times the ball's (no
+    curvature reads as a barely positive one), and a direction of wrong-signed curvature given
+    the ball's own: a first proposal for
+    importance sampling where :func:`laplace_covariance` refuses one for the chain's move (the
+    prior's extent would be a cap thousands of times the posterior's width). ``None`` for a
+    Hessian with non-finite entries."""
+    if hess is None or not np.all(np.isfinite(hess)):
+        return None
+    b = np.linalg.cholesky(np.atleast_2d(ball))
+    vals, vecs = np.linalg.eigh(-(b.T @ hess @ b))
+    sd = np.where(vals > 0, 1.0 / np.sqrt(np.where(vals > 0, vals, 1.0)), 1.0)
+    sd = np.minimum(sd, max_growth)
+    inner = (vecs * sd**2) @ vecs.T
+    return b @ inner @ b.T
 
 
 def _curvature_without_ridge(lp, z0, hess, max_fraction):

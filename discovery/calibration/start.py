@@ -26,6 +26,7 @@ from .optimum import (
     _principal_axes,
     _profile_sigma,
     _simplex,
+    bounded_laplace_covariance,
     laplace_covariance,
 )
 
@@ -256,6 +257,9 @@ class StartSearch:
             self.laplace_ = {"mean": z0.tolist(), "cov": cov.tolist()}
         else:
             self.laplace_ = {"mean": z0.tolist(), "cov": (axes @ axes.T).tolist(), "share": 0.0}
+            proposal = bounded_laplace_covariance(hess, axes @ axes.T)
+            if proposal is not None:  # the importance stage's first proposal (not the move's)
+                self.laplace_["importance_cov"] = proposal.tolist()
 
     def _set_solver_correction(self, lp, z0, z) -> bool:
         """Each features term's solver correction

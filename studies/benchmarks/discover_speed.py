@@ -19,7 +19,10 @@ on that ratio (:meth:`tvcid.studies.benchmarks.goals.Goal.speed`). And the kerne
 differ by more than 10 %, or that starts at a 1-minute load average above 0.5, is flagged
 (``idle_check``, with the reason) and not judged as the speed. The last line printed is the goal,
 met or NOT met, or the flag; so is the exit status (0 met, 1 not, 2 flagged). Non-finite numbers
-are written as ``null``.
+are written as ``null``. ``bench.json`` also holds the run's answers (:func:`answers`) and, with
+``--compare`` an earlier run's ``bench.json`` or ``discovery.json``, how far they moved
+(:func:`compare_answers`: the same winner and set, and each interval of a member carrying weight
+within 0.2 of its width).
 """
 from __future__ import annotations
 
@@ -110,7 +113,54 @@ def record(summary, wall, load_average, before, after) -> dict:
         "converged": summary["posterior"]["converged"],
         "mcmc_steps": summary["posterior"]["iterations"],
         "winner": summary["structures"][0]["structure"],
+        "answers": answers(summary),
     }
+
+
+#: A member carries weight from this share on (the set's deciding share).
+CARRIES_WEIGHT = 0.05
+
+
+def answers(summary) -> dict:
+    """What a run answers, to compare with another run on the same recordings: the winner, the
+    set (its structures, in order), each calibrated member's weight and its quantities' 90 %
+    intervals."""
+    sp = summary.get("set_posterior") or {}
+    return {"winner": summary["structures"][0]["structure"],
+            "set": list(summary["indistinguishable"]),
+            "members": {m["structure"]: {
+                "weight": m.get("weight"),
+                "intervals": {q: [v["q05"], v["q95"]] for q, v in m["quantities"].items()}}
+                for m in sp.get("members") or ()}}
+
+
+def compare_answers(now, before) -> dict:
+    """``now``'s answers (:func:`answers`) against ``before``'s: the same winner and set, and for
+    every member carrying weight in either (``CARRIES_WEIGHT``) each quantity's 90 % interval's
+    ends moved by ``(|q05 - q05'| + |q95 - q95'|) / (q95' - q05')``, ``before``'s width;
+    ``largest_move`` over them, and ``same`` when the winner and set agree and no move reaches
+    0.2."""
+    moves = {}
+    for name in set(now["members"]) | set(before["members"]):
+        a, b = now["members"].get(name), before["members"].get(name)
+        heavy = max((m or {}).get("weight") or 0.0 for m in (a, b)) >= CARRIES_WEIGHT
+        if not heavy:
+            continue
+        if a is None or b is None:
+            moves[name] = {"missing": "now" if a is None else "before"}
+            continue
+        for q, (lo, hi) in b["intervals"].items():
+            if q in a["intervals"] and hi > lo:
+                lo2, hi2 = a["intervals"][q]
+                moves.setdefault(name, {})[q] = (abs(lo2 - lo) + abs(hi2 - hi)) / (hi - lo)
+    values = [v for m in moves.values() for v in m.values() if isinstance(v, float)]
+    missing = [n for n, m in moves.items() if "missing" in m]
+    largest = max(values) if values else 0.0
+    return {"same_winner": now["winner"] == before["winner"],
+            "same_set": now["set"] == before["set"], "moves": moves,
+            "largest_move": largest, "missing": missing,
+            "same": (now["winner"] == before["winner"] and now["set"] == before["set"]
+                     and not missing and largest < 0.2)}
 
 
 def main(argv=None) -> int:
@@ -120,7 +170,11 @@ def main(argv=None) -> int:
     parser.add_argument("--search", default="standard", choices=tuple(SEARCHES))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=str(OUT))
+    parser.add_argument("--compare", default=None,
+                        help="a bench.json or discovery.json of an earlier run on the same "
+                             "recordings: its answers are compared with this run's")
     args = parser.parse_args(argv)
+    before_answers = _answers_of(Path(args.compare)) if args.compare else None
     out = Path(args.out)
     paths = write_recordings(out / "recordings")
     report = {"cores": os.cpu_count(), "load_average_before": os.getloadavg(),
@@ -144,6 +198,9 @@ def main(argv=None) -> int:
     flag = report["idle_check"]
     report["goal_met"] = goal.met if flag["passed"] else None  # a flagged run is not the speed
     report["goals"] = [goal.to_dict()]
+    if before_answers is not None:
+        report["compared_with"] = {"commit": before_answers[0],
+                                   **compare_answers(report["answers"], before_answers[1])}
     write_json(out / "bench.json", report, default=str)
     stages = ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()
                        if k not in ("total", "discovery"))
@@ -156,6 +213,23 @@ def main(argv=None) -> int:
         print(f"flagged, not the speed: {flag['reason']}")
         return 2
     return goal_report([goal])
+
+
+def _answers_of(path):
+    """``(commit or None, answers)`` of a stored ``bench.json`` (its ``answers``) or a run's
+    ``discovery.json``."""
+    import json
+
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f"--compare {path}: cannot read it ({exc})") from None
+    if "answers" in data:
+        return data.get("commit"), data["answers"]
+    if "set_posterior" in data:
+        return None, answers(data)
+    raise SystemExit(f"--compare {path}: neither a bench.json with answers nor a discovery.json "
+                     "with a set's posterior")
 
 
 if __name__ == "__main__":
