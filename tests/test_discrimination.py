@@ -196,7 +196,7 @@ def test_report_says_which_members_chains_did_not_converge():
 
     done = {"structure": "a", "converged": True, "posterior": {"iterations": 400, "n_over_tau": 55.0}}
     late = {"structure": "b", "converged": False, "posterior": {"iterations": 2000, "n_over_tau": 9.5}}
-    assert _convergence_line([done]).startswith("Every calibrated structure's chain converged")
+    assert _convergence_line([done]).startswith("Every calibrated structure's posterior converged")
     line = _convergence_line([done, late])
     assert line.startswith("**Not converged**: `b` (2000 steps, 9.5 autocorrelation times)")
     assert "`a`" not in line
@@ -207,6 +207,17 @@ def test_report_says_which_members_chains_did_not_converge():
                                       "interval_drift": {"largest": 0.42, "parameter": "delay"}}}
     assert ("9.5 autocorrelation times; its 90 % intervals differ between the chain's two halves "
             "by up to 42 % of their width (`delay`))") in _convergence_line([drifting])
+
+
+def test_an_importance_sampled_member_is_named_with_its_diagnostic():
+    from tvcid.report import _chain_cell
+
+    drawn = {"structure": "a", "converged": True, "posterior": {
+        "sampler": "importance", "iterations": 1200, "rounds": 3, "n_over_tau": 394.2,
+        "pareto_k": -0.11}}
+    assert _chain_cell(drawn) == ("importance sampled: 1200 points in 3 rounds, 394 effective, "
+                                  "Pareto k -0.11")
+    assert _chain_cell({**drawn, "posterior": {"iterations": 400}}) == "converged"
 
 
 def test_a_pair_is_decided_in_fact_by_the_members_the_second_set_keeps_merged_ones_included():
