@@ -95,7 +95,8 @@ def record(summary, wall, load_average, before, after) -> dict:
         ``simulated_steps`` per stage; ``members`` (each member's structure, steps, simulated,
         CPU and wall seconds); the references and ``idle_check``
         (:func:`tvcid.discovery.speed.idle_check` on the 1-minute load average); the chain's
-        convergence and steps and the winner.
+        convergence and steps (points, for an importance-sampled winner: ``sampler``), the
+        winner and the run's answers (:func:`answers`).
     """
     members = (summary.get("set_posterior") or {}).get("members") or ()
     return {
@@ -112,6 +113,7 @@ def record(summary, wall, load_average, before, after) -> dict:
         "idle_check": idle_check(load_average[0], before, after),
         "converged": summary["posterior"]["converged"],
         "mcmc_steps": summary["posterior"]["iterations"],
+        "sampler": summary["posterior"].get("sampler", "ensemble"),
         "winner": summary["structures"][0]["structure"],
         "answers": answers(summary),
     }
@@ -173,8 +175,11 @@ def main(argv=None) -> int:
     parser.add_argument("--compare", default=None,
                         help="a bench.json or discovery.json of an earlier run on the same "
                              "recordings: its answers are compared with this run's")
+    parser.add_argument("--compare-commit", default=None,
+                        help="the commit a --compare discovery.json was made at")
     args = parser.parse_args(argv)
-    before_answers = _answers_of(Path(args.compare)) if args.compare else None
+    before_answers = (_answers_of(Path(args.compare), args.compare_commit) if args.compare
+                      else None)
     out = Path(args.out)
     paths = write_recordings(out / "recordings")
     report = {"cores": os.cpu_count(), "load_average_before": os.getloadavg(),
@@ -200,13 +205,16 @@ def main(argv=None) -> int:
     report["goals"] = [goal.to_dict()]
     if before_answers is not None:
         report["compared_with"] = {"commit": before_answers[0],
-                                   **compare_answers(report["answers"], before_answers[1])}
+                                   **compare_answers(report["answers"], before_answers[1]),
+                                   "simulated_steps": before_answers[2]}
     write_json(out / "bench.json", report, default=str)
     stages = ", ".join(f"{k} {v:.0f} s" for k, v in summary["timings"].items()
                        if k not in ("total", "discovery"))
+    unit = "points" if report["sampler"] == "importance" else "steps"
     print(f"tvcid discover ({args.search}) on 2 x 40 s cycles + 2 x 10 s open-loop tests: "
           f"{wall:.0f} s wall on {os.cpu_count()} cores; {stages}; "
-          f"{summary['simulations']} simulations; MCMC {summary['posterior']['iterations']} steps, "
+          f"{summary['simulations']} simulations; the winner's posterior "
+          f"{summary['posterior']['iterations']} {unit}, "
           f"converged {summary['posterior']['converged']}; load average "
           f"{report['load_average_before']} -> {report['load_average_after']}")
     if not flag["passed"]:
@@ -215,9 +223,9 @@ def main(argv=None) -> int:
     return goal_report([goal])
 
 
-def _answers_of(path):
-    """``(commit or None, answers)`` of a stored ``bench.json`` (its ``answers``) or a run's
-    ``discovery.json``."""
+def _answers_of(path, args_commit=None):
+    """``(commit, answers, kernel steps per stage)`` of a stored ``bench.json`` (its
+    ``answers``) or of a run's ``discovery.json`` (made at ``args_commit``, or None)."""
     import json
 
     try:
@@ -225,9 +233,9 @@ def _answers_of(path):
     except (OSError, ValueError) as exc:
         raise SystemExit(f"--compare {path}: cannot read it ({exc})") from None
     if "answers" in data:
-        return data.get("commit"), data["answers"]
+        return data.get("commit"), data["answers"], data.get("simulated_steps")
     if "set_posterior" in data:
-        return None, answers(data)
+        return args_commit, answers(data), data.get("simulated_steps")
     raise SystemExit(f"--compare {path}: neither a bench.json with answers nor a discovery.json "
                      "with a set's posterior")
 

@@ -301,6 +301,11 @@ def set_coverage(records):
             f"{table['draws']}; members calibrated per draw {min(sizes)}-{max(sizes)}")
 
 
+#: The stages whose kernel steps make up a whole ``tvcid discover`` (``mcmc`` holds the start's
+#: and the evidence's).
+_STEP_STAGES = ("global", "nested", "refit", "ranking", "mcmc", "next_test")
+
+
 def discover_speed(records):
     """The whole ``tvcid discover`` on the speed benchmark's four recordings: its goal, judged in
     kernel-reference seconds measured in the same run, and where the time went; a run its idle
@@ -319,12 +324,29 @@ def discover_speed(records):
               f"{goal.value_text()} ({goal.target_text()}) not judged")
     text = (judged + f"; structure search and ranking {search:.0f} s, next test "
             f"{stages['next_test']:.0f} s, the set's calibration {stages['mcmc']:.0f} s "
-            f"({'converged' if r['converged'] else 'not converged'}, {r['mcmc_steps']} steps)")
+            + (f"(the winner importance sampled, {r['mcmc_steps']} points)"
+               if r.get("sampler") == "importance" else
+               f"({'converged' if r['converged'] else 'not converged'}, {r['mcmc_steps']} steps)"))
     if simulated:
         searched = sum(v for k, v in simulated.items()
                        if k in ("global", "nested", "refit", "ranking"))
         text += (f"; simulated {searched / 1e6:.2g} million seconds in the search, "
-                 f"{simulated['mcmc'] / 1e6:.2g} million in the chains")
+                 f"{simulated['mcmc'] / 1e6:.2g} million in the set's calibration")
+    compared = r.get("compared_with")
+    if compared:
+        text += ("; against the answers of the earlier run on the same recordings that the "
+                 f"record's `compared_with` names: {'the same' if compared['same_winner'] else 'another'} "
+                 f"winner, {'the same' if compared['same_set'] else 'another'} set, the 90 % "
+                 f"intervals of the members carrying weight moved by at most "
+                 f"{compared['largest_move']:.2f} of their width")
+        was = compared.get("simulated_steps") or {}
+        now = r.get("simulated_steps") or {}
+        if was and now:
+            total = {k: sum(v for s, v in d.items() if s in _STEP_STAGES) for k, d in
+                     (("was", was), ("now", now))}
+            text += (f"; kernel steps {total['now'] / 1e9:.3g} billion against "
+                     f"{total['was'] / 1e9:.3g} billion there ({total['now'] / total['was']:.2f} "
+                     f"of them; the set's calibration {now['mcmc'] / was['mcmc']:.2f})")
     steps = r.get("simulated_steps") or {}
     if steps:
         searched = sum(v for k, v in steps.items() if k in ("global", "nested", "refit", "ranking"))
