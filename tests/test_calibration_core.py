@@ -719,3 +719,36 @@ def test_importance_stage_gives_the_chains_posterior_and_resumes(tmp_path, short
     again = _small(backend=tmp_path / "is.h5", max_steps=3000, importance=200).fit([short_record])
     assert again.report_.new_steps == 0
     np.testing.assert_array_equal(again.posterior_.samples, drawn.posterior_.samples)
+
+
+def test_interrupted_importance_stage_resumes_to_the_same_run(tmp_path, short_record,
+                                                              monkeypatch):
+    """Ctrl-C inside the importance stage's second round loses only that round: run again on
+    the same checkpoint, the stage simulates the rounds from the second on and ends at the points
+    and posterior of a run straight through."""
+    import warnings
+
+    from tvcid.discovery.calibration.importance_stage import ImportanceStage
+
+    warnings.simplefilter("ignore", ConvergenceWarning)
+    straight = _small(backend=tmp_path / "a.h5", max_steps=3000, importance=200).fit(
+        [short_record])
+    assert straight.report_.rounds >= 2
+    original = ImportanceStage.record_log_likelihoods
+    calls = {"n": 0}
+
+    def dying(self, z):
+        calls["n"] += 1
+        if calls["n"] > 200 // 48 + 1:  # the first round's batches (48 points each) pass
+            raise KeyboardInterrupt
+        return original(self, z)
+
+    monkeypatch.setattr(ImportanceStage, "record_log_likelihoods", dying)
+    with pytest.raises(KeyboardInterrupt):
+        _small(backend=tmp_path / "b.h5", max_steps=3000, importance=200).fit([short_record])
+    monkeypatch.setattr(ImportanceStage, "record_log_likelihoods", original)
+    resumed = _small(backend=tmp_path / "b.h5", max_steps=3000, importance=200).fit(
+        [short_record])
+    assert resumed.report_.new_steps == straight.report_.iterations - 200
+    np.testing.assert_array_equal(resumed.importance_.points, straight.importance_.points)
+    np.testing.assert_array_equal(resumed.posterior_.samples, straight.posterior_.samples)

@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import gammaln, logsumexp
 
+from .runner import ConvergenceReport
+
 __all__ = ["GOOD_K", "StudentT", "ImportanceRun", "ImportanceReport", "adaptive_importance",
            "pareto_k", "weighted_quantiles", "START_SCALE"]
 
@@ -353,44 +355,25 @@ class ImportanceRun:
 
 
 @dataclass(frozen=True)
-class ImportanceReport:
-    """The diagnostics of an importance run, in the chain's terms
-    (:class:`tvcid.discovery.calibration.runner.ConvergenceReport`): ``tau`` is the points per
-    effective point (``n / ess``), so ``n_over_tau`` is the effective sample size and the rule
-    ``N > tau_factor * tau`` reads ``ess >= target``; ``converged`` adds ``k < GOOD_K``.
+class ImportanceReport(ConvergenceReport):
+    """The diagnostics of an importance run, in the chain's terms (a
+    :class:`tvcid.discovery.calibration.runner.ConvergenceReport`): ``iterations`` counts the
+    points drawn, ``tau`` is the points per effective point (``n / ess``), so ``n_over_tau`` is
+    the effective sample size and the rule ``N > tau_factor * tau`` reads ``ess >= target``;
+    ``converged`` adds ``k < GOOD_K``; ``acceptance`` is the ratios' efficiency ``ess / n``;
+    ``new_steps`` the points this call simulated; ``burn`` is 0.
 
     Attributes
     ----------
-    iterations : int
-        Points drawn (all rounds).
-    tau : tuple of float
-    n_over_tau : float
-    tau_factor : float
-    converged : bool
-    acceptance : float
-        The ratios' efficiency, ``ess / n``.
     pareto_k : float
+        PSIS's Pareto ``k`` of the ratios (1e9 where it cannot be estimated).
     rounds : int
-    new_steps : int
-        Points simulated by this call (0 when a finished run is reopened).
-    wall_time : float
-    burn : int
-        Always 0.
     method : str
         ``"importance"``.
     """
 
-    iterations: int
-    tau: tuple
-    n_over_tau: float
-    tau_factor: float
-    converged: bool
-    acceptance: float
-    pareto_k: float
-    rounds: int
-    new_steps: int = 0
-    wall_time: float = 0.0
-    burn: int = 0
+    pareto_k: float = 1e9
+    rounds: int = 0
     method: str = "importance"
 
     @classmethod
@@ -398,17 +381,12 @@ class ImportanceReport:
         ess = run.ess
         tau = run.n / ess if ess > 0 else math.inf
         k = run.pareto_k
-        return cls(run.n, (float(tau),) * run.points.shape[1], float(ess), float(target_ess),
-                   bool(k < GOOD_K and ess >= target_ess), float(ess / run.n) if run.n else 0.0,
-                   float(k) if math.isfinite(k) else 1e9, len(run.counts), int(new_points),
-                   float(wall_time))
-
-    def to_dict(self) -> dict:
-        from dataclasses import asdict
-
-        d = asdict(self)
-        d["tau"] = [float(t) for t in self.tau]
-        return d
+        return cls(iterations=run.n, tau=(float(tau),) * run.points.shape[1],
+                   n_over_tau=float(ess), tau_factor=float(target_ess),
+                   converged=bool(k < GOOD_K and ess >= target_ess),
+                   acceptance=float(ess / run.n) if run.n else 0.0, new_steps=int(new_points),
+                   wall_time=float(wall_time), pareto_k=float(k) if math.isfinite(k) else 1e9,
+                   rounds=len(run.counts))
 
 
 def adaptive_importance(log_prior, log_lik, temperature, start, rng_of_round, n_round,
