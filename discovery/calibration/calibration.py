@@ -9,7 +9,8 @@ records that enter through their features instead of their waveform, the step ch
 transients chosen per record, and the run with its checkpoint and resume. Where the chain starts
 (the maximum a posteriori, the discrepancy factors there, the walkers) is
 :class:`.start.StartSearch`; the Laplace move's adaptation over the run is
-:class:`.moves.LaplaceAdaptation`; both are parts of :class:`Calibration`.
+:class:`.moves.LaplaceAdaptation`; the importance sampling that can stand in for the chain is
+:class:`.importance_stage.ImportanceStage`; all three are parts of :class:`Calibration`.
 """
 from __future__ import annotations
 
@@ -26,6 +27,8 @@ from tvcid.models.recording import load_recordings
 
 from ..threads import one_blas_thread
 from .backend import H5_GROUP, CheckpointBackend
+from .importance import ImportanceReport
+from .importance_stage import IMPORTANCE_TARGET_ESS, ImportanceStage
 from .likelihood.features import DEFAULT_FEATURES, FeatureTerm
 from .likelihood.registry import LIKELIHOODS, make_term
 from .likelihood.waveform import (
@@ -34,8 +37,6 @@ from .likelihood.waveform import (
     WaveformTerm,
 )
 from .log_posterior import LogPosterior, check_parameter_names
-from .importance import ImportanceReport
-from .importance_stage import IMPORTANCE_TARGET_ESS, ImportanceStage
 from .moves import LaplaceAdaptation
 from .posterior import Posterior
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates, step_under_delay
