@@ -2,16 +2,13 @@
 and its adaptation to the chain over a calibration's run.
 
 emcee's differential-evolution moves cross a narrow valley in a few tens of steps per independent
-sample (M002 on one record: tau 13-14 steps, 700 steps to ``N > 50 tau``). Where the posterior is
+sample. Where the posterior is
 close to the Gaussian of its maximum a posteriori and Hessian (the Laplace approximation), a
 Metropolis-Hastings *independence* proposal drawn from a widened multivariate t around it is
 accepted most of the time and forgets the walker's position at once (Robert & Casella 2004,
 section 7.4; the t's tails keep the importance ratio bounded where the Gaussian is too narrow).
 Mixed with the DE moves, which carry the chain where the approximation is poor, the mixture keeps
-detailed balance move by move. Measured on M002's benchmark record (f, zm, Td, sigma; nine moves
-in ten independent, the proposal refitted once to the chain after 50 steps): tau 2.3 steps instead
-of 13.8, converged after 125 steps instead of 700, the same 90 % intervals to 1-2 % of their
-widths. Where the Laplace approximation cannot serve (a ridge cut by the prior, a maximum on a
+detailed balance move by move. Where the Laplace approximation cannot serve (a ridge cut by the prior, a maximum on a
 prior bound: :func:`tvcid.discovery.calibration.optimum.laplace_covariance`) the move waits idle
 until it can be fitted to the chain; a proposal that would be accepted under a quarter of the
 time is not switched on (:meth:`LaplaceIndependenceMove.expected_acceptance`).
@@ -103,9 +100,7 @@ class PriorChordMove(emcee.moves.RedBlueMove):
     direction the recordings do not pin (a band-pass gain deep in saturation, a hydraulic
     resonance far above the cycle, a backlash below what the cycle resolves) the chord's points are
     accepted about as often as the prior allows, and a walker crosses the whole prior in one step,
-    where the differential-evolution moves diffuse across it at the ensemble's own spread (draw
-    1000 of the wide set-coverage benchmark: band-pass gain held near its start for 800 steps,
-    then tau 235). Along a pinned direction the move is accepted rarely and costs one simulation.
+    where the differential-evolution moves diffuse across it at the ensemble's own spread. Along a pinned direction the move is accepted rarely and costs one simulation.
 
     Parameters
     ----------
@@ -179,13 +174,11 @@ LAPLACE_ADAPT_STEPS = 50
 #: Expected acceptance of the refitted proposal under which it is switched off.
 LAPLACE_MIN_ACCEPTANCE = 0.25
 #: Times a switched-off proposal is refitted again, each when the chain has doubled: from step 50,
-#: up to 12,800 steps. The chord moves spread the walkers early, so an early refit can fail where
-#: a later one serves (wide set-coverage draw 1001's first member: expected acceptance 0.08-0.13
-#: refitted at step 400, 0.47-0.64 at 800; with three retries it stopped at 2000 steps, tau 30).
+#: up to 12,800 steps (the chord moves spread the walkers early, so an early refit can fail where
+#: a later one serves).
 LAPLACE_MAX_RETRIES = 8
 #: Acceptance (expected, or realised over the last check) under which a proposal in use is
-#: refitted when the chain has doubled since its fit (its first fit rests on 25 steps: on M002's
-#: noise seed 5 a proposal expected at 0.52 and kept takes 470 steps, tau 10).
+#: refitted when the chain has doubled since its fit (its first fit rests on 25 steps).
 LAPLACE_GOOD_ACCEPTANCE = 0.6
 
 
@@ -236,9 +229,8 @@ class LaplaceAdaptation:
         chain (so a resumed run decides as the uninterrupted one), and under
         ``LAPLACE_MIN_REALISED`` the proposal is refitted again (at most
         ``LAPLACE_MAX_REFITS`` times, then the move is switched off). The trial's importance
-        weights only see where the proposal reaches: refitted while the walkers still spread
-        along a ridge, a proposal accepted at 0.23 over its first 50 steps can fall to an overall
-        0.06 (the ridge case without the checks: tau 150-220, not converged in 4000 steps). Each
+        weights only see where the proposal reaches, so a proposal refitted while the walkers
+        still spread along a ridge can fall far below its first acceptance. Each
         refit is kept in the checkpoint; the posterior's burn-in covers the last one."""
         move, info = self._laplace_move, self.laplace_
         if move is None:
@@ -251,7 +243,7 @@ class LaplaceAdaptation:
         last = int(info.get("checked_at", info["adapted_at"]))
         if info.get("share", 0.0) <= 0.0:
             # switched off while the walkers were still spreading along a ridge: tried again once
-            # the chain has doubled (the ridge case: 0.15 expected at step 200)
+            # the chain has doubled
             retries = int(info.get("retries", 0))
             tried = int(info.get("retried_at", info["adapted_at"]))
             if retries < LAPLACE_MAX_RETRIES and it >= 2 * tried:
@@ -278,12 +270,9 @@ class LaplaceAdaptation:
 
     def _refit_laplace(self, sampler, it, retry=False):
         """The independence proposal recentred on the chain's second half (its mean and
-        covariance), which the curvature at the optimum only approximates (M002 on one record:
-        tau 5.4 without the refit, 2.3 with it), then tried: ``2 n_walkers`` proposals (a seeded
+        covariance), which the curvature at the optimum only approximates, then tried: ``2 n_walkers`` proposals (a seeded
         draw, one batch of simulations) give its expected acceptance at equilibrium; under
-        ``LAPLACE_MIN_ACCEPTANCE`` the move is switched off and the DE moves take every step
-        (drawn truths whose posterior is far from Gaussian: acceptance 0.05-0.08, tau 80-95 with
-        the move kept).
+        ``LAPLACE_MIN_ACCEPTANCE`` the move is switched off and the DE moves take every step.
 
         ``retry``: the move is off and tried again. If it stays off, the chain's moves did not
         change, so neither does the burn-in (``adapted_at``, which the posterior's samples start

@@ -40,8 +40,7 @@ POLISH_GAIN = 0.1
 #: discrepancy factor over 1 (:meth:`StartSearch._scout`) ...
 SCOUT_STEPS = 60
 #: ... and how many of its most probable points are compared with that maximum; at most
-#: ``SCOUT_ROUNDS`` runs, each from the last one's better point (coverage draw 23: one round
-#: takes the factor from 30 to 3.2).
+#: ``SCOUT_ROUNDS`` runs, each from the last one's better point.
 SCOUT_CANDIDATES = 24
 SCOUT_ROUNDS = 3
 #: Misfit (as a discrepancy inflation) beyond which the local optimum is checked globally.
@@ -131,8 +130,8 @@ class StartSearch:
         if self.discrepancy:
             z0, factors = self._polish(lp, z0)
             if self.global_search and not searched and max(factors) > 1.0:
-                # still a misfit: a local optimum (the ridge case: 448 nats under the
-                # truth) or a wrong model; the global search tells them apart
+                # still a misfit: a local optimum or a wrong model; the global search
+                # tells them apart
                 z0, _ = self._polish(lp, _global_start(lp, z0, int(rng.integers(2**31)),
                                                        self.names_))
         return z0
@@ -140,8 +139,7 @@ class StartSearch:
     def _suspect_optimum(self, lp, z0) -> bool:
         """The local search's optimum misfits some recording by over ``SUSPECT_INFLATION`` times
         its noise, or has no finite posterior (a start without a cycle, where Nelder-Mead cannot
-        move): a local optimum (drawn truths: the start 30 % off, Nelder-Mead stops at lp -1456
-        where the truth has +114) or a wrong model; either way a global search is owed before the
+        move): a local optimum or a wrong model; either way a global search is owed before the
         discrepancy inflation is measured there."""
         return (not np.isfinite(lp(z0))
                 or max(self._inflations_at(lp, z0)) > SUSPECT_INFLATION)
@@ -151,11 +149,9 @@ class StartSearch:
         leaves some recording a discrepancy factor over 1 and the restart gains over
         ``POLISH_GAIN`` nats (at most ``POLISH_RESTARTS`` times); ``(z0, factors there)``.
 
-        The factor is measured where the search stopped; on a ridge an axis-aligned simplex stops
-        short of the maximum, and the misfit there reads as model discrepancy (the ridge case:
-        factors 1.6 and 2.9 for the right model, 1.0 at the truth), widening a right model's
-        intervals by up to 70 %. A right model at its maximum keeps 1, so a restart is owed
-        only while the factor is over 1.
+        On a ridge an axis-aligned simplex stops short of the maximum, and the misfit there
+        would read as model discrepancy; a right model at its maximum keeps 1, so a restart is
+        owed only while the factor is over 1.
         """
         ndim = len(z0)
         factors = self._inflations_at(lp, z0)
@@ -175,10 +171,8 @@ class StartSearch:
     def _scout(self, lp, z0, rng):
         """A better maximum than ``z0`` found by a short ensemble run, or None.
 
-        A discrepancy factor over 1 is measured at the optimum the searches return; when they
-        stop short of the maximum, a right model reads as a wrong one (coverage draw 23, one
-        limit cycle: factor 30 at that point, 1.0 at the truth, intervals widened to 108-400 %).
-        ``SCOUT_STEPS`` steps of DE moves under the inflated likelihood (wide, so the walkers
+        Where the searches stop short of the maximum, a right model's factor there reads as a
+        wrong model's. ``SCOUT_STEPS`` steps of DE moves under the inflated likelihood (wide, so the walkers
         roam) from around ``z0``; their best points are compared with ``z0`` without the
         inflation, and the best, polished, is returned if it gains over ``POLISH_GAIN`` nats.
         """
@@ -245,13 +239,8 @@ class StartSearch:
         """``laplace_`` at the start: the Laplace approximation at ``z0`` where it can serve as a
         proposal (:func:`laplace_covariance`), else the move idle (share 0) until its first refit
         to the chain (:meth:`_adapt_laplace`), which keeps it only if it would be accepted often
-        enough. Idle covers a curvature not resolved at an optimum not quite reached (M002, 2
-        noise seeds of 7: an eigenvalue of -164 beside 2e4-2e11; without the move the chains
-        take 710-750 steps instead of 90-130) and a maximum on a prior bound or on a ridge the
-        prior cuts, where the Hessian cannot be had (coverage draw 20: its optimum at friction
-        offset 0; with the DE moves alone 1500 steps, tau 26-81, not converged; idle, then on
-        from its third retry at step 400: converged in 680 steps, tau 5-7, the same
-        intervals)."""
+        enough. Idle covers a curvature not resolved at an optimum not quite reached and a
+        maximum on a prior bound or on a ridge the prior cuts, where the Hessian cannot be had."""
         cov = laplace_covariance(lp, z0, hess)
         if cov is not None:
             self.laplace_ = {"mean": z0.tolist(), "cov": cov.tolist()}
@@ -299,9 +288,8 @@ class StartSearch:
         (:meth:`.likelihood.features.FeatureTerm.transient_variance`)
         over the walkers' starting points ``z``, kept in the checkpoint; True if any is nonzero.
 
-        The waveform term has none: its imprint is correlated over the window (draw 20's truth:
-        0.18 noise sd per sample, 249 nats over 10,000 samples), which a per-sample variance
-        would not cover."""
+        The waveform term has none: its imprint is correlated over the window, which a
+        per-sample variance would not cover."""
         terms = [t for t in self.terms_ if hasattr(t, "transient_variance")]
         if not terms:
             return False
