@@ -63,10 +63,8 @@ def truths_from_recordings(recordings, names, hypothesis_name):
     return {n: truths.get(n) for n in names}
 
 
-#: Default RK4 step per likelihood (s). With the friction offset's jump located inside the step
-#: (``tvcid.models.nonlinearities.sign_switch_average``), the ridge case at 5e-4 s converges in 260 steps
-#: (27 s) with all four truths inside (HPD rank 0.30), against 970 steps (159 s) at 2.5e-4 s
-#: (``python -m tvcid.studies.benchmarks.calibration --case ridge``); records that need a finer step get
+#: Default RK4 step per likelihood (s), with the friction offset's jump located inside the step
+#: (``tvcid.models.nonlinearities.sign_switch_average``); records that need a finer step get
 #: one (:meth:`.likelihood.solver._WaveformSolverError._refine_step`). The features' first-order
 #: error is corrected instead.
 DEFAULT_DT = {"waveform": 5e-4, "features": 5e-4}
@@ -83,7 +81,7 @@ TRANSIENT_TOLERANCE = 0.5
 SETTLING_LOAD_LIMIT = 2.0
 #: Transient (s) of a record that fell back to its features (at least the given one): the
 #: coverage benchmark's, whose calibration the features' table measures; a slowly attracting
-#: cycle needs it (coverage draw 0 at 12 s: dead zone and friction offset outside at rank 1.00).
+#: cycle needs it.
 FALLBACK_TRANSIENT = 20.0
 
 
@@ -136,17 +134,9 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         Start each closed-loop run from the end state of the stored run nearest its parameters
         (within ``CONTINUATION_RADIUS``;
         :meth:`.likelihood.closed_loop._ClosedLoopTerm.continue_runs`), so that a proposal
-        continues its walker's cycle. Off by default: on M002's record it cuts
-        the worst log-likelihood error of proposals 0.3 % from their walkers (walkers 0.5-2 % off
-        the truth, against a 12 s transient) from 121 to 8 nats at a 3 s transient and from 9.9
-        to 0.9 at 6 s, but not the median (0.40 and 0.22 nats shared, 0.59 and 0.10 continued:
-        a nearby cycle is approached slowly). Over the calibration benchmark's seven M002 seeds
-        (``tvcid.studies.benchmarks.calibration --continuation``; 99.6 % of the runs continued) the
-        posteriors sit within 0.10 half-widths of a 12 s transient's at 6 s and at 3 s (0.15 and
-        0.08 without it) and the cost to convergence does not drop (median simulated seconds
-        35,729 at 6 s against 38,740 without; 35,794 at 3 s against 24,359 without, chains of
-        140-280 steps); a resumed chain, whose stored states are not checkpointed, would not
-        repeat the uninterrupted one.
+        continues its walker's cycle. Off by default: it cuts the worst transient error but not
+        the median one nor the cost to convergence, and a resumed chain, whose stored states are
+        not checkpointed, would not repeat the uninterrupted one.
     dt : float or None
         RK4 step of the simulations (each output-error record may halve it further,
         :meth:`.likelihood.solver._WaveformSolverError._refine_step`). Default ``DEFAULT_DT``,
@@ -196,8 +186,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         stay over 1, and with a short ensemble run (:meth:`.start.StartSearch._scout`) before the
         inflation is set. ``False`` when the start
         already is a global search's optimum on the same recordings (``tvcid discover``'s winner):
-        a misfit left there is the model's, and both searches only repeat that search (M000's four
-        records: 37 s and 20 s of the stage's 123 s, the same optimum).
+        a misfit left there is the model's, and both searches only repeat that search.
     importance : int
         Points per round of the importance stage (:mod:`.importance_stage`); 0 (default) goes
         straight to the chain. When on and the start's Laplace approximation is usable, rounds
@@ -422,8 +411,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         still moves by over ``SETTLING_LOAD_LIMIT`` nats between transients of
         ``max(TRANSIENT_REFERENCE, 2 transient)`` s and twice that
         (:meth:`.likelihood.waveform.WaveformTerm.settling_load`). Measured at the maximum, whose
-        own cycle has the record's size, so that a start far off does not count its own distance
-        (coverage draw 22 at its truth: 990 nats; M002 and the ridge case: 0.0-0.11).
+        own cycle has the record's size, so that a start far off does not count its own distance.
         """
         params = lp.params_for(lp.natural(z0)[0])
         if params is None:
@@ -474,10 +462,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         Check points: the walkers and as many points ``z0 + 2 axes N(0, 1)`` (where a chain
         goes). The log-likelihood at each candidate transient is compared with the reference's
         (``max(TRANSIENT_REFERENCE, 2 * transient)``); the shortest candidate whose largest error
-        is within ``TRANSIENT_TOLERANCE`` nats is kept. On M002's 10 s record (seeds 1-4) the
-        errors at the walkers and twice as far are at most 1.04 nats at 2 s, 0.22 at 3 s, 0.11
-        at 4 s and 0.28 at 6 s; 0.5-2 % off the truth, outside the posterior, 3 s is 121 nats
-        off, which no chain visits. Kept in the checkpoint.
+        is within ``TRANSIENT_TOLERANCE`` nats is kept. Kept in the checkpoint.
         """
         wide = z0 + 2.0 * rng.standard_normal((len(walkers), len(z0))) @ axes.T
         points = np.vstack([walkers, wide])
