@@ -100,8 +100,8 @@ SETTLING_WINDOWS = 2.0
 #: A record counts as still settling when, over its whole length, an exponential approach
 #: explains its pieces' frequency or size this much better than a constant (chi-square gain in
 #: units of the fit's own residual variance where that exceeds the noise): an F of 50, p ~ 1e-5 at
-#: 12 pieces; at 25, two settled records whose pieces scatter beyond their noise (coverage draws
-#: 1 and 13) would count as settling ...
+#: 12 pieces (a lower gain lets settled records whose pieces scatter beyond their noise count
+#: as settling) ...
 SETTLING_FIT_GAIN = 100.0
 #: ... from at least this many pieces (three parameters and three degrees of freedom).
 SETTLING_MIN_PIECES = 6
@@ -143,17 +143,14 @@ class FeatureTerm(_ClosedLoopTerm):
     ``n_mc`` noise draws), plus twice the cycle's own window-to-window wander measured on
     ``n_segments`` pieces of the window (zero for a periodic cycle), plus the uncertainty of the
     settled features when the cycle is still settling over the window (zero for a settled one),
-    plus an optional relative ``floor``. For the bundled M000 records the estimated wander of a
-    10 s window's frequency is 0.43 % (controller A) and 0.36 % (B), while 40 windows of a 420 s
-    run spread by 0.12 % and 0.06 %: per feature the estimate is 1.1-3.8x (A) and 3.9-7.5x (B)
-    the measured spread, i.e. conservative (``tests/test_calibration_features.py``).
+    plus an optional relative ``floor``. The wander estimate is conservative
+    (``tests/test_calibration_features.py``).
     """
 
     kind = "features"
     #: The covariance follows the sampled noise sd (scaled by ``sigma / sigma_hat``); ``False``
     #: keeps the record's own noise estimate (a record that fell back from the waveform: its 15
-    #: numbers cannot estimate the noise, and a sigma free to shrink narrows coverage draw 0's
-    #: dead-zone interval 4x, the truth outside it).
+    #: numbers cannot estimate the noise).
     noise_from_sigma = True
 
     def __init__(self, recording, window, transient, dt, name=None, features=DEFAULT_FEATURES,
@@ -234,7 +231,7 @@ class FeatureTerm(_ClosedLoopTerm):
         not continue each other (:meth:`continue_runs`) and carry no start imprint
         (:meth:`transient_variance`): the imprint is the record's. A run started at the window's
         size instead has settled by the window, which the record has not
-        (``tests/test_calibration_features.py``, coverage draw 15's settling record).
+        (``tests/test_calibration_features.py``).
 
         Returns ``(rms, seconds, piece)``, or ``None`` for a record that does not settle (runs
         start at the window's size).
@@ -279,13 +276,10 @@ class FeatureTerm(_ClosedLoopTerm):
         """As :meth:`_ClosedLoopTerm.simulate`; for a record that settles, each run starts with
         its size corrected so that its own first piece has the record's rms.
 
-        One start size for every parameter set makes the approach's imprint on the window depend
-        on how far each set's cycle is from that start: with a shared start, coverage draw 15's
-        dead zone and friction offset lie just outside intervals 0.6 % wide (rank 0.01), and
-        draw 12's chain does not converge in 1500 steps. Matched per set, every run begins its
-        approach from the record's first size, as the record did. The first piece alone is
-        simulated to size the start (M000's cycle B: 2.9 s of a 32.6 s run), then the whole run
-        once from the corrected start.
+        One start size for every parameter set would make the approach's imprint on the window
+        depend on how far each set's cycle is from that start; matched per set, every run begins
+        its approach from the record's first size, as the record did. The first piece alone is
+        simulated to size the start, then the whole run once from the corrected start.
         """
         ws = self.simulator.warm_start
         if self.record_start is None or ws is None:
@@ -332,20 +326,13 @@ class FeatureTerm(_ClosedLoopTerm):
         walkers' starting points).
 
         A run starts on the reference cycle, not on its own; where the cycle attracts slowly, or is
-        not periodic, the window's features still depend on that start. A drawn truth (coverage
-        draw 20: dead zone on the velocity signal with a friction offset, settling time ~5 s),
-        started from a cycle 30 % off in the delay, changes its log-likelihood by 155 nats between
-        transients of 20 and 60 s (``tests/test_calibration_features.py``), and a sampler that
-        ignores this reads the start's imprint as information: the dead zone / friction offset
-        ridge's mass sits 40 % below the truth. The change to later windows measures that imprint,
-        and how much a window's features depend on where the window falls on the model's own
-        cycle, which the data's pieces may not show: a period-2 cycle (a 200 Hz held controller
-        with the band-pass loop: periods alternating 0.751 and 0.817 s) reads 7.985, 8.015 or
-        8.044 rad/s over a 10 s window by the parity of its periods, 80 noise sd apart. Against
-        one next window that spread is seen or missed by chance (discrepancy factors 1.5 and 89
-        at the truth for transients of 20 and 6 s); against three the recorded window and the
-        simulated one are both draws of it (``tests/test_calibration_features.py``). Its square
-        is added to the features' variance like the solver's error. Zero for a cycle that has
+        not periodic, the window's features still depend on that start, and a sampler that
+        ignores this reads the start's imprint as information. The change to later windows
+        measures that imprint, and how much a window's features depend on where the window falls
+        on the model's own cycle, which the data's pieces may not show (a period-2 cycle's
+        features depend on the parity of the periods in the window); against several windows the
+        recorded window and the simulated one are both draws of that spread
+        (``tests/test_calibration_features.py``). Its square is added to the features' variance like the solver's error. Zero for a cycle that has
         settled within the transient, and for a record that settles (:meth:`_record_start`).
         """
         if self.record_start is not None:
@@ -377,13 +364,9 @@ class FeatureTerm(_ClosedLoopTerm):
 
         With a dead zone, a backlash or a held controller RK4 converges at first order near each
         switching event, and over a 10-40 s record the features are known to a precision the
-        step's error can exceed by tens of sd (a drawn truth at dt = 5e-4 misses its own data's
-        H1 by 61 sd; at 2.5e-4 the features move by about as much). The error is one-signed and
-        alike across a design's records, so the parameters can absorb it if it is only counted as
-        variance: coverage draw 16 (three limit cycles, noise 1.9e-5 rad) has H1 2.3, 3.9 and 1.1
-        sd low at the truth at 5e-4 s uncorrected, 0.14-0.32 sd from a 5e-5 s simulation's
-        corrected (that draw's posterior, whose dead zone sits 5 % below the truth, is decided by
-        its open-loop square). Zeros when the halved step does not fit the grid.
+        step's error can exceed by tens of sd. The error is one-signed and alike across a
+        design's records, so the parameters would absorb it if it were only counted as variance;
+        hence the correction. Zeros when the halved step does not fit the grid.
         """
         return self.solver_correction([params], warm_start)
 
@@ -395,8 +378,7 @@ class FeatureTerm(_ClosedLoopTerm):
         The change is not smooth in the parameters: near a held controller's or a dead zone's
         switching events it jumps from point to point, so that one point can be a special one
         where halving the step moves a feature many times more (or less) than at its neighbours
-        (measured in ``tests/test_calibration_features.py``, over points within 1 % of a drawn
-        truth). A correction taken at one such point shifts every draw's
+        (``tests/test_calibration_features.py``). A correction taken at one such point shifts every draw's
         likelihood by that much; the median is the systematic part. The mean square is what a
         one-point variance is on average, and it covers the points where the change is far from
         the median.
@@ -443,11 +425,9 @@ class FeatureTerm(_ClosedLoopTerm):
         variance) more than sensor noise makes it at that length (``n_mc`` noise draws spread over
         the pieces), the excess, divided by the number of pieces for the whole window.
 
-        Settling: a cycle still growing or shrinking towards its limit (a drawn truth's amplitude
-        takes ~20 s to settle; its record's last 10 s sit 7 % under the settled H1, 5 sd of the
-        noise-and-wander covariance, which costs the right model a 58x inflation unless the
-        settled value is taken as unknown) shows a trend
-        across the pieces. Where the trend is clear (slope over ``SETTLING_SLOPE_SD`` times its
+        Settling: a cycle still growing or shrinking towards its limit (which would cost the right
+        model a large discrepancy inflation unless the settled value is taken as unknown) shows a
+        trend across the pieces. Where the trend is clear (slope over ``SETTLING_SLOPE_SD`` times its
         noise-only standard error, and over ``SETTLING_R2`` of the pieces' spread), the settled
         value the model simulates is taken as unknown by ``SETTLING_WINDOWS`` times the drift
         over the window (sd), the gap left by a settling time of up to that many windows; the
@@ -491,15 +471,13 @@ class FeatureTerm(_ClosedLoopTerm):
                      & (explained > SETTLING_R2))
             drift = slope * (self.tau[-1] - self.tau[0])
             # a cycle whose size is settling moves the frequency too, even where its own trend
-            # is too small to pass the test (draw 2: 0.07 % over the record, the settled
-            # frequency 12 noise sd beyond the record's)
+            # is too small to pass the test
             sizes = [i for i, n in enumerate(self.features) if n in ("H1", "amplitude")]
             growing = bool(clear[sizes[0]]) if sizes else False
             settling = np.where(clear | growing, (SETTLING_WINDOWS * drift) ** 2, 0.0)
             # the harmonics move with the amplitude, but over a few periods their estimates
-            # scatter by more than their slow drift (the drawn truth's H3: 2.63, 2.58, 2.59, 2.61
-            # e-4, missing its settled 2.53 by 3 %) and a wander can look like a trend (M000's
-            # B: H7 "drifted" by 3x its size): the amplitude's relative drift stands for them
+            # scatter by more than their slow drift and a wander can look like a trend: the
+            # amplitude's relative drift stands for them
             if sizes:
                 i = sizes[0]
                 relative = abs(drift[i]) / max(abs(self.observed[i]), 1e-300) if clear[i] else 0.0
