@@ -228,12 +228,8 @@ DIFFERENCE_RIDGES = (("dead_zone", "friction_offset"),)
 def ridge_coordinates(priors, names, params) -> dict:
     """``priors`` with each width of a :data:`DIFFERENCE_RIDGES` pair sampled in linear
     coordinates when both of the pair are sampled (and, for the dead zone, it acts on the velocity
-    signal), so that the ridge is straight for the affine-invariant moves.
-
-    On a drawn truth (coverage draw 7: 3 limit cycles and an open-loop square) the profile
-    posterior along ``z - off = const`` stays within 8 nats over 0.65-1.07 times the true dead
-    zone while ``z - off`` is pinned to 0.05 %: in ``(ln z, off)`` that ridge bows 40 times its
-    own thickness, and a 1500-step chain covered a third of it, away from the truth.
+    signal), so that the ridge is straight for the affine-invariant moves (in ``(ln z, off)``
+    the ridge ``z - off = const`` bows many times its own thickness).
     """
     out = dict(priors)
     for width, offset in DIFFERENCE_RIDGES:

@@ -118,11 +118,8 @@ def convergence_report(sampler, tau_factor=50.0, new_steps=0, wall_time=0.0) -> 
 
     The walkers' way in from their start (a maximum a posteriori a few sd off the bulk, a spread
     along a ridge) is a trend that the autocorrelation estimate reads as slow mixing for the whole
-    run: coverage draw 5's walkers settled within 100 steps and then mixed with tau 6-7, while
-    the whole chain's tau stayed at 37-39 to step 1,200, so it was never called converged. The
-    second half alone is the chain with the first half taken as burn-in (emcee's advice: estimate
-    tau after discarding it); a stationary chain passes on the whole first, at the same steps as
-    before.
+    run. The second half alone is the chain with the first half taken as burn-in (emcee's advice:
+    estimate tau after discarding it); a stationary chain passes on the whole first.
     """
     it = int(sampler.iteration)
     ndim = sampler.ndim

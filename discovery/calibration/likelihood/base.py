@@ -150,9 +150,7 @@ def features_inflation(whitened) -> float:
     ``DISCREPANCY_P`` of records counts, so the factor starts from 1 at the test's threshold
     instead of jumping to ``q / k`` (2.2 for five features), and tends to ``chi2 / k`` for a large
     misfit. The test's false alarms on right models (one record in twenty by construction) then
-    cost little: coverage draw 13, the truth's own structure with a tail noise realisation
-    (chi-square 14.8 at the truth, 13.3 at the maximum), is inflated 1.44x, its backlash's
-    interval 12 % wider than uninflated.
+    cost little.
     """
     from scipy.stats import chi2 as chi2_dist
 

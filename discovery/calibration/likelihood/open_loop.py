@@ -85,7 +85,7 @@ class OpenLoopTerm(_WaveformSolverError, LikelihoodTerm):
         the step's grid or where they are, whichever is closer to a fine simulation of them
         (:meth:`edge_loads`), and that way's load counts with the step-doubling one: the grid's
         shift error does not shrink when only the solver's step is halved, so step doubling alone
-        cannot see it (coverage draw 16's 200 Hz square at its truth: 40 at 5e-4 s, unseen)."""
+        cannot see it."""
         self.start_params = start_params
         self._build_for(start_params)
         self._refine_step(start_params, warm_start, self._build)
@@ -154,13 +154,8 @@ class OpenLoopTerm(_WaveformSolverError, LikelihoodTerm):
         ``grid_at_timing`` and ``centre_at_timing``: at the record's most probable timing at
         ``params``, which the likelihood reads (and where :meth:`_recentre_edges` puts the
         edges), against those edges on the finer grid shifted by under ``dt / 16``; they choose
-        the way. At the centre alone a 200 Hz square's edges fall on the grid, where both ways
-        are one simulation: coverage draw 18 (band-pass loop, a 2.56 Hz square at 200 Hz, noise
-        2.2e-5 rad) has both loads 0.76 there, while the grid's response shifted 2.4 ms to the
-        record's timing sits 2.5e-5 rad rms from the exact edges' (chi-square 2,900 at the
-        truth; 249 against 5.7 for its own edges): chosen at the centre, the way leaves its right
-        model a discrepancy factor of 6.1 and its dead zone and delay outside intervals 0.2 %
-        wide.
+        the way: at the centre alone a 200 Hz square's edges fall on the grid, where both ways
+        are one simulation and cannot be told apart.
         """
         from tvcid.models.edge_timing import EdgeTiming
 

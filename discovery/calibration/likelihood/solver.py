@@ -99,13 +99,10 @@ class _WaveformSolverError:
         at ``params`` adds more than ``SOLVER_LOAD_LIMIT`` to the record's chi-square
         (:attr:`solver_load`). Near switching events RK4 converges at first order, and the error,
         though under the noise sample by sample, is one-signed over thousands of samples, so the
-        parameters can absorb it (a shifted delay cancels a phase error) where a variance cannot.
-        On coverage draw 10's 1 kHz square under low noise the step is halved, and the truth's
-        log-likelihood lies within 15 nats of a term started 8x finer, where at 5e-4 s it is 363
-        nats off (``tests/test_command_replay.py``).
-        The load falls as the step squared (M000's bundled square: 184, 46, 10.4 and 2.5 at 1/1,
-        1/2, 1/4 and 1/8 of 5e-4 s), so the next divisor is the one that squared law puts under
-        the limit (M000's square: 1/5, load 6.7, rather than halving on to 1/8: 5 steps for 8).
+        parameters can absorb it (a shifted delay cancels a phase error) where a variance cannot
+        (``tests/test_command_replay.py``).
+        The load falls as the step squared, so the next divisor is the one that squared law puts
+        under the limit.
         A divided step that does not fit the output grid reports no change and is kept.
         The load is measured at ``params``, from step ``dt`` (default the term's ``dt``) down;
         :meth:`refine_at` repeats it at the maximum a posteriori.
@@ -127,10 +124,8 @@ class _WaveformSolverError:
         """The step check of :meth:`setup` again at ``params`` (the maximum a posteriori), from
         the present step down (never coarser), and the solver variance measured there.
 
-        The load moves with the parameters: on coverage draw 10's 1 kHz square (1e-4 rad noise)
-        it is 53.9 at 5e-4 s at the truth and 56.0 with the backlash 30 % short
-        (``tests/test_command_replay.py``), so a check at the start alone can keep a step the
-        maximum a posteriori needs halved."""
+        The load moves with the parameters (``tests/test_command_replay.py``), so a check at the
+        start alone can keep a step the maximum a posteriori needs halved."""
         self._refine_step(params, self._warm, self._build, dt=self.simulator.dt)
         return self
 

@@ -53,10 +53,8 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
     features likelihood is the one to use.
 
     A constant sensor offset is profiled out (the mean residual, one number against thousands of
-    samples), as the open-loop term and the features (which compare no mean) do: kept, a
-    record's offset of 2.8e-4 rad (coverage draw 22, noise 2.6e-5) would leave the right model an
-    rms residual of 2.8e-4 at the truth, a discrepancy factor of 24 and a dead zone outside its
-    90 % interval.
+    samples), as the open-loop term and the features (which compare no mean) do; kept, an
+    offset would read as the right model's misfit.
     """
 
     kind = "waveform"
@@ -96,12 +94,8 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
 
         A measure of how fast the cycle attracts at the waveform's resolution. Where it attracts
         slowly, a recording of it, made some unknown time after its start, may still be settling,
-        and runs started on a cycle of the record's size carry their start's imprint: coverage
-        draw 22 (dead zone on the velocity signal, controller held at 200 Hz, its record's window
-        21-31 s after the kick; 990 nats at its truth with a 20 % larger start) has a record
-        4.6e-6 rad rms from the settled cycle over the window's first half and 1.2e-6 over its
-        second (noise 2.6e-5); compared as a waveform, its truth lies 75 nats under a point whose
-        dead zone and delay lie outside their 90 % intervals.
+        and runs started on a cycle of the record's size carry their start's imprint, both of
+        which a waveform comparison would read as parameters.
         """
         ws = self.warm_start_of(params, self.simulator.dt, t_ref=SETTLING_REFERENCE,
                                 rms_target=(1.0 + perturbation) * self.cycle_rms)
