@@ -5,8 +5,8 @@ at the old level and the first at the new one: a window of 5 ms, the size of the
 identified. Over several edges of a regular square the common phase and the half period are narrowed
 (:func:`tvcid.models.commands._edge_polygon`), but rarely below a fraction of a sample. In open loop that
 timing trades one for one with the delay, so any single replay (the samples, the hold, the centre)
-biases the delay, and a Gaussian approximation of the response's spread over the timings still pulls
-a drawn truth's delay by 10-17 us, 2.4 nats (coverage draw 1). Here the timing is what it is, a
+biases the delay, and so does a Gaussian approximation of the response's spread over the
+timings. Here the timing is what it is, a
 nuisance ``theta = (phase, half period)`` uniform over every value the samples allow, and the
 likelihood is its integral over them.
 How (one simulation per parameter set, no more):
@@ -15,14 +15,12 @@ How (one simulation per parameter set, no more):
   between steps costs RK4 first-order accuracy: up to 1e-4 rad near each edge at 5e-4 s);
 * the response to edges at ``e_j(theta) = c_j + phase + j * half`` is the simulated one shifted,
   segment by segment, by ``e_j(theta) - g_j`` (``g_j`` the grid edge): exact for a time-invariant
-  system whose response to an edge has settled before the next, and 3-4x closer to a 1e-5 s
-  reference than simulating the off-grid edges directly (draw 1's truth, 0.13 ms shift);
-* a response that never settles between edges (a band-pass loop hunting on the plateaus,
-  coverage draw 5: its phase at the next edge moves with the plateau's length) is not a shifted
-  copy; the owner then simulates the edges where they are, at the most probable timing for
-  the parameters it was last checked at (:meth:`EdgeTiming.simulate_at`), and shifts only from
-  there (draw 5's square at its truth, noise-free: rms 5.6e-5 rad from the grid, 2.2e-6 from
-  the edges themselves, noise 8.9e-5);
+  system whose response to an edge has settled before the next, and closer to a fine
+  reference than simulating the off-grid edges directly;
+* a response that never settles between edges (a band-pass loop hunting on the plateaus: its
+  phase at the next edge moves with the plateau's length) is not a shifted copy; the owner then
+  simulates the edges where they are, at the most probable timing for the parameters it was
+  last checked at (:meth:`EdgeTiming.simulate_at`), and shifts only from there;
 * the likelihood in ``theta`` is a needle (an edge's response pins its time to microseconds), so
   its integral is the Laplace approximation at the Gauss-Newton optimum inside the feasible set:
   ``ll(theta*) + d/2 log 2 pi - 1/2 log det H - log(area)``, never above ``ll(theta*)``
@@ -107,8 +105,7 @@ class EdgeTiming:
     def simulate_at(self, theta, dt, on_grid=False):
         """Simulate the edges at timing ``theta`` where they are (off the step grid; shifts are
         then taken from there): for a response that does not settle between edges, whose shifted
-        copy errs in proportion to the shift (coverage draw 5's square, 4 s: theta 0.9 ms from
-        the centre, rms 2.9e-5 rad against noise 8.9e-5 when simulated at the centre).
+        copy errs in proportion to the shift.
         ``on_grid`` rounds them to the grid of step ``dt`` (shifts then under ``dt / 2``)."""
         theta = np.asarray(theta, dtype=float)
         off = theta[0] + (self.index * theta[1] if self.dim == 2 else 0.0)

@@ -28,10 +28,8 @@ __all__ = [
 
 #: Hysteresis of the crossing detector, as a fraction of the half peak-to-peak amplitude.
 CROSSING_HYSTERESIS = 0.1
-#: ... and at least this many times the white noise's sd (:func:`white_noise_sd`): a small cycle
-#: under sensor noise (coverage draw 5: 3.5e-4 rad at 1.9 Hz, noise 8.9e-5 rad at 200 Hz) made
-#: noise crossings through a hysteresis of 10 % of its amplitude, and its frequency read 21.3
-#: rad/s instead of 11.95.
+#: ... and at least this many times the white noise's sd (:func:`white_noise_sd`), so that the
+#: noise on a small cycle makes no crossings of its own.
 NOISE_HYSTERESIS = 3.0
 
 
