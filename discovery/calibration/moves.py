@@ -8,8 +8,9 @@ Metropolis-Hastings *independence* proposal drawn from a widened multivariate t 
 accepted most of the time and forgets the walker's position at once (Robert & Casella 2004,
 section 7.4; the t's tails keep the importance ratio bounded where the Gaussian is too narrow).
 Mixed with the DE moves, which carry the chain where the approximation is poor, the mixture keeps
-detailed balance move by move. Where the Laplace approximation cannot serve (a ridge cut by the prior, a maximum on a
-prior bound: :func:`tvcid.discovery.calibration.optimum.laplace_covariance`) the move waits idle
+detailed balance move by move. Where the Laplace approximation cannot serve (a ridge cut by the
+prior, a maximum on a prior bound: :func:`tvcid.discovery.calibration.optimum.laplace_covariance`)
+the move waits idle
 until it can be fitted to the chain; a proposal that would be accepted under a quarter of the
 time is not switched on (:meth:`LaplaceIndependenceMove.expected_acceptance`).
 
@@ -100,7 +101,8 @@ class PriorChordMove(emcee.moves.RedBlueMove):
     direction the recordings do not pin (a band-pass gain deep in saturation, a hydraulic
     resonance far above the cycle, a backlash below what the cycle resolves) the chord's points are
     accepted about as often as the prior allows, and a walker crosses the whole prior in one step,
-    where the differential-evolution moves diffuse across it at the ensemble's own spread. Along a pinned direction the move is accepted rarely and costs one simulation.
+    where the differential-evolution moves diffuse across it at the ensemble's own spread. Along a
+    pinned direction the move is accepted rarely and costs one simulation.
 
     Parameters
     ----------
@@ -270,8 +272,9 @@ class LaplaceAdaptation:
 
     def _refit_laplace(self, sampler, it, retry=False):
         """The independence proposal recentred on the chain's second half (its mean and
-        covariance), which the curvature at the optimum only approximates, then tried: ``2 n_walkers`` proposals (a seeded
-        draw, one batch of simulations) give its expected acceptance at equilibrium; under
+        covariance), which the curvature at the optimum only approximates, then tried:
+        ``2 n_walkers`` proposals (a seeded draw, one batch of simulations) give its expected
+        acceptance at equilibrium; under
         ``LAPLACE_MIN_ACCEPTANCE`` the move is switched off and the DE moves take every step.
 
         ``retry``: the move is off and tried again. If it stays off, the chain's moves did not

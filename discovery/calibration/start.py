@@ -172,8 +172,8 @@ class StartSearch:
         """A better maximum than ``z0`` found by a short ensemble run, or None.
 
         Where the searches stop short of the maximum, a right model's factor there reads as a
-        wrong model's. ``SCOUT_STEPS`` steps of DE moves under the inflated likelihood (wide, so the walkers
-        roam) from around ``z0``; their best points are compared with ``z0`` without the
+        wrong model's. ``SCOUT_STEPS`` steps of DE moves under the inflated likelihood (wide, so the
+        walkers roam) from around ``z0``; their best points are compared with ``z0`` without the
         inflation, and the best, polished, is returned if it gains over ``POLISH_GAIN`` nats.
         """
         import emcee

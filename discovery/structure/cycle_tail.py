@@ -209,8 +209,8 @@ def cycle_of(t, x, multiple=None):
     (:func:`crossing_multiple`); ``None`` decides from ``x`` itself. A simulation compared with a
     record must be measured the same way: a cycle whose lobes alternate a little (a controller
     held at 200 Hz) is read as period 1 over a long record and as period 2 over a short simulated
-    window, and a decision taken afresh per run turns a 0.5 % change of a parameter into a jump
-    of the features by a factor of two (benchmark draw 1002: cost 0.8 -> 1500).
+    window, and a decision taken afresh per run would turn a small change of a parameter into a
+    jump of the features by a factor of two.
     """
     level = float(np.mean(x))
     # the record's crossings are counted with the same Schmitt trigger (a flat stretch of the

@@ -12,10 +12,7 @@ vectors, in the target's units (a cost is a mean of squared residuals, about 1 f
 model), so it reads on the scale of the discovery's scores.
 
 That comparison at fixed parameters (the discrimination designs of Box and Hill, 1967) screens
-the whole menu, but a refit absorbs most of it: benchmark draw 1010's six structures (one limit
-cycle and a slow sine) were predicted 0.4-59 apart on a 20 mrad 8 Hz square, yet once that test
-was recorded from the truth, each refitted from its optimum to all three recordings came within
-0.055 of the others (total costs 2.098-2.153). So the ``REFIT_CANDIDATES`` best candidates are
+the whole menu, but a refit absorbs most of it. So the ``REFIT_CANDIDATES`` best candidates are
 weighed again as T-optimal designs do (Atkinson and Fedorov, 1975): each member's record of the
 test is made (one noise realisation for all), every other member is refitted by least squares
 from its optimum to the recordings so far and that record together, and what its cost rises,

@@ -86,10 +86,7 @@ def margin_floors(targets):
 
     A wandering cycle (the band-pass loop's) costs even the generating model about its window
     cost, from where the simulated window falls in the wander, and that cost scatters by about
-    as much from one fit to the next; a score difference below it is no evidence. On benchmark
-    draw 1000 (two band-pass cycles at 200 Hz, window costs 0.24 and 0.22; the truth's own cost
-    0.93) a wrong delay position scores 0.225 better than the truth's structure: outside the
-    default floors' margin of 0.2, inside these floors' margin
+    as much from one fit to the next; a score difference below it is no evidence
     (``tests/test_discover.py::test_wandering_cycles_raise_the_margin_floor``).
     """
     return np.array([max(TOL_ABS, t.window_cost) for t in targets])

@@ -117,11 +117,7 @@ def rank(fits, spaces, targets, dt, rank_nfev, max_ranked, progress=False):
 
     Open-loop recordings are simulated here at a step ``RANK_OPEN_LOOP_REFINEMENT`` times
     finer than the search's: the search step's own error is not the same in every structure,
-    and the ranking must not read it as evidence. On benchmark draw 1017 (delay before the first
-    integrator, two squares at 1 kHz) the true structure refits at 0.724 at 5e-4 s against
-    0.637 for the delay before the integrator, its squares' residual 1.4e-5 rad rms at the
-    truth against a noise of 1.2e-5; at 2.5e-4 s the three delay positions fit at 0.638-0.647,
-    as indistinguishable as they are (``tests/test_discover_ranking_step.py``).
+    and the ranking must not read it as evidence (``tests/test_discover_ranking_step.py``).
 
     Parameters
     ----------

@@ -264,14 +264,12 @@ class StructureSearch:
         search on all recordings then keeps, for every coordinate the open-loop tests pin, only
         ``OPEN_LOOP_BOX`` local spreads around that fit. The limit cycles' features jump where the
         cycle changes shape, and a cycle at the scale of the dead zone does so within a fraction
-        of a percent of the linear block (benchmark draw 1002: costs 100-50,000 within 1 % of the
-        true static gain), where a search of the whole box finds no basin. Least squares then
-        runs in the whole box.
+        of a percent of the linear block, where a search of the whole box finds no basin. Least
+        squares then runs in the whole box.
 
         On limit cycles alone the whole box is searched, and one short search often ends in
-        another basin (benchmark draw 1023, the true structure: searches from independent starts
-        end at 0.17-113 against the truth's 0.35), so the search is repeated until its best two
-        agree (:func:`best_of_restarts`, at most ``WHOLE_BOX_RESTARTS``).
+        another basin, so the search is repeated until its best two agree (:func:`best_of_restarts`,
+        at most ``WHOLE_BOX_RESTARTS``).
 
         ``seeds``: parameter objects of the structure (:func:`_valid`) placed in the first
         population. Returns a :class:`.search.FitResult`.
@@ -305,10 +303,8 @@ class StructureSearch:
         (:func:`best_of_restarts`, at most ``OPEN_LOOP_RESTARTS``).
 
         One search alone often stops in another basin, and short searches from independent
-        starts fail independently. Some draws need many: on benchmark draw 1019 (a dead zone with
-        a backlash, two squares at 200 Hz) most searches end at 27-42 and few near the truth's
-        0.72. ``tests/test_discover.py::test_open_loop_stage_reaches_the_open_loop_optimum``
-        checks the stage on benchmark draw 1002.
+        starts fail independently. The stage is checked by
+        ``tests/test_discover.py::test_open_loop_stage_reaches_the_open_loop_optimum``.
         """
         pop, gens = self.sizes.open_pop, self.sizes.open_gens
         best = best_of_restarts(
@@ -450,12 +446,8 @@ def delay_moved(params, position):
     after it, ``K1 e^{-s Td} / (s^2 + K2 s + K3)`` (:func:`tvcid.models.linear.second_order_response`).
     The moved block is the one whose frequency response matches the given one over
     ``MATCHED_BAND`` of the given block's natural frequency ``sqrt(K3)`` (log gain and phase, least
-    squares), started from the first-order match (:func:`_first_order_moved`). The first-order
-    match alone fails where ``K2 Td`` is not small: benchmark draw 1019's delay-inside fit (K2 Td =
-    0.4) moved outside by it is 29 % off in gain and 0.27 rad in phase within the band, Td 7.8 ms
-    for the truth's 3.7 ms, and least squares from there stops at cost 133 against 0.72; matched
-    over the band it is within 0.1 % and 0.005 rad, and least squares lands at the truth's block
-    within 2 % (Td 3.9 ms). M000's 1.7 ms inside reads as 2.1 ms outside. The two outer positions
+    squares), started from the first-order match (:func:`_first_order_moved`), which alone fails
+    where ``K2 Td`` is not small. The two outer positions
     (before the integrator, at the output) share the block.
     """
     inner = DelayPosition.BEFORE_FIRST_INTEGRATOR

@@ -89,13 +89,7 @@ PERIODS = 6
 #: Periods of the record's cycle the simulated window holds at least and at most: as many as the
 #: record's tail (30 % more time is simulated). The record's features average over its whole tail
 #: (20-60 periods); a cycle that wanders (a band-pass loop not locked to it, a controller held at
-#: 200 Hz) gives a short window's features far from that mean, by where the window falls: on M000
-#: held at 200 Hz and recorded at 200 Hz (:mod:`tvcid.studies.benchmarks.heldout_cases`) the truth costs
-#: 0.28-0.65 on the first cycle from windows of 6 periods, 0.04-0.10 from 12 and 0.04-0.05 from
-#: 24, while periodic wrong structures fit at 0.04-0.1; a drawn truth with two band-pass cycles at
-#: 200 Hz (set-coverage draw 1000 of the wide ranges) costs 0.84 from windows of 12 periods
-#: (0.04-0.77 on its second cycle as the window moves), 0.23 from 24 and 0.14 from 36, where a
-#: wrong delay position fits at 0.23 and took its place in the set.
+#: 200 Hz) gives a short window's features far from that mean, by where the window falls.
 WINDOW_PERIODS = 12
 MAX_WINDOW_PERIODS = 24
 #: Output rate (Hz) of the closed-loop simulations: 35x the 7th harmonic of a 2 Hz cycle.
@@ -285,8 +279,8 @@ class CycleTarget(_Target):
     def initial_conditions(self, params=None):
         """Actuator initial conditions (fields of ActuatorParams) of a simulation of ``params``:
         the record's cycle state's (:meth:`tvcid.models.cycle_state.RecordedCycleState.initial_conditions`;
-        with the record's rate ``y = x'`` alone, a model with coexisting cycles settled on one the
-        record does not show on benchmark draw 1005: cost 89 at the truth, 0.17 with this start).
+        with the record's rate ``y = x'`` alone, a model with coexisting cycles can settle on one
+        the record does not show).
         """
         return self.initial.initial_conditions(params)
 
@@ -296,8 +290,7 @@ class CycleTarget(_Target):
         ``SECOND_START_COST``.
 
         A model with coexisting cycles shows the one its (unrecorded) initial conditions select;
-        each start alone missed the truth's recorded cycle on some benchmark draws (the consistent
-        start on draw 1002's second record, ``y = x'`` on draws 1005 and 1041).
+        each start alone misses the truth's recorded cycle on some records.
         """
         return self._simulated(param_sets)[2]
 

@@ -332,8 +332,9 @@ class FeatureTerm(_ClosedLoopTerm):
         on the model's own cycle, which the data's pieces may not show (a period-2 cycle's
         features depend on the parity of the periods in the window); against several windows the
         recorded window and the simulated one are both draws of that spread
-        (``tests/test_calibration_features.py``). Its square is added to the features' variance like the solver's error. Zero for a cycle that has
-        settled within the transient, and for a record that settles (:meth:`_record_start`).
+        (``tests/test_calibration_features.py``). Its square is added to the features' variance like
+        the solver's error. Zero for a cycle that has settled within the transient, and for a record
+        that settles (:meth:`_record_start`).
         """
         if self.record_start is not None:
             return np.zeros(len(self.features))
@@ -378,8 +379,8 @@ class FeatureTerm(_ClosedLoopTerm):
         The change is not smooth in the parameters: near a held controller's or a dead zone's
         switching events it jumps from point to point, so that one point can be a special one
         where halving the step moves a feature many times more (or less) than at its neighbours
-        (``tests/test_calibration_features.py``). A correction taken at one such point shifts every draw's
-        likelihood by that much; the median is the systematic part. The mean square is what a
+        (``tests/test_calibration_features.py``). A correction taken at one such point shifts every
+        draw's likelihood by that much; the median is the systematic part. The mean square is what a
         one-point variance is on average, and it covers the points where the change is far from
         the median.
         """
@@ -427,8 +428,8 @@ class FeatureTerm(_ClosedLoopTerm):
 
         Settling: a cycle still growing or shrinking towards its limit (which would cost the right
         model a large discrepancy inflation unless the settled value is taken as unknown) shows a
-        trend across the pieces. Where the trend is clear (slope over ``SETTLING_SLOPE_SD`` times its
-        noise-only standard error, and over ``SETTLING_R2`` of the pieces' spread), the settled
+        trend across the pieces. Where the trend is clear (slope over ``SETTLING_SLOPE_SD`` times
+        its noise-only standard error, and over ``SETTLING_R2`` of the pieces' spread), the settled
         value the model simulates is taken as unknown by ``SETTLING_WINDOWS`` times the drift
         over the window (sd), the gap left by a settling time of up to that many windows; the
         harmonics take the amplitude's relative drift (H1 or amplitude, when among the
