@@ -338,10 +338,8 @@ class StructureSearch:
         """Refine every structure from the best fit of all, carried over (:func:`transferred`).
 
         The global searches run per (dead-zone position, delay position, band-pass loop) class and
-        the cross-seeding within a class; a class whose search misses its basin (benchmark draw
-        1019: the generating structure's search can end at 2.2 where its band-pass superset
-        reaches 1.44 and the true parameters give 1.56) is reached here from the others' best
-        optimum. Returns the structures the superset repair that follows refits.
+        the cross-seeding within a class; a class whose search misses its basin is reached here
+        from the others' best optimum. Returns the structures the superset repair that follows refits.
         """
         best = min(fits.values(), key=lambda f: f.cost)
         chosen = [s for s in sorted(fits, key=lambda s: s.name)
