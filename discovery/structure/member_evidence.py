@@ -30,9 +30,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import gammaln, logsumexp
+from scipy.special import logsumexp
 
-from tvcid.discovery.calibration.importance import GOOD_K, pareto_k
+from tvcid.discovery.calibration.importance import GOOD_K, StudentT, pareto_k
 
 __all__ = ["Proposal", "ImportanceDraws", "Evidence", "importance_draws", "member_importance_draws",
            "run_draws", "log_evidence", "GOOD_K", "EVIDENCE_DRAWS"]
@@ -97,14 +97,17 @@ class Proposal:
     def _chol(self):
         return np.linalg.cholesky(self.cov)
 
+    def _t(self) -> StudentT:
+        """The Student-t component."""
+        return StudentT(self.mean, self.cov, T_DOF)
+
     def sample(self, rng, n) -> np.ndarray:
         """``n`` points ``(n, d)`` from the mixture."""
         d, chol = self.ndim, self._chol()
         from_t = rng.uniform(size=n) < self.t_share
         out = np.empty((n, d))
         k = int(from_t.sum())
-        g = rng.standard_normal((k, d)) @ chol.T
-        out[from_t] = self.mean + g / np.sqrt(rng.chisquare(T_DOF, size=k) / T_DOF)[:, None]
+        out[from_t] = self._t().sample(rng, k)
         m = n - k
         pick = self.centres[rng.integers(self.centres.shape[0], size=m)]
         out[~from_t] = pick + self.bandwidth * (rng.standard_normal((m, d)) @ chol.T)
@@ -115,10 +118,7 @@ class Proposal:
         z = np.atleast_2d(np.asarray(z, dtype=float))
         d, chol = self.ndim, self._chol()
         log_det = 2.0 * float(np.sum(np.log(np.diag(chol))))
-        u = np.linalg.solve(chol, (z - self.mean).T)
-        maha = np.sum(u * u, axis=0)
-        log_t = (gammaln((T_DOF + d) / 2) - gammaln(T_DOF / 2) - 0.5 * d * math.log(T_DOF * math.pi)
-                 - 0.5 * log_det - 0.5 * (T_DOF + d) * np.log1p(maha / T_DOF))
+        log_t = self._t().log_density(z)
         h = self.bandwidth
         k_log_norm = -0.5 * d * math.log(2 * math.pi) - 0.5 * log_det - d * math.log(h)
         log_k = np.empty(z.shape[0])
