@@ -111,12 +111,6 @@ def tempered_power(log_w, min_ess) -> float:
     return max(lo, 1e-6)
 
 
-def previous_scale(proposal) -> float:
-    """The widening a proposal's covariance carries (``PROPOSAL_SCALE**2``): a refit shrinks
-    toward the fit before widening, not toward the widened one."""
-    return PROPOSAL_SCALE**2
-
-
 @dataclass(frozen=True)
 class StudentT:
     """A multivariate t density in the sampling coordinates.
@@ -177,7 +171,8 @@ class StudentT:
         cov = (diff * w[:, None]).T @ diff
         ess = 1.0 / float(np.sum(w * w))
         d = points.shape[1]
-        cov = (ess * cov + d * np.atleast_2d(previous.cov) / previous_scale(previous)) / (ess + d)
+        # shrunk toward the previous fit before its widening, not toward the widened proposal
+        cov = (ess * cov + d * np.atleast_2d(previous.cov) / PROPOSAL_SCALE**2) / (ess + d)
         return cls(mean, cov * scale**2, previous.dof)
 
     @classmethod
