@@ -203,7 +203,8 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
             previous[row["structure"]] = params_from_dict("custom", row["params"])
     inputs = inputs_hash(recs, fixed, seed, search)
     summary, offsets, t_disc = _rank_structures(recs, fixed, seed, search, progress,
-                                                inputs, previous=previous)
+                                                inputs, previous=previous,
+                                                previous_race=earlier.get("race"))
     summary["added"] = added + new_paths
     summary["earlier_set"] = earlier["indistinguishable"]
     _write(out, summary)  # the ranking survives whatever happens to the chains
@@ -293,12 +294,14 @@ def _previous_ranking(out, inputs):
     return summary
 
 
-def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None, executor=None):
+def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None, executor=None,
+                     previous_race=None):
     from tvcid.discovery.structure import StructureDiscovery
 
     t0 = time.perf_counter()
     disc = StructureDiscovery(fixed=fixed, seed=seed, search=search, progress=progress,
-                              executor=executor).fit(recs, previous=previous)
+                              executor=executor).fit(recs, previous=previous,
+                                                     previous_race=previous_race)
     t_disc = time.perf_counter() - t0
     summary = {
         "format": DISCOVERY_FORMAT,
@@ -309,6 +312,7 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None,
         "indistinguishable": [f.structure.name for f in disc.indistinguishable_],
         "decided": disc.decided_,
         "pruned": disc.pruned_,
+        "race": disc.race_,
         "sindy": disc.sindy_,
         "sensor_offset": disc.offsets_,
         "sensor_noise": disc.noise_,

@@ -130,6 +130,11 @@ class StructureDiscovery:
         Runs the global searches of the classes' largest structures
         (:meth:`.structure_search.StructureSearch.search_classes`), e.g. on a Dask cluster;
         default: one after the other in this process. The result is the same wherever they run.
+    race : {"off", "measure", "on"}
+        Race the classes' searches where there are open-loop and closed-loop recordings
+        (:meth:`.structure_search.StructureSearch.race_classes`): ``on`` drops the classes whose
+        open-loop misfit alone rules them out of the ranking (they join ``pruned_``),
+        ``measure`` searches them all and records what the race would drop.
 
     Attributes
     ----------
@@ -142,7 +147,11 @@ class StructureDiscovery:
         Structural choice -> the value every structure of ``indistinguishable_`` shares, ``None``
         where they differ (the recordings leave it open; :func:`tvcid.models.structures.shared_choices`).
     pruned_ : dict
-        Structure name -> why it was not fitted.
+        Structure name -> why it was not fitted (the fixed parts, or the race).
+    race_ : dict or None
+        What the race decided: each top's open-loop bound, the screen, the tops and structures
+        dropped, and whether they were (:attr:`.structure_search.StructureSearch.race_record`);
+        None where it did not run.
     repaired_ : list of str
         Structures the repairs refitted (:meth:`.structure_search.StructureSearch.fit_nested`).
     offsets_ : dict
@@ -177,7 +186,7 @@ class StructureDiscovery:
     """
 
     def __init__(self, fixed=None, seed=0, search="standard", dt=5e-4, use_sindy=True,
-                 progress=False, max_ranked=8, executor=None):
+                 progress=False, max_ranked=8, executor=None, race="off"):
         self.fixed = fixed
         self.seed = seed
         self.search = search
@@ -186,18 +195,20 @@ class StructureDiscovery:
         self.progress = progress
         self.max_ranked = max_ranked
         self.executor = executor
+        self.race = race
 
-    def fit(self, recordings, previous=None):
+    def fit(self, recordings, previous=None, previous_race=None):
         """Screen, search, refine and rank every structure on ``recordings``; returns ``self``.
 
         ``previous`` (structure name -> ActuatorParams, an earlier run's optima on part of these
         recordings) replaces SINDy's screening and the global searches by least squares from
         those optima (:meth:`.structure_search.StructureSearch.refit_from`): the experiment
-        loop's update after new recordings."""
+        loop's update after new recordings; ``previous_race`` (the earlier run's ``race_``) keeps
+        the structures its race dropped out while they stay ruled out."""
         with one_blas_thread():  # the kernels own the cores (:mod:`tvcid.discovery.threads`)
-            return self._fit(recordings, previous)
+            return self._fit(recordings, previous, previous_race)
 
-    def _fit(self, recordings, previous=None):
+    def _fit(self, recordings, previous=None, previous_race=None):
         t_start, c_start = time.perf_counter(), cpu_seconds()
         timings, cpu = {}, {}
         if self.search not in SEARCHES:
@@ -236,7 +247,8 @@ class StructureDiscovery:
         timings["sindy"], cpu["sindy"] = time.perf_counter() - t0, cpu_seconds() - c0
 
         spaces = {s: SearchSpace(s, base, _fixed_for(s, fixed), self.dt) for s in kept}
-        search = StructureSearch(objective, self.sizes_, rng, spaces, self.progress, self.executor)
+        search = StructureSearch(objective, self.sizes_, rng, spaces, self.progress, self.executor,
+                                 race=self.race)
         simulated, steps = {}, {}
         clock = [0.0, 0.0, 0.0, 0.0, 0.0]
 
@@ -252,14 +264,15 @@ class StructureDiscovery:
 
         start()
         if previous:
-            fits, self.repaired_ = search.refit_from(kept, previous)
+            fits, self.repaired_ = search.refit_from(kept, previous, race=previous_race)
             stop("refit")
         else:
             fits = search.search_classes(kept, sindy)
             stop("global")
             timings["global_open_loop_stage"] = search.open_loop_seconds
             start()
-            self.repaired_ = search.fit_nested(kept, fits, sindy)
+            self.repaired_ = search.fit_nested([s for s in kept if s not in search.dropped],
+                                               fits, sindy)
             stop("nested")
 
         best_fit = min(fits.values(), key=lambda f: f.cost)
@@ -281,7 +294,8 @@ class StructureDiscovery:
         self.best_ = best
         self.indistinguishable_ = [f for f in ranked if f.indistinguishable_from_best]
         self.decided_ = shared_choices([f.structure for f in self.indistinguishable_])
-        self.pruned_ = {s.name: why for s, why in pruned.items()}
+        self.pruned_ = {s.name: why for s, why in {**pruned, **search.dropped}.items()}
+        self.race_ = search.race_record
         self.offsets_ = objective.offsets(best.params)
         self.noise_ = {t.name: (t.noise(best.params) if t.kind == "open" else self._noise_of(t.recording))
                        for t in targets}

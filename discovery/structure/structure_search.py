@@ -28,7 +28,7 @@ from tvcid.models.linear import second_order_response
 from tvcid.models.structures import Structure
 
 from .indistinguishable import TOL_ABS, _contains
-from .ranking import StructureFit
+from .ranking import SCREEN_ABS, StructureFit
 from .search import (
     concurrent_map,
     distinct_members,
@@ -57,6 +57,10 @@ N_STARTS = 3
 #: searches agree, so a whole-box search often runs to its maximum, and that maximum is 4.
 OPEN_LOOP_RESTARTS = (3, 8)
 WHOLE_BOX_RESTARTS = (2, 4)
+#: How :meth:`StructureSearch.search_classes` may race the classes (:meth:`StructureSearch.race_classes`).
+RACE_MODES = ("off", "measure", "on")
+#: Tops searched on all recordings before the race drops any: those of lowest open-loop bound.
+RACE_LEADERS = 2
 #: Half-width of the box kept around the open-loop stage's fit, in local spreads of each coordinate.
 OPEN_LOOP_BOX = 6.0
 #: Band over which :func:`delay_moved` matches the moved block's frequency response, in units of
@@ -119,6 +123,10 @@ class StructureSearch:
     executor : tvcid.discovery.executors.Executor, optional
         Runs :meth:`search_classes`' searches (:mod:`.tasks`); default: one after the other in
         this process.
+    race : {"off", "measure", "on"}
+        Whether :meth:`search_classes` races the classes (:meth:`race_classes`) where there are
+        open-loop and closed-loop recordings: ``on`` drops the classes the race rules out,
+        ``measure`` runs the race's order and records what it would drop, dropping nothing.
 
     Attributes
     ----------
@@ -128,9 +136,16 @@ class StructureSearch:
         Wall time of the open-loop stages (s).
     worker_cpu_seconds : float
         CPU seconds of the searches run in other processes (:func:`.tasks.fit_tops`).
+    race_record : dict or None
+        What the race decided (:meth:`race_classes`), None where it did not run.
+    dropped : dict
+        Structure -> why the race dropped it (``race="on"`` only).
     """
 
-    def __init__(self, objective, sizes, rng, spaces=None, progress=False, executor=None):
+    def __init__(self, objective, sizes, rng, spaces=None, progress=False, executor=None,
+                 race="off"):
+        if race not in RACE_MODES:
+            raise ValueError(f"race={race!r}: choose one of {', '.join(RACE_MODES)}")
         self.objective = objective
         self.sizes = sizes
         self.rng = rng
@@ -140,6 +155,9 @@ class StructureSearch:
         self.searches = {"open_loop": 0, "global": 0}
         self.open_loop_seconds = 0.0
         self.worker_cpu_seconds = 0.0
+        self.race = race
+        self.race_record = None
+        self.dropped = {}
 
     # -- the stages ----------------------------------------------------------------------------
     def search_classes(self, structures, sindy):
@@ -154,15 +172,10 @@ class StructureSearch:
         first, then those with it, which read their class's fit. Returns the fits, structure ->
         :class:`.ranking.StructureFit`.
         """
-        classes = sorted({(s.dead_zone_position, s.delay_position) for s in structures},
-                         key=lambda c: (c[0].value, c[1].value))
-        tops = []
-        for cls in classes:
-            members = [s for s in structures if (s.dead_zone_position, s.delay_position) == cls]
-            for bandpass in (False, True):
-                group = [s for s in members if s.bandpass == bandpass]
-                if group:
-                    tops.append(max(group, key=lambda s: len(s.components)))
+        tops = _class_tops(structures)
+        kinds = {t.kind for t in self.objective.targets}
+        if self.race != "off" and kinds == {"open", "closed"}:
+            return self.race_classes(tops, structures, sindy)
         child = dict(zip(tops, map(int, self.rng.integers(2**63, size=len(tops)))))
         found = {}
         bar = progress_bar(len(tops), "global search", self.progress)
@@ -174,6 +187,81 @@ class StructureSearch:
                 bar.update()
         bar.close()
         fits = {s: found[s] for s in tops}  # the cross-seeding refines in the classes' order
+        self.cross_seed(fits)
+        return fits
+
+    def race_classes(self, tops, structures, sindy):
+        """:meth:`search_classes` as a race: every class's open-loop stage first, then the
+        searches on all recordings, most promising first, and the classes that cannot reach the
+        ranking dropped.
+
+        1. Every top's open-loop stage (:meth:`fit_open_loop`; a band-pass top seeded with its
+           class's open-loop fit, the loop switched on small). Its cost is a lower bound of the
+           top's in-sample cost on all recordings (the open-loop recordings' share of it cannot
+           be smaller than their own optimum), and of every structure nested in it.
+        2. The searches on all recordings (:meth:`fit_global` from that stage) of the
+           ``RACE_LEADERS`` tops of lowest bound.
+        3. A top whose bound exceeds :func:`.ranking.in_sample_screen` of the best cost so far
+           cannot be ranked, nor can any structure nested in it: it is dropped, unless it is
+           nested in a top that stays (a class's structures without the band-pass loop stay
+           with its band-pass top). The other tops are searched.
+
+        With ``race="measure"`` nothing is dropped and :attr:`race_record` says what would have
+        been. Returns the fits, structure -> :class:`.ranking.StructureFit`, of the tops
+        searched; :attr:`dropped` names every structure of ``structures`` left out, with why.
+        """
+        from .ranking import in_sample_screen
+
+        seeds = dict(zip(tops, map(int, self.rng.integers(2**63, size=len(tops)))))
+        opened, first = {}, {}
+        bar = progress_bar(2 * len(tops), "global search (raced)", self.progress)
+        for wave in ([s for s in tops if not s.bandpass], [s for s in tops if s.bandpass]):
+            starts = [_valid(_top_seeds(s, sindy, opened), s) for s in wave]
+            for s, fr in zip(wave, fit_tops(self, wave, starts, [seeds[s] for s in wave],
+                                            open_loop_only=True)):
+                first[s] = fr
+                opened[s] = self._record(s, fr, "open-loop stage", [])
+                bar.update()
+        bound = {s: float(first[s].cost) for s in tops}
+        order = sorted(tops, key=lambda s: (bound[s], s.name))
+        found = {}
+
+        def search(wave):
+            starts = [_valid(_top_seeds(s, sindy, {**opened, **found}), s) for s in wave]
+            for s, fr in zip(wave, fit_tops(self, wave, starts, [seeds[s] + 1 for s in wave],
+                                            firsts=[first[s] for s in wave])):
+                found[s] = self._record(s, fr, "global search (differential evolution, then "
+                                        "least squares)", sindy.get(s.name, []))
+                bar.update()
+
+        search(order[:RACE_LEADERS])
+        best = min(f.cost for f in found.values())
+        screen = in_sample_screen(best, len(self.objective.targets))
+        staying = {s for s in tops if bound[s] <= screen or s in found}
+        staying |= {s for s in tops if any(_contains(t, s) for t in staying)}
+        out = [s for s in tops if s not in staying]
+        self.race_record = {
+            "bounds": {s.name: bound[s] for s in order},
+            "leaders": [s.name for s in order[:RACE_LEADERS]],
+            "best_cost": best, "screen": screen, "dropped_tops": [s.name for s in out],
+            "dropped": sorted(s.name for s in structures
+                              if any(s == t or _contains(t, s) for t in out)
+                              and not any(s == t or _contains(t, s) for t in staying)),
+            "applied": self.race == "on"}
+        rest = [s for s in order[RACE_LEADERS:] if s in staying or self.race == "measure"]
+        search(rest)
+        bar.close()
+        open_names = [t.name for t in self.objective.targets if t.kind == "open"]
+        # the bound's check: the open-loop recordings' share of each searched top's fit
+        self.race_record["open_loop_share"] = {
+            s.name: float(sum(found[s].cost_by_recording[n] for n in open_names))
+            for s in order if s in found}
+        if self.race == "on":
+            for name in self.race_record["dropped"]:
+                s = Structure.parse(name)
+                top = next(t for t in out if t == s or _contains(t, s))
+                self.dropped[s] = _raced_out(bound[top], top, screen)
+        fits = {s: found[s] for s in tops if s in found}
         self.cross_seed(fits)
         return fits
 
@@ -217,7 +305,7 @@ class StructureSearch:
         repaired += self.seed_from_best(fits)
         return repaired
 
-    def refit_from(self, structures, previous):
+    def refit_from(self, structures, previous, race=None):
         """The experiment loop's search: every structure refined by least squares from its
         optimum of an earlier run (``previous``: structure name -> ActuatorParams) on the
         objective's recordings, the new ones included; a structure without one is searched
@@ -226,7 +314,12 @@ class StructureSearch:
         M000's cycle A alone can be fitted on a gain-delay ridge at twice the gain and half the
         delay of the optimum of cycles A and B, and the refit from there stops at a cost of 1.03
         against a fresh search's 0.035). Then the cross-seeding, the superset repair and the
-        refits from the best optimum, as after a fresh search. Returns ``(fits, repaired)``."""
+        refits from the best optimum, as after a fresh search. Returns ``(fits, repaired)``.
+
+        ``race``: the earlier run's :attr:`race_record`. A structure the earlier race dropped
+        (no optimum to start from) stays dropped while its class's open-loop bound, still a
+        lower bound of its cost (the earlier recordings are all here), exceeds the ranking's
+        screen of the refits' best cost (:meth:`_dropped_again`); otherwise it is searched."""
         warm = [s for s in structures if s.name in previous]
         bar = progress_bar(len(warm), "refits from the earlier run", self.progress)
 
@@ -242,7 +335,10 @@ class StructureSearch:
             if worse:
                 moved[s] = fr
         bar.close()
+        self._dropped_again(structures, previous, fits, race)
         for s in structures:  # in order: the rng's draws
+            if s in self.dropped:
+                continue
             if s in moved:  # the refit's optimum seeds the search, which keeps the better
                 found = self.fit_global(self.spaces[s], [self.spaces[s].params(moved[s].theta)])
                 if found.cost < moved[s].cost:
@@ -255,8 +351,32 @@ class StructureSearch:
         repaired += self.seed_from_best(fits)
         return fits, repaired
 
+    def _dropped_again(self, structures, previous, fits, race):
+        """:meth:`refit_from`'s race: the structures of ``structures`` without an optimum in
+        ``previous`` that the earlier race (``race``, applied) dropped, still ruled out by the
+        screen of the best of ``fits``, into :attr:`dropped`; :attr:`race_record` carried."""
+        from .ranking import in_sample_screen
+
+        if not race or not race.get("applied") or not fits:
+            return
+        best = min(f.cost for f in fits.values())
+        screen = in_sample_screen(best, len(self.objective.targets))
+        bounds = race["bounds"]
+        tops = [Structure.parse(n) for n in race["dropped_tops"]]
+        back = [t for t in tops if bounds[t.name] <= screen]
+        out = [t for t in tops if t not in back and not any(_contains(b, t) for b in back)]
+        for s in structures:
+            if s.name in previous:
+                continue
+            top = next((t for t in out if t == s or _contains(t, s)), None)
+            if top is not None:
+                self.dropped[s] = _raced_out(bounds[top.name], top, screen)
+        self.race_record = {**race, "best_cost": best, "screen": screen,
+                            "dropped_tops": [t.name for t in out],
+                            "dropped": sorted(s.name for s in self.dropped)}
+
     # -- one structure's global search ---------------------------------------------------------
-    def fit_global(self, space, seeds):
+    def fit_global(self, space, seeds, first=None):
         """Global search of one structure on all recordings, then least squares.
 
         With open-loop and closed-loop recordings together the search is staged: the open-loop
@@ -272,7 +392,8 @@ class StructureSearch:
         at most ``WHOLE_BOX_RESTARTS``).
 
         ``seeds``: parameter objects of the structure (:func:`_valid`) placed in the first
-        population. Returns a :class:`.search.FitResult`.
+        population; ``first``: the open-loop stage's fit where it has run already (the race,
+        :meth:`race_classes`). Returns a :class:`.search.FitResult`.
         """
         objective = self.objective
         pop, gens, nfev = self.sizes.pop, self.sizes.gens, self.sizes.nfev
@@ -281,9 +402,10 @@ class StructureSearch:
         open_targets = [t for t in objective.targets if t.kind == "open"]
         restarts = WHOLE_BOX_RESTARTS
         if open_targets and len(open_targets) < len(objective.targets):
-            t0 = time.perf_counter()
-            first = self.fit_open_loop(space, open_targets, starts)
-            self.open_loop_seconds += time.perf_counter() - t0
+            if first is None:
+                t0 = time.perf_counter()
+                first = self.fit_open_loop(space, open_targets, starts)
+                self.open_loop_seconds += time.perf_counter() - t0
             sd = local_sd(space, objective, first.theta, targets=open_targets)
             box = space.narrowed(first.theta, OPEN_LOOP_BOX * sd)
             starts = [first.theta] + starts
@@ -399,6 +521,28 @@ class StructureSearch:
         return StructureFit(structure=s, params=self.spaces[s].params(fr.theta), theta=fr.theta,
                             cost=fr.cost, cost_by_recording=dict(zip(names, map(float, fr.cost_by_target))),
                             origin=origin, sindy_seeds=[p.to_dict() for p in seeds])
+
+
+def _raced_out(bound, top, screen):
+    """Why the race dropped a structure nested in ``top`` (or ``top`` itself)."""
+    return (f"raced out: the open-loop recordings alone cost at least {bound:.3g} in "
+            f"{top.name}'s class, over the ranking's screen {screen:.3g} (twice the best "
+            f"in-sample cost plus {SCREEN_ABS} per recording)")
+
+
+def _class_tops(structures):
+    """The largest structure of every (dead-zone position, delay position, band-pass loop)
+    class, in the classes' order."""
+    classes = sorted({(s.dead_zone_position, s.delay_position) for s in structures},
+                     key=lambda c: (c[0].value, c[1].value))
+    tops = []
+    for cls in classes:
+        members = [s for s in structures if (s.dead_zone_position, s.delay_position) == cls]
+        for bandpass in (False, True):
+            group = [s for s in members if s.bandpass == bandpass]
+            if group:
+                tops.append(max(group, key=lambda s: len(s.components)))
+    return tops
 
 
 def best_of_restarts(search, n_recordings, min_restarts, max_restarts):

@@ -61,8 +61,9 @@ class TopFit:
     pid: int = 0
 
 
-def fit_top(targets, sizes, space, starts, seed):
-    """:meth:`.structure_search.StructureSearch.fit_global` of one structure, alone.
+def fit_top(targets, sizes, space, starts, seed, first=None, open_loop_only=False):
+    """:meth:`.structure_search.StructureSearch.fit_global` of one structure, alone (or only its
+    open-loop stage, :meth:`.structure_search.StructureSearch.fit_open_loop`).
 
     Parameters
     ----------
@@ -76,6 +77,11 @@ def fit_top(targets, sizes, space, starts, seed):
         Starts placed in the first population.
     seed : int
         Seed of the search's generator.
+    first : .search.FitResult, optional
+        The open-loop stage's fit, where it has run already (the stage is not run again).
+    open_loop_only : bool
+        Run the open-loop stage alone: the fit is the open-loop recordings' optimum, its cost
+        theirs alone.
 
     Returns
     -------
@@ -92,7 +98,13 @@ def fit_top(targets, sizes, space, starts, seed):
     search = StructureSearch(objective, sizes, np.random.default_rng(seed),
                              {space.structure: space})
     with one_blas_thread():  # also on a worker: the kernels own its cores
-        fit = search.fit_global(space, starts)
+        if open_loop_only:
+            t0 = time.perf_counter()
+            fit = search.fit_open_loop(space, [t for t in own if t.kind == "open"],
+                                       [space.coordinates(p) for p in starts])
+            search.open_loop_seconds += time.perf_counter() - t0
+        else:
+            fit = search.fit_global(space, starts, first=first)
     return TopFit(fit=fit, evaluations=objective.n_evaluations,
                   simulated_seconds=objective.simulated_seconds,
                   second_starts=[getattr(t, "second_starts", 0) for t in own],
@@ -101,7 +113,7 @@ def fit_top(targets, sizes, space, starts, seed):
                   cpu_seconds=time.process_time() - cpu0, pid=os.getpid())
 
 
-def fit_tops(search, structures, starts, seeds):
+def fit_tops(search, structures, starts, seeds, firsts=None, open_loop_only=False):
     """:func:`fit_top` of each of ``structures`` through ``search.executor``; yields each
     structure's :class:`.search.FitResult` in order, once its spending is added to ``search``
     (its objective's evaluations, simulated seconds and steps, its targets' second starts, its
@@ -116,6 +128,10 @@ def fit_tops(search, structures, starts, seeds):
         Each structure's starts.
     seeds : list of int
         Each structure's seed.
+    firsts : list of .search.FitResult, optional
+        Each structure's open-loop stage already run (:func:`fit_top`'s ``first``).
+    open_loop_only : bool
+        Each structure's open-loop stage alone.
     """
     from ..executors import LocalProcesses
 
@@ -123,7 +139,8 @@ def fit_tops(search, structures, starts, seeds):
     n = len(structures)
     targets = search.objective.targets
     done = executor.map(fit_top, [targets] * n, [search.sizes] * n,
-                        [search.spaces[s] for s in structures], starts, seeds)
+                        [search.spaces[s] for s in structures], starts, seeds,
+                        firsts if firsts is not None else [None] * n, [open_loop_only] * n)
     for result in done:
         objective = search.objective
         objective.n_evaluations += result.evaluations

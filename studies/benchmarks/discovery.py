@@ -52,6 +52,7 @@ band-pass saturation where it has none (infinite), are written as ``null``.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import sys
 import time
@@ -121,14 +122,15 @@ def cost_at_truth(targets, truth) -> float:
     return float(Objective(targets).costs([truth])[0].sum())
 
 
-def run_draw(seed, out_dir, quick, ranges="wide"):
+def run_draw(seed, out_dir, quick, ranges="wide", race=None):
     scenario = draw_scenario(seed, ranges=ranges)
     draw_dir = out_dir / f"draw{seed:03d}"
     t0 = time.perf_counter()
     paths = write_recordings(scenario, draw_dir, reuse=True)
     t_data = time.perf_counter() - t0
     t0 = time.perf_counter()
-    disc = StructureDiscovery(seed=seed, use_sindy=not quick).fit(paths)
+    options = {} if race is None else {"race": race}
+    disc = StructureDiscovery(seed=seed, use_sindy=not quick, **options).fit(paths)
     t_disc = time.perf_counter() - t0
     truth_s = scenario.structure
     errors = coordinate_errors(disc, scenario.truth, truth_s)
@@ -162,8 +164,21 @@ def run_draw(seed, out_dir, quick, ranges="wide"):
                      else np.asarray(f.fold_costs).tolist(), "merged_into": f.merged_into}
                     for f in disc.ranking_ if math.isfinite(f.score)],
         "commit": CODE_COMMIT,
+        "simulated_steps": {k: float(v) for k, v in disc.simulated_steps_.items()},
+        "race": race_verdict(disc.race_, verdict, truth_s),
     }
     return undecided_marked(row)
+
+
+def race_verdict(race, verdict, truth):
+    """The race's record (:attr:`.StructureDiscovery.race_`) with its errors: the structures it
+    dropped (or, measured, would drop) that are the truth's or in the reported set; None where
+    it did not run."""
+    if race is None:
+        return None
+    dropped = set(race["dropped"])
+    wrong = sorted(dropped & ({truth.name} | set(verdict["set"])))
+    return {**race, "errors": wrong}
 
 
 def set_verdict(ranked, truth):
@@ -256,10 +271,10 @@ def failed_draw(seed, exc, ranges="wide"):
             "seconds_discovery": math.nan, "commit": CODE_COMMIT}
 
 
-def guarded_draw(seed, out_dir, quick, ranges="wide"):
+def guarded_draw(seed, out_dir, quick, ranges="wide", race=None):
     """:func:`run_draw`, or :func:`failed_draw`'s row if discovery raised (a failed draw is wrong)."""
     try:
-        return run_draw(seed, out_dir, quick, ranges)
+        return run_draw(seed, out_dir, quick, ranges, race)
     except (ValueError, RuntimeError, ArithmeticError) as exc:
         return failed_draw(seed, exc, ranges)
 
@@ -468,6 +483,10 @@ def main(argv=None) -> int:
     add_ranges_option(parser)
     add_executor_options(parser, "draws run at once, one process each (default 1)")
     parser.add_argument("--out", default="results/bench_discovery", help="output directory")
+    parser.add_argument("--race", choices=("off", "measure", "on"), default=None,
+                        help="race the classes' searches (StructureDiscovery's race; default: "
+                             "its default); measure: search every class and record what the "
+                             "race would drop, and whether that is the truth's or a set member")
     parser.add_argument("--rederive", action="store_true",
                         help="no search: derive every finished row's set again from its stored "
                              "ranking with the current set rule (the recordings regenerated for "
@@ -522,8 +541,8 @@ def main(argv=None) -> int:
     done = {r["seed"] for r in rows}
     seeds = ([] if args.rederive or args.floor_scan
              else [s for s in range(args.seed, args.seed + n) if s not in done])
-    run_draws(guarded_draw, seeds, out, args.quick, args.jobs, record, dask=args.dask,
-              ranges=args.ranges)
+    run_draws(functools.partial(guarded_draw, race=args.race), seeds, out, args.quick,
+              args.jobs, record, dask=args.dask, ranges=args.ranges)
     table = summarise(rows)
     print(f"\n{'class':42s} draws  winner  right|set<=3  set<=3  ceiling  oracle  ident<=5%  "
           "choices right  wrong  median s")
