@@ -83,3 +83,75 @@ def test_nelder_mead_stops_at_a_tenth_of_each_axis_sd():
                         options={"maxfev": cap, "xatol": 1e-6, "fatol": 0.05,
                                  "initial_simplex": simplex})
     assert scaled < cap / 5 and absolute.nfev > 3 * scaled, (scaled, absolute.nfev)
+
+
+class _Box:
+    """A log posterior on a box for the optimisers: ``value(z)`` vectorised over rows, its
+    evaluations counted."""
+
+    def __init__(self, value, ndim, half_width=20.0):
+        from types import SimpleNamespace
+
+        self.value = value
+        self.priors = [SimpleNamespace(internal_bounds=(-half_width, half_width))] * ndim
+        self.evaluations = 0
+
+    def __call__(self, z):
+        one = np.ndim(z) == 1
+        z = np.atleast_2d(z)
+        self.evaluations += len(z)
+        v = self.value(z)
+        return float(v[0]) if one else v
+
+
+@pytest.mark.parametrize("roughness", [0.0, 0.1])
+def test_quasi_newton_reaches_the_maximum_in_a_fraction_of_nelder_meads_evaluations(roughness):
+    """The members' start (:func:`tvcid.discovery.calibration.optimum._quasi_newton`) on 8-d
+    correlated Gaussians (condition numbers of tens to hundreds), from 3 sd off on every axis,
+    over 6 seeds: it ends within 0.1 nats of the maximum after 218 evaluations (one Hessian, 129,
+    and five gradients with their trial points), Nelder-Mead after 444-771. With a roughness of
+    0.1 nats at a twentieth of an sd added (a cycle's features are rough at fine scales) it ends
+    within 2.5 nats of the smooth maximum after at most 362 (its 12 iterations), where
+    Nelder-Mead stops further below on every seed (measured: 1.3 to 18 nats below it)."""
+    from tvcid.discovery.calibration.optimum import (
+        _axis_scales,
+        _nelder_mead,
+        _quasi_newton,
+        _simplex,
+    )
+
+    d = 8
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        a = rng.standard_normal((d, d))
+        cov = a @ a.T / d + 0.02 * np.eye(d)
+        prec, mode = np.linalg.inv(cov), rng.standard_normal(d)
+        sd = np.sqrt(np.diag(cov))
+
+        def value(z):
+            r = z - mode
+            rough = roughness * np.sum(np.sin(20.0 * z / sd), axis=1)
+            return -0.5 * np.einsum("ij,jk,ik->i", r, prec, r) + rough
+
+        start = mode + 3.0 * sd * rng.choice([-1.0, 1.0], d)
+        lp = _Box(value, d)
+        scale = _axis_scales(lp, start)
+        lp.evaluations = 0
+        end = _quasi_newton(lp, start, scale)
+        smooth = float(-0.5 * (end - mode) @ prec @ (end - mode))
+        nm = _Box(value, d)
+        end_nm = _nelder_mead(nm, _simplex(start, nm), 150 * d)
+        nm_smooth = float(-0.5 * (end_nm - mode) @ prec @ (end_nm - mode))
+        assert smooth > (-2.5 if roughness else -0.1), (seed, smooth)
+        assert lp.evaluations <= (362 if roughness else 220), (seed, lp.evaluations)
+        assert nm.evaluations > 2 * lp.evaluations or roughness, (seed, nm.evaluations)
+        if roughness:
+            assert smooth > nm_smooth, (seed, smooth, nm_smooth)
+
+
+def test_an_unknown_start_optimizer_is_refused():
+    from tvcid.models.recording import load_recording
+
+    with pytest.raises(ValueError, match="start_optimizer must be one of"):
+        Calibration("M000", params=("dead_zone",), start_optimizer="newton").fit(
+            [load_recording("data/m000_closed_A.csv")])

@@ -39,7 +39,7 @@ class _Ranking:
     def __init__(self, **options):
         pass
 
-    def fit(self, recordings, previous=None):
+    def fit(self, recordings, previous=None, previous_race=None):
         self.targets_ = [make_target(r, 5e-4) for r in recordings]
         fits = []
         for i, position in enumerate(("before_first_integrator", "before_integrator")):
@@ -52,7 +52,7 @@ class _Ranking:
         self.ranking_ = self.indistinguishable_ = fits
         self.decided_ = {"dead_zone_position": "velocity", "delay_position": None,
                          "friction": True, "backlash": True, "bandpass": False}
-        self.pruned_, self.sindy_, self.searches_ = {}, {}, {}
+        self.pruned_, self.sindy_, self.searches_, self.race_ = {}, {}, {}, None
         self.offsets_ = {"rec": 0.0}
         self.noise_ = {"rec": 2e-5}
         self.n_simulations_ = 1

@@ -41,7 +41,7 @@ from .moves import LaplaceAdaptation
 from .posterior import Posterior
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates, step_under_delay
 from .runner import run_ensemble
-from .start import StartSearch
+from .start import START_OPTIMIZERS, StartSearch
 
 __all__ = ["Calibration", "truths_from_recordings"]
 
@@ -156,7 +156,12 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
     warm_start : bool
         Start closed-loop runs on a scaled reference cycle.
     optimize_start : bool
-        Find the maximum a posteriori (Nelder-Mead) before placing the walkers around it.
+        Find the maximum a posteriori before placing the walkers around it.
+    start_optimizer : {"nelder-mead", "quasi-newton"}
+        How the maximum is found from the start: Nelder-Mead (one point at a time), or
+        quasi-Newton steps on gradients and a Hessian by central differences over each axis' sd,
+        their points in batches (:func:`.optimum._quasi_newton`: a fraction of the simulations
+        where the start is near the maximum, as a structure search's fit is).
     stop_when_converged : bool
         False runs every chain to ``max_steps`` (e.g. to map a ridge).
     discrepancy : bool
@@ -209,7 +214,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
                  max_steps=4000, check_every=10, tau_factor=50.0, moves=None, pool=None,
                  backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
                  stop_when_converged=True, spread="axes", discrepancy=True, laplace_move=True,
-                 global_search=True, importance=0):
+                 global_search=True, importance=0, start_optimizer="nelder-mead"):
         self.hypothesis = hypothesis
         self.params = params
         self.priors = priors
@@ -240,6 +245,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         self.laplace_move = laplace_move
         self.global_search = global_search
         self.importance = importance
+        self.start_optimizer = start_optimizer
 
     # -- set-up ---------------------------------------------------------------------------------
     def _default_dt(self, base, names, priors, start):
@@ -303,6 +309,9 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
             raise ValueError(f"dt must be > 0 (got {self.dt!r})")
         if self.spread not in ("axes", "hessian"):
             raise ValueError(f"spread must be 'axes' or 'hessian' (got {self.spread!r})")
+        if self.start_optimizer not in START_OPTIMIZERS:
+            raise ValueError(f"start_optimizer must be one of {', '.join(START_OPTIMIZERS)} "
+                             f"(got {self.start_optimizer!r})")
         if self.transient < 0:
             raise ValueError(f"transient must be >= 0 (got {self.transient})")
         base = self._base()

@@ -3,6 +3,7 @@
 
 * optimisers: Nelder-Mead in its first simplex's units (:func:`_nelder_mead`), from a point
   (:func:`_nelder_mead_from`, its costs :func:`_cost` and first simplex :func:`_simplex`), a
+  quasi-Newton ascent whose evaluations come in batches (:func:`_quasi_newton`), a
   differential evolution over the prior box (:func:`_global_start`) and the noise sd's
   conditional maximum (:func:`_profile_sigma`);
 * curvature: each axis' sd (:func:`_axis_scales`), the Hessian by central differences
@@ -67,6 +68,94 @@ def _nelder_mead(lp, simplex, maxfev):
                    options={"maxfev": maxfev, "xatol": NM_XATOL, "fatol": NM_FATOL,
                             "initial_simplex": np.vstack([np.zeros(n), np.eye(n)])})
     return z0 + edges @ res.x
+
+
+#: Iterations of :func:`_quasi_newton` at most (each one gradient, ``2 d`` points, and two
+#: trial points) ...
+QN_ITERATIONS = 12
+#: ... its first trust radius, in each axis' sd ...
+QN_RADIUS = 2.0
+#: ... and the curvature floor in the same units: a ridge's step is the trust radius's.
+QN_MIN_CURVATURE = 1e-2
+
+
+def _quasi_newton(lp, z0, scale, hess=None, maxiter=QN_ITERATIONS):
+    """The maximum of ``lp`` from ``z0`` by quasi-Newton steps whose evaluations come in batches.
+
+    In units of each axis' sd (``scale``), a model ``-B`` of the curvature (from ``hess``,
+    :func:`_hessian` at ``z0``, computed here when not given; eigenvalues floored at
+    ``QN_MIN_CURVATURE``) gives the step ``B^-1 g``, cut to a trust radius; the gradient ``g``
+    is the central difference over one sd of each axis (the scale at which the Hessian is read,
+    so that a cycle's features, rough at finer scales, are seen smooth). The step and its half
+    are tried in one batch; the better is taken if it gains, the radius grows after a full step
+    that gains and shrinks four-fold after none; ``B`` is updated by BFGS from the gradients.
+    Stops where the model's gain is under :data:`NM_FATOL` nats or the step under
+    :data:`NM_XATOL` sd (Nelder-Mead's own tolerances), or after ``maxiter`` gradients.
+
+    A chain point costs one simulation of every recording; Nelder-Mead needs about ``150 d`` of
+    them, one at a time, where this takes one Hessian and ``(2 d + 2)`` per iteration
+    (docs/methods/calibration.md, "Where a chain starts"). Returns ``z0`` where a probe fails
+    (no finite posterior) before any step, else the best point reached.
+    """
+    h = np.asarray(scale, dtype=float)
+    d = len(z0)
+    if hess is None:
+        hess = _hessian(lp, z0, h)
+    if hess is None:
+        return z0
+    lam, vec = np.linalg.eigh(-hess * np.outer(h, h))
+    b = (vec * np.maximum(lam, QN_MIN_CURVATURE)) @ vec.T
+    lows, highs = _box(lp)
+    z, f = np.asarray(z0, dtype=float), float(np.ravel(lp(z0))[0])
+    if not math.isfinite(f):
+        return z0
+    radius, g = QN_RADIUS, None
+    for _ in range(maxiter):
+        if g is None:
+            g = _gradient(lp, z, h, lows, highs)
+            if g is None:
+                break
+        step = np.linalg.solve(b, g)
+        if 0.5 * float(g @ step) < NM_FATOL:
+            break
+        length = float(np.sqrt(step @ step))
+        if length > radius:
+            step *= radius / length
+            length = radius
+        if length < NM_XATOL:
+            break
+        trials = np.clip(z + np.vstack([step, 0.5 * step]) * h, lows, highs)
+        ft = np.asarray(lp(trials), dtype=float)
+        best = int(np.nanargmax(np.where(np.isfinite(ft), ft, -np.inf)))
+        if not ft[best] > f:
+            radius *= 0.25
+            continue
+        s = (trials[best] - z) / h
+        if best == 0 and length >= radius:
+            radius *= 2.0
+        z, f = trials[best], float(ft[best])
+        g_new = _gradient(lp, z, h, lows, highs)
+        if g_new is None:
+            break
+        y = g - g_new  # the change of the cost's gradient
+        if float(s @ y) > 1e-12:
+            bs = b @ s
+            b = b + np.outer(y, y) / float(y @ s) - np.outer(bs, bs) / float(s @ bs)
+        g = g_new
+    return z
+
+
+def _gradient(lp, z, h, lows, highs):
+    """The gradient of ``lp`` at ``z`` per sd ``h`` of each axis: central differences over
+    ``h``, shortened where ``z`` is nearer a bound of the box (``2 d`` points, one batch); None
+    where a probe fails."""
+    step = np.minimum(h, 0.999 * np.minimum(highs - z, z - lows))
+    step = np.where(step > 1e-6 * h, step, h)  # on a bound: the probe fails, and so does this
+    d = len(z)
+    fp = np.asarray(lp(np.vstack([z + np.diag(step), z - np.diag(step)])), dtype=float)
+    if not np.all(np.isfinite(fp)):
+        return None
+    return 0.5 * (fp[:d] - fp[d:]) * h / step
 
 
 def _nelder_mead_from(lp, z):

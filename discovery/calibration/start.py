@@ -25,12 +25,16 @@ from .optimum import (
     _nelder_mead_from,
     _principal_axes,
     _profile_sigma,
+    _quasi_newton,
     _simplex,
     bounded_laplace_covariance,
     laplace_covariance,
 )
 
-__all__ = ["StartSearch"]
+__all__ = ["StartSearch", "START_OPTIMIZERS"]
+
+#: The local searches of the maximum a posteriori (``Calibration(start_optimizer=...)``).
+START_OPTIMIZERS = ("nelder-mead", "quasi-newton")
 
 #: Restarts of the local search while its optimum leaves a discrepancy (:meth:`StartSearch._polish`)
 POLISH_RESTARTS = 3
@@ -61,7 +65,7 @@ class StartSearch:
     :class:`tvcid.discovery.calibration.calibration.Calibration`.
 
     Reads the estimator's set-up (``log_posterior_``, ``terms_``, ``names_``, ``start_``,
-    ``n_walkers``, ``backend`` and the options ``optimize_start``, ``features_fallback``,
+    ``n_walkers``, ``backend`` and the options ``optimize_start``, ``start_optimizer``, ``features_fallback``,
     ``discrepancy``, ``global_search``, ``spread``, ``laplace_move``) and uses its per-record steps
     (``_fall_back_slow``, ``_refine_steps_at``, ``_chooses_transient``, ``_choose_transients``).
     Sets ``map_start_``, ``inflation_``, ``laplace_`` and ``initial_axes_``.
@@ -119,7 +123,11 @@ class StartSearch:
         """The maximum a posteriori from ``z0`` (internal coordinates): Nelder-Mead, then, where
         a recording still shows a misfit, the global search and restarts (:meth:`_polish`)."""
         z0 = _profile_sigma(lp, z0, self.names_)
-        end = _nelder_mead(lp, _simplex(z0, lp), 150 * len(z0))
+        if self.start_optimizer == "quasi-newton":
+            end = _quasi_newton(lp, z0, _axis_scales(lp, z0))
+            end = _nelder_mead(lp, _simplex(end, lp), 50 * len(z0))
+        else:
+            end = _nelder_mead(lp, _simplex(z0, lp), 150 * len(z0))
         if np.isfinite(lp(end)):
             z0 = _profile_sigma(lp, end, self.names_)
         # owed with or without the discrepancy term: the search finds the mode, the term only
@@ -159,8 +167,13 @@ class StartSearch:
             if max(factors) <= 1.0:
                 break
             scale = _axis_scales(lp, z0)
-            axes = _principal_axes(lp, z0, scale, _hessian(lp, z0, scale))
-            end = _nelder_mead(lp, np.vstack([z0, z0[None, :] + axes.T]), 100 * ndim)
+            hess = _hessian(lp, z0, scale)
+            axes = _principal_axes(lp, z0, scale, hess)
+            if self.start_optimizer == "quasi-newton":
+                end = _quasi_newton(lp, z0, scale, hess)
+                end = _nelder_mead(lp, np.vstack([end, end[None, :] + axes.T]), 50 * ndim)
+            else:
+                end = _nelder_mead(lp, np.vstack([z0, z0[None, :] + axes.T]), 100 * ndim)
             before = float(np.ravel(lp(z0))[0])
             if not float(np.ravel(lp(end))[0]) > before + POLISH_GAIN:
                 break

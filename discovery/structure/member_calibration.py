@@ -93,7 +93,9 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     delay prior's floor (:func:`member_delay_floor`: a fit under 1 ms halves it). The sensor
     noise sd stays at the records' estimate: sampled, it mixes several times slower than the
     physical parameters, and a misfit beyond the noise is the discrepancy factor's business.
-    Rounds of importance sampling from the start's Laplace approximation come first
+    The maximum a posteriori is found by quasi-Newton steps from the fit (batched simulations;
+    :func:`tvcid.discovery.calibration.optimum._quasi_newton`). Rounds of importance sampling
+    from the start's Laplace approximation come first
     (``MEMBER_IMPORTANCE_ROUND`` points each); where their ratios are reliable they are the
     posterior, else the chain starts from their points. Returns ``(posterior, priors, simulated
     seconds)``: the last a dict, ``start`` (the set-up and the start's searches) and
@@ -115,7 +117,8 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
         cal = Calibration(params, params=sampled, priors=priors, start=start,
                           likelihood="features", window=10.0, n_walkers=member_walkers(len(names)),
                           max_steps=max_steps, seed=seed, backend=backend, progress=progress,
-                          global_search=False, importance=MEMBER_IMPORTANCE_ROUND).fit(recordings)
+                          global_search=False, importance=MEMBER_IMPORTANCE_ROUND,
+                          start_optimizer="quasi-newton").fit(recordings)
     start = cal.start_simulated_seconds_
     return cal.posterior_, priors, {"start": start,
                                     "sampling": cal.log_posterior_.simulated_seconds - start,

@@ -237,6 +237,7 @@ class StructureSearch:
         search(order[:RACE_LEADERS])
         best = min(f.cost for f in found.values())
         screen = in_sample_screen(best, len(self.objective.targets))
+        # a leader stays whatever its cost: a search can miss its basin, so a cost is no bound
         staying = {s for s in tops if bound[s] <= screen or s in found}
         staying |= {s for s in tops if any(_contains(t, s) for t in staying)}
         out = [s for s in tops if s not in staying]
