@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from tvcid.discovery.structure.set_posterior import MemberPosterior, combine, member_quantities
+from tvcid.discovery.structure.set_posterior import MemberPosterior, combine
+from tvcid.models.quantities import member_quantities
 from tvcid.models import hypothesis
 from tvcid.models.structures import Structure, shared_choices
 from tvcid.pipeline import DiscoveryResult

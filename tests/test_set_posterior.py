@@ -12,10 +12,9 @@ from tvcid.discovery.structure.set_posterior import (
     allowed_range,
     combine,
     left_open_quantities,
-    linear_block_dc_gain_and_bandwidth,
-    member_quantities,
 )
 from tvcid.models import M000, M002
+from tvcid.models.quantities import linear_block_dc_gain_and_bandwidth, member_quantities
 
 
 @pytest.mark.parametrize("params", [M000(), M002()])

@@ -121,11 +121,8 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     from tvcid.discovery.calibration.start import NoFiniteStartError
     from tvcid.discovery.calibration.step_error import measure_step_error, widen_quantiles
     from tvcid.discovery.structure.member_evidence import member_importance_draws
-    from tvcid.discovery.structure.set_posterior import (
-        member_quantities,
-        not_pinned,
-        prior_quantities,
-    )
+    from tvcid.discovery.structure.set_posterior import not_pinned, prior_quantities
+    from tvcid.models.quantities import member_quantities
 
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
     try:

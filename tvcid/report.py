@@ -10,8 +10,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from tvcid.discovery.structure.set_posterior import (COMPONENT_QUANTITIES, QUANTITY_UNITS, decided_absent,
-                                               partly_present, printed_present_or_absent)
+from tvcid.discovery.structure.set_posterior import (decided_absent, partly_present,
+                                               printed_present_or_absent)
+from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS
 from tvcid.models.hypotheses import parameter_unit
 from tvcid.models.structures import Structure, prune_reason
 

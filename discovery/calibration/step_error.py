@@ -19,7 +19,7 @@ at a seeded subsample of the posterior's draws; its difference from the stored f
 full-step one translated by ``m`` gives exactly ``g = C^-1 m``. So the posterior at half the step
 is read as the draws translated by ``s = C g`` (``C`` from all the draws), and every quantity's
 move is the change of its median over the translated draws: the sampled parameters', and the
-combined ones' (:func:`tvcid.discovery.structure.set_posterior.member_quantities`: DC gain, bandwidth,
+combined ones' (:func:`tvcid.models.quantities.member_quantities`: DC gain, bandwidth,
 threshold). On M000's bundled open-loop square the moves of the feedback gain and the delay are
 within 8 % and 18 % of the moves of the maximum a posteriori; on the quiet square above, where the
 move is four widths, the feedback gain's within 1.5 times; on the bundled sine, chains at 5e-4 and
@@ -267,7 +267,7 @@ class StepError:
         (``SOLVER_ERROR_FACTOR * (|shift| + se)``, the step error :func:`widen_interval` takes).
     quantities : dict
         The same for the member's combined quantities
-        (:func:`tvcid.discovery.structure.set_posterior.member_quantities`); empty when not asked for.
+        (:func:`tvcid.models.quantities.member_quantities`); empty when not asked for.
     steps : dict
         Record -> ``[step, half step]`` (s).
     n_points : int
@@ -392,7 +392,7 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
         Seeds the subsample and the standard errors' draws.
     quantities : bool
         Also the combined quantities of
-        :func:`tvcid.discovery.structure.set_posterior.member_quantities`.
+        :func:`tvcid.models.quantities.member_quantities`.
     params : dict, optional
         The fields not sampled, for those quantities (the member's fit, as its quantities are
         computed); default the calibration's base.
@@ -443,7 +443,7 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
     sampled = _median_shifts(natural, z_all, shift, cov, rng)
     combined = {}
     if quantities:
-        from tvcid.discovery.structure.set_posterior import member_quantities
+        from tvcid.models.quantities import member_quantities
 
         fit = cal.base_.to_dict() if params is None else dict(params)
 

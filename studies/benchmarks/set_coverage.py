@@ -62,7 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tvcid.discovery.structure.set_posterior import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
+from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
 from tvcid.models.strict_json import write_json
 
 from ..common import code_commit

@@ -37,7 +37,8 @@ from __future__ import annotations
 import math
 
 from tvcid.discovery.structure.coordinates import BOUNDS
-from tvcid.discovery.structure.set_posterior import COMPONENT_QUANTITIES, printed_present_or_absent
+from tvcid.discovery.structure.set_posterior import printed_present_or_absent
+from tvcid.models.quantities import COMPONENT_QUANTITIES
 
 #: The rules a judged quantity is judged by (the module docstring).
 RULES = ("interval", "allowed", "absent", "lacking")
