@@ -592,12 +592,8 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
 
     from tvcid.discovery.structure.coordinates import SearchSpace
     from tvcid.discovery.structure.search import Objective, local_sd
-    from tvcid.discovery.structure.structure_search import (
-        SEARCHES,
-        TEMPLATE,
-        StructureSearch,
-        _fixed_for,
-    )
+    from tvcid.discovery.structure.global_fit import GlobalFit
+    from tvcid.discovery.structure.structure_search import SEARCHES, TEMPLATE, _fixed_for
     from tvcid.discovery.structure.targets import make_target
     from tvcid.models.hypotheses import ActuatorParams
 
@@ -615,7 +611,7 @@ def test_open_loop_stage_reaches_the_open_loop_optimum(tmp_path):
     pinned = [j for j, n in enumerate(space.names) if n.startswith("log_") and sd[j] < 0.02]
     assert {"log_g0", "log_K"} <= {space.names[j] for j in pinned}
     for seed in range(3):
-        search = StructureSearch(objective, SEARCHES["standard"], np.random.default_rng(seed))
+        search = GlobalFit(objective, SEARCHES["standard"], np.random.default_rng(seed))
         fit = search.fit_open_loop(space, open_targets, [])
         assert fit.cost <= at_truth + 0.3 * len(open_targets)
         for j in pinned:
@@ -876,7 +872,7 @@ class _ScriptedSearch:
 ])
 def test_restarted_searches_stop_when_the_best_two_agree(costs, n_recordings, least, most, calls,
                                                           best):
-    from tvcid.discovery.structure.structure_search import best_of_restarts
+    from tvcid.discovery.structure.global_fit import best_of_restarts
 
     search = _ScriptedSearch(costs)
     fit = best_of_restarts(search, n_recordings, least, most)
@@ -885,7 +881,7 @@ def test_restarted_searches_stop_when_the_best_two_agree(costs, n_recordings, le
 
 
 def test_restarts_out_of_order_are_an_error():
-    from tvcid.discovery.structure.structure_search import best_of_restarts
+    from tvcid.discovery.structure.global_fit import best_of_restarts
 
     with pytest.raises(ValueError, match="min"):
         best_of_restarts(_ScriptedSearch([1.0]), 1, 3, 2)

@@ -51,11 +51,12 @@ def test_threaded_discovery_is_the_loop_discovery(tmp_path, monkeypatch):
     concurrently. Every cost, score, coordinate and verdict equals the sequential run's, and
     so does the count of simulated sets. The searches are cut short (the test is about the
     threads, not the search)."""
+    import tvcid.discovery.structure.global_fit as global_fit
     import tvcid.discovery.structure.structure_search as structure_search
 
     monkeypatch.setitem(structure_search.SEARCHES, "standard", structure_search.SearchSizes(
         pop=3, gens=4, open_pop=3, open_gens=4, nfev=6, rank_nfev=3))
-    monkeypatch.setattr(structure_search, "OPEN_LOOP_RESTARTS", (2, 2))
+    monkeypatch.setattr(global_fit, "OPEN_LOOP_RESTARTS", (2, 2))
     s = Structure("velocity", "output", friction=True, backlash=True, bandpass=False)
     scenario = shortened(draw_scenario(5, structure=s), closed=10.0, open_=5.0)
     # coarse, and made by the numba kernel in place of the plain-Python reference path (which

@@ -12,7 +12,7 @@ Pipeline (:meth:`StructureDiscovery.fit`):
    position) class, the largest structure without and with the band-pass loop gets a global
    search (differential evolution over the batch kernel; staged, open-loop tests first, when
    there are both kinds of recording; each stage repeated until two independent searches agree,
-   :func:`.structure_search.best_of_restarts`) and least-squares refinement from its best
+   :func:`.global_fit.best_of_restarts`) and least-squares refinement from its best
    distinct candidates, then from the better optima of the structures that differ from it only
    in the delay's position; every nested structure (no friction, no backlash) is refined from its
    parent's optimum with the component removed. A structure that fits worse than one of its
@@ -180,7 +180,7 @@ class StructureDiscovery:
         Kernel steps of the same runs per stage (each run's ``t_end / dt``).
     searches_ : dict
         Independent searches run per stage (``open_loop``, ``global``;
-        :func:`.structure_search.best_of_restarts`).
+        :func:`.global_fit.best_of_restarts`).
     targets_ : list
     sizes_ : SearchSizes
         The search sizes used.
@@ -270,7 +270,7 @@ class StructureDiscovery:
         else:
             fits = search.search_classes(kept, sindy)
             stop("global")
-            timings["global_open_loop_stage"] = search.open_loop_seconds
+            timings["global_open_loop_stage"] = search.global_fit.open_loop_seconds
             start()
             self.repaired_ = search.fit_nested([s for s in kept if s not in search.dropped],
                                                fits, sindy)
@@ -308,7 +308,7 @@ class StructureDiscovery:
         self.cpu_seconds_ = cpu
         self.simulated_seconds_ = simulated
         self.simulated_steps_ = steps
-        self.searches_ = dict(search.searches)
+        self.searches_ = dict(search.global_fit.searches)
         return self
 
     def _sindy_seeds(self, recs):

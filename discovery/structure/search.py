@@ -138,7 +138,7 @@ class FitResult:
         Parameter sets simulated.
     restarts : int
         Independent searches this fit is the best of
-        (:func:`.structure_search.best_of_restarts`).
+        (:func:`.global_fit.best_of_restarts`).
     start_cost_by_target : ndarray or None
         A refinement's cost per target at its start (:func:`refine`).
     """

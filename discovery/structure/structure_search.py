@@ -6,18 +6,16 @@
   delay position, band-pass loop) class, cross-seeded between delay positions; every nested
   structure refined from its parent's optimum; the repairs (a superset refitted from a nested
   structure that fits better; every structure refitted from the best optimum of all);
-* :func:`best_of_restarts` -- independent short searches repeated until the best two agree;
 * the starts carried from one structure to another: :func:`delay_moved` (the delay moved with
   the linear block matched in frequency), :func:`transferred` (any structure's optimum as a start
   for another), and the seeds a structure can take (:func:`_valid`).
 
-One structure's global search and refinement are :mod:`.search`'s; the ranking of the fits is
-:mod:`.ranking`'s.
+One structure's global search is :mod:`.global_fit`'s, its refinement :mod:`.search`'s; the
+ranking of the fits is :mod:`.ranking`'s.
 """
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,20 +25,13 @@ from tvcid.models.hypotheses import KICK_X0, DeadZonePosition, DelayPosition
 from tvcid.models.linear import second_order_response
 from tvcid.models.structures import Structure
 
+from .global_fit import GlobalFit
 from .indistinguishable import TOL_ABS, _contains
 from .ranking import SCREEN_ABS, StructureFit
-from .search import (
-    concurrent_map,
-    distinct_members,
-    global_search,
-    local_sd,
-    progress_bar,
-    refine,
-    refine_all,
-)
+from .search import concurrent_map, progress_bar, refine
 from .tasks import fit_tops
 
-__all__ = ["StructureSearch", "SearchSizes", "SEARCHES", "TEMPLATE", "best_of_restarts",
+__all__ = ["StructureSearch", "SearchSizes", "SEARCHES", "TEMPLATE",
            "delay_moved", "transferred"]
 
 #: Template of the fields a search does not set (paper 001's linear block, only a placeholder; the
@@ -48,21 +39,10 @@ __all__ = ["StructureSearch", "SearchSizes", "SEARCHES", "TEMPLATE", "best_of_re
 TEMPLATE = dict(gain=305500.0, damping=202.1, stiffness=14520.0, dead_zone=1e-3,
                 dead_zone_position=DeadZonePosition.ERROR, backlash=0.0, delay=2e-3,
                 delay_position=DelayPosition.OUTPUT, x0=KICK_X0)
-#: Distinct members of a global search's final population refined locally (the best among them).
-N_STARTS = 3
-#: Independent short searches of one stage (:func:`best_of_restarts`): at least the first number,
-#: then more until the best two agree, up to the second; the open-loop stage, and a search of the
-#: whole box (recordings of one kind). With open-loop tests the limit cycles are searched once,
-#: in the box the open-loop fit narrowed. The band-pass loop's wandering cycles rarely let two
-#: searches agree, so a whole-box search often runs to its maximum, and that maximum is 4.
-OPEN_LOOP_RESTARTS = (3, 8)
-WHOLE_BOX_RESTARTS = (2, 4)
 #: How :meth:`StructureSearch.search_classes` may race the classes (:meth:`StructureSearch.race_classes`).
 RACE_MODES = ("off", "measure", "on")
 #: Tops searched on all recordings before the race drops any: those of lowest open-loop bound.
 RACE_LEADERS = 2
-#: Half-width of the box kept around the open-loop stage's fit, in local spreads of each coordinate.
-OPEN_LOOP_BOX = 6.0
 #: Band over which :func:`delay_moved` matches the moved block's frequency response, in units of
 #: the block's natural frequency ``sqrt(K3)``: the limit cycles (2-10 Hz) and the open-loop tests'
 #: edges ring below it (M000: 19 Hz).
@@ -80,7 +60,7 @@ class SearchSizes:
     pop, gens : int
         Differential evolution on all recordings: population per coordinate, generations.
     open_pop, open_gens : int
-        The same for each of the open-loop stage's searches (:func:`best_of_restarts`).
+        The same for each of the open-loop stage's searches (:func:`.global_fit.best_of_restarts`).
     nfev : int
         Least-squares evaluations of a refinement (global searches, nested structures, repairs).
     rank_nfev : int
@@ -130,10 +110,9 @@ class StructureSearch:
 
     Attributes
     ----------
-    searches : dict
-        Independent searches run per stage (``open_loop``, ``global``; :func:`best_of_restarts`).
-    open_loop_seconds : float
-        Wall time of the open-loop stages (s).
+    global_fit : .global_fit.GlobalFit
+        The single structures' global searches run here, and the counts of all of them
+        (``searches``, ``open_loop_seconds``), those of :mod:`.tasks` added.
     worker_cpu_seconds : float
         CPU seconds of the searches run in other processes (:func:`.tasks.fit_tops`).
     race_record : dict or None
@@ -152,8 +131,7 @@ class StructureSearch:
         self.spaces = dict(spaces or {})
         self.progress = progress
         self.executor = executor
-        self.searches = {"open_loop": 0, "global": 0}
-        self.open_loop_seconds = 0.0
+        self.global_fit = GlobalFit(objective, sizes, rng)
         self.worker_cpu_seconds = 0.0
         self.race = race
         self.race_record = None
@@ -195,11 +173,11 @@ class StructureSearch:
         searches on all recordings, most promising first, and the classes that cannot reach the
         ranking dropped.
 
-        1. Every top's open-loop stage (:meth:`fit_open_loop`; a band-pass top seeded with its
+        1. Every top's open-loop stage (:meth:`.global_fit.GlobalFit.fit_open_loop`; a band-pass top seeded with its
            class's open-loop fit, the loop switched on small). Its cost is a lower bound of the
            top's in-sample cost on all recordings (the open-loop recordings' share of it cannot
            be smaller than their own optimum), and of every structure nested in it.
-        2. The searches on all recordings (:meth:`fit_global` from that stage) of the
+        2. The searches on all recordings (:meth:`.global_fit.GlobalFit.fit` from that stage) of the
            ``RACE_LEADERS`` tops of lowest bound.
         3. A top whose bound exceeds :func:`.ranking.in_sample_screen` of the best cost so far
            cannot be ranked, nor can any structure nested in it: it is dropped, unless it is
@@ -285,7 +263,7 @@ class StructureSearch:
                               key=lambda f: f.cost, default=None) for s in level}
             done = {}
             for s in (s for s in level if parents[s] is None):  # in order: the rng's draws
-                done[s] = (self.fit_global(self.spaces[s], []), "global search")
+                done[s] = (self.global_fit.fit(self.spaces[s], []), "global search")
                 bar.update()
 
             def from_parent(s):
@@ -341,12 +319,12 @@ class StructureSearch:
             if s in self.dropped:
                 continue
             if s in moved:  # the refit's optimum seeds the search, which keeps the better
-                found = self.fit_global(self.spaces[s], [self.spaces[s].params(moved[s].theta)])
+                found = self.global_fit.fit(self.spaces[s], [self.spaces[s].params(moved[s].theta)])
                 if found.cost < moved[s].cost:
                     fits[s] = self._record(s, found, "global search (the added recordings fit "
                                            "worse near the earlier run's optimum)", [])
             elif s not in fits:
-                fits[s] = self._record(s, self.fit_global(self.spaces[s], []), "global search", [])
+                fits[s] = self._record(s, self.global_fit.fit(self.spaces[s], []), "global search", [])
         self.cross_seed(fits)
         repaired = self.repair_supersets(fits)
         repaired += self.seed_from_best(fits)
@@ -375,67 +353,6 @@ class StructureSearch:
         self.race_record = {**race, "best_cost": best, "screen": screen,
                             "dropped_tops": [t.name for t in out],
                             "dropped": sorted(s.name for s in self.dropped)}
-
-    # -- one structure's global search ---------------------------------------------------------
-    def fit_global(self, space, seeds, first=None):
-        """Global search of one structure on all recordings, then least squares.
-
-        With open-loop and closed-loop recordings together the search is staged: the open-loop
-        output error, smooth in the parameters, is fitted first (:meth:`fit_open_loop`); the
-        search on all recordings then keeps, for every coordinate the open-loop tests pin, only
-        ``OPEN_LOOP_BOX`` local spreads around that fit. The limit cycles' features jump where the
-        cycle changes shape, and a cycle at the scale of the dead zone does so within a fraction
-        of a percent of the linear block, where a search of the whole box finds no basin. Least
-        squares then runs in the whole box.
-
-        On limit cycles alone the whole box is searched, and one short search often ends in
-        another basin, so the search is repeated until its best two agree (:func:`best_of_restarts`,
-        at most ``WHOLE_BOX_RESTARTS``).
-
-        ``seeds``: parameter objects of the structure (:func:`_valid`) placed in the first
-        population; ``first``: the open-loop stage's fit where it has run already (the race,
-        :meth:`race_classes`). Returns a :class:`.search.FitResult`.
-        """
-        objective = self.objective
-        pop, gens, nfev = self.sizes.pop, self.sizes.gens, self.sizes.nfev
-        starts = [space.coordinates(p) for p in seeds]
-        box = space
-        open_targets = [t for t in objective.targets if t.kind == "open"]
-        restarts = WHOLE_BOX_RESTARTS
-        if open_targets and len(open_targets) < len(objective.targets):
-            if first is None:
-                t0 = time.perf_counter()
-                first = self.fit_open_loop(space, open_targets, starts)
-                self.open_loop_seconds += time.perf_counter() - t0
-            sd = local_sd(space, objective, first.theta, targets=open_targets)
-            box = space.narrowed(first.theta, OPEN_LOOP_BOX * sd)
-            starts = [first.theta] + starts
-            restarts = (1, 1)
-        best = best_of_restarts(
-            lambda: _searched(box, space, objective, self.rng, starts, pop, gens, nfev),
-            len(objective.targets), *restarts)
-        self.searches["global"] += best.restarts
-        for s in starts[:1]:  # the best seed, refined too
-            alt = refine(space, objective, s, max_nfev=nfev)
-            if alt.cost < best.cost:
-                best = alt
-        return best
-
-    def fit_open_loop(self, space, open_targets, starts):
-        """Short searches on the open-loop recordings alone, repeated until the best two agree
-        (:func:`best_of_restarts`, at most ``OPEN_LOOP_RESTARTS``).
-
-        One search alone often stops in another basin, and short searches from independent
-        starts fail independently. The stage is checked by
-        ``tests/test_discover.py::test_open_loop_stage_reaches_the_open_loop_optimum``.
-        """
-        pop, gens = self.sizes.open_pop, self.sizes.open_gens
-        best = best_of_restarts(
-            lambda: _searched(space, space, self.objective, self.rng, starts, pop, gens, 30,
-                              open_targets),
-            len(open_targets), *OPEN_LOOP_RESTARTS)
-        self.searches["open_loop"] += best.restarts
-        return best
 
     # -- refits from other structures' optima --------------------------------------------------
     def cross_seed(self, fits, n_sources=2):
@@ -544,41 +461,6 @@ def _class_tops(structures):
             if group:
                 tops.append(max(group, key=lambda s: len(s.components)))
     return tops
-
-
-def best_of_restarts(search, n_recordings, min_restarts, max_restarts):
-    """The best of repeated independent searches (``search()`` returns a fit with ``cost``).
-
-    At least ``min_restarts`` searches, then more until the best two costs agree within
-    ``TOL_ABS`` per recording (the floor of what the ranking tells apart: two independent
-    searches that reach the same cost make a better basin unlikely) or ``max_restarts`` have run.
-    Returns the best fit with its ``restarts`` set to the number of searches run.
-    """
-    if not 1 <= min_restarts <= max_restarts:
-        raise ValueError(f"restarts must satisfy 1 <= min ({min_restarts}) <= max ({max_restarts})")
-    fits = []
-    while len(fits) < max_restarts:
-        fits.append(search())
-        if len(fits) >= min_restarts:
-            a, b = (sorted(f.cost for f in fits) + [math.inf])[:2]
-            if b - a <= TOL_ABS * n_recordings:
-                break
-    best = min(fits, key=lambda f: f.cost)
-    best.restarts = len(fits)
-    return best
-
-
-def _searched(box, space, objective, rng, starts, pop, gens, nfev, targets=None):
-    """Differential evolution in ``box`` on the coarse targets (:meth:`.search.Objective.coarse`:
-    a third of the simulated seconds), then least squares on the full targets (in the whole
-    ``space``) from the best member and from the runners-up in other basins (a short search often
-    ends before one basin has won); the best refined fit."""
-    de = global_search(box, objective, rng, seeds=starts, popsize=pop, maxiter=gens,
-                       targets=objective.coarse(targets))
-    fits = refine_all(space, objective,
-                      distinct_members(de.population, de.population_costs, box, N_STARTS),
-                      max_nfev=nfev, targets=targets)
-    return min(fits, key=lambda f: f.cost)
 
 
 def delay_moved(params, position):

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..threads import one_blas_thread
+from .global_fit import GlobalFit
 from .search import FitResult, Objective
 
 __all__ = ["TopFit", "fit_top", "fit_tops"]
@@ -62,8 +63,8 @@ class TopFit:
 
 
 def fit_top(targets, sizes, space, starts, seed, first=None, open_loop_only=False):
-    """:meth:`.structure_search.StructureSearch.fit_global` of one structure, alone (or only its
-    open-loop stage, :meth:`.structure_search.StructureSearch.fit_open_loop`).
+    """:meth:`.global_fit.GlobalFit.fit` of one structure, alone (or only its open-loop stage,
+    :meth:`.global_fit.GlobalFit.fit_open_loop`).
 
     Parameters
     ----------
@@ -87,16 +88,13 @@ def fit_top(targets, sizes, space, starts, seed, first=None, open_loop_only=Fals
     -------
     TopFit
     """
-    from .structure_search import StructureSearch
-
     cpu0 = time.process_time()
     own = [copy.copy(t) for t in targets]
     for t in own:
         if hasattr(t, "second_starts"):
             t.second_starts = 0
     objective = Objective(own)
-    search = StructureSearch(objective, sizes, np.random.default_rng(seed),
-                             {space.structure: space})
+    search = GlobalFit(objective, sizes, np.random.default_rng(seed))
     with one_blas_thread():  # also on a worker: the kernels own its cores
         if open_loop_only:
             t0 = time.perf_counter()
@@ -104,7 +102,7 @@ def fit_top(targets, sizes, space, starts, seed, first=None, open_loop_only=Fals
                                        [space.coordinates(p) for p in starts])
             search.open_loop_seconds += time.perf_counter() - t0
         else:
-            fit = search.fit_global(space, starts, first=first)
+            fit = search.fit(space, starts, first=first)
     return TopFit(fit=fit, evaluations=objective.n_evaluations,
                   simulated_seconds=objective.simulated_seconds,
                   second_starts=[getattr(t, "second_starts", 0) for t in own],
@@ -152,6 +150,7 @@ def fit_tops(search, structures, starts, seeds, firsts=None, open_loop_only=Fals
             if k:
                 t.second_starts += k
         for stage, k in result.searches.items():
-            search.searches[stage] = search.searches.get(stage, 0) + k
-        search.open_loop_seconds += result.open_loop_seconds
+            counts = search.global_fit.searches
+            counts[stage] = counts.get(stage, 0) + k
+        search.global_fit.open_loop_seconds += result.open_loop_seconds
         yield result.fit
