@@ -149,6 +149,26 @@ def test_the_next_test_leaves_out_the_members_the_weights_decided_against(tmp_pa
     assert _next_test_lines(nt) == []
 
 
+def test_a_merged_members_weight_counts_for_the_structure_it_is_merged_into(tmp_path):
+    """A superset merged into a member of the set can carry the weight its posterior earns; the
+    next test counts it for the structure it is merged into: that one is kept, the rest (under
+    5 %) left out, and the summary names it."""
+    from tvcid.models import M002, M001i
+    from tvcid.pipeline import next_test
+    from tvcid.report import _next_test_headline
+
+    rows = [{"structure": n, "params": p.to_dict(), "indistinguishable_from_best": True,
+             "merged_into": into} for n, p, into in (("a", M002(), None), ("b", M001i(), None),
+                                                     ("a+x", M002(), "a"))]
+    summary = {"structures": rows, "sensor_noise": {},
+               "set_posterior": {"members": [{"structure": "a", "weight": 1e-9},
+                                             {"structure": "b", "weight": 1e-6},
+                                             {"structure": "a+x", "weight": 1.0 - 1e-6}]}}
+    nt = next_test(summary, [], 0, tmp_path)
+    assert nt["members"] == ["a"] and [x["structure"] for x in nt["left_out"]] == ["b"]
+    assert "`a`" in _next_test_headline(nt, 2)
+
+
 def _dead_zone_draws(base, n=8, seed=0):
     """Draws of ``base`` with its dead zone spread by 5 % (the one sampled parameter)."""
     from tvcid.discovery.calibration.priors import LogUniform

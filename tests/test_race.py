@@ -122,3 +122,36 @@ def test_without_open_loop_recordings_there_is_no_race(monkeypatch):
     assert len(search.search_classes(structures, {})) == 12
     assert seen == [False] * 12 and search.race_record is None
     assert Structure.parse(structures[0].name) == structures[0]
+
+
+def test_the_stored_race_measurement_is_its_rows_summary():
+    """The stored measurement of the drop rule (``--race measure``: every class searched, what the
+    race would drop recorded per draw): each row's errors are its own dropped structures that are
+    the truth's or in its reported set, and the results table's value counts them."""
+    import json
+    from pathlib import Path
+
+    from tvcid.studies.benchmarks.discovery import race_summary
+    from tvcid.studies.benchmarks.results_table import discovery_race, load_records
+
+    path = Path(__file__).parents[1] / "studies/benchmarks/records/bench_discovery_race.json"
+    rows = [r for r in json.loads(path.read_text())["rows"] if r.get("race")]
+    assert rows
+    for r in rows:
+        assert r["race"]["applied"] is False  # measured: nothing was dropped from its set
+        wrong = set(r["race"]["dropped"]) & ({r["structure"]} | set(r["set"]))
+        assert sorted(wrong) == r["race"]["errors"], r["seed"]
+        assert set(r["race"]["dropped"]) <= {n for t in r["race"]["dropped_tops"]
+                                             for n in _nested_names(t)}, r["seed"]
+    t = race_summary(rows)
+    assert t["wrong"] == sum(bool(r["race"]["errors"]) for r in rows)
+    text = discovery_race(load_records())
+    assert f"in {t['wrong']} of {len(rows)}" in text and f"{t['dropped']} structures" in text
+
+
+def _nested_names(top):
+    """The names of ``top`` and of every structure nested in it (same positions)."""
+    from tvcid.discovery.structure.indistinguishable import _contains
+
+    t = Structure.parse(top)
+    return {s.name for s in structure_space({})[0] if s == t or _contains(t, s)}

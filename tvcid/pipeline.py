@@ -227,7 +227,8 @@ def next_test(summary, recs, seed, out, spent=None):
     candidates; the default menu acquired at the recordings' highest rate, the recordings'
     median noise); writes ``next_test.png``. A calibrated member whose weight is under
     :data:`tvcid.discovery.structure.set_weights.DECIDING_SHARE` is left out (``left_out``: the data
-    have decided against it); one beyond the calibration's cap stays. ``None`` for a set of one.
+    have decided against it), the weight of the members merged into it counted as its own; one
+    beyond the calibration's cap stays. ``None`` for a set of one.
     A dict ``spent`` gets what it simulated, ``simulated_seconds`` and ``simulated_steps``."""
     from tvcid.discovery.structure.discrimination import (
         default_candidates,
@@ -239,6 +240,10 @@ def next_test(summary, recs, seed, out, spent=None):
 
     weight = {m["structure"]: m["weight"]
               for m in (summary.get("set_posterior") or {}).get("members") or ()}
+    for s in summary["structures"]:  # a merged member's weight is its structure's
+        if s["indistinguishable_from_best"] and s["merged_into"] and s["structure"] in weight:
+            into = s["merged_into"]
+            weight[into] = weight.get(into, 0.0) + weight.pop(s["structure"])
     rows = [s for s in summary["structures"]
             if s["indistinguishable_from_best"] and s["merged_into"] is None]
     left_out = [{"structure": s["structure"], "weight": weight[s["structure"]]} for s in rows

@@ -271,6 +271,26 @@ def failed_draw(seed, exc, ranges="wide"):
             "seconds_discovery": math.nan, "commit": CODE_COMMIT}
 
 
+def race_summary(rows) -> dict:
+    """Over rows with a race record (:func:`race_verdict`): ``draws``; ``dropping``, the draws
+    where it drops any structure; ``dropped``, the structures dropped over all of them;
+    ``wrong``, the draws where a dropped structure is the truth's or in the reported set;
+    ``worst_shortfall``, the largest amount by which a searched top's open-loop share falls
+    under its bound (a bound that held: at most the open-loop stage's own agreement, 0.1 per
+    recording); ``least_margin``, the smallest gap between the screen and the best cost."""
+    out = {"draws": len(rows), "dropping": 0, "dropped": 0, "wrong": 0,
+           "worst_shortfall": 0.0, "least_margin": math.inf}
+    for r in rows:
+        race = r["race"]
+        out["dropping"] += bool(race["dropped"])
+        out["dropped"] += len(race["dropped"])
+        out["wrong"] += bool(race["errors"])
+        for name, share in race.get("open_loop_share", {}).items():
+            out["worst_shortfall"] = max(out["worst_shortfall"], race["bounds"][name] - share)
+        out["least_margin"] = min(out["least_margin"], race["screen"] - race["best_cost"])
+    return out
+
+
 def guarded_draw(seed, out_dir, quick, ranges="wide", race=None):
     """:func:`run_draw`, or :func:`failed_draw`'s row if discovery raised (a failed draw is wrong)."""
     try:

@@ -192,6 +192,23 @@ def discovery_short(records):
             "again by the set rule each row's `set_rule_check` names: " + text)
 
 
+def discovery_race(records):
+    """The race's drop rule measured (``--race measure``: every class searched, what the race
+    would drop recorded): per draw with open-loop tests, the structures it would drop, those
+    among the reported set or the truth's, and whether its bound held."""
+    from .discovery import race_summary
+
+    rows = [r for r in records["bench_discovery_race"]["rows"] if r.get("race")]
+    t = race_summary(rows)
+    seeds = sorted(r["seed"] for r in rows)
+    return (f"{t['draws']} draws with open-loop tests finished (seeds {seeds[0]}-{seeds[-1]}): "
+            f"the race would drop structures in {t['dropping']} of them ({t['dropped']} "
+            f"structures in all); a dropped structure in the reported set or the truth's in "
+            f"{t['wrong']} of {t['draws']}; a searched top's open-loop share under its bound by "
+            f"at most {t['worst_shortfall']:.3g}; the screen over the best cost by at least "
+            f"{t['least_margin']:.3g}")
+
+
 def rows_spread(records) -> float:
     """The evaluation-cost rows' spread of their points about the truth (one value)."""
     spreads = {r["spread"] for r in records["bench_evaluation_cost"]["rows"]}
@@ -436,6 +453,14 @@ CLAIMS = (
           "bench_discovery_short",
           "tests/test_discover.py::"
           "test_recordings_that_do_not_discriminate_widen_the_margin_in_quadrature"),
+    Claim("the structure search's race (`StructureDiscovery(race=...)`): on drawn truths and "
+          "designs with open-loop tests, the classes it drops and whether any holds the truth's "
+          "structure or a member of the reported set",
+          discovery_race, lambda r: [x for x in r["bench_discovery_race"]["rows"] if x.get("race")],
+          "python -m tvcid.studies.benchmarks.discovery --race measure --seed 6015 --draws 10 "
+          "--jobs 2",
+          "bench_discovery_race",
+          "tests/test_race.py::test_the_stored_race_measurement_is_its_rows_summary"),
     Claim("one point of a member's posterior (features likelihood, 10 s windows, the truth's "
           "structure, seeded draws over the generator's ranges): its kernel steps by record "
           "and part, and how far a simulated cycle's features move with the stretch they are "
