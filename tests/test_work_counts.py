@@ -149,7 +149,7 @@ def test_stored_evaluation_cost_record_is_its_rows_summary():
 def test_two_runs_answers_are_compared_member_by_member():
     """The speed benchmark's comparison of two runs' answers: an interval of a member carrying
     weight moved by a quarter of its width is not the same answer, the same move in a member of
-    weight 0.01 is not judged, and a changed winner is named."""
+    weight 0.01 is not judged, a changed winner is named, and the set is compared as a set."""
     from tvcid.studies.benchmarks.discover_speed import compare_answers
 
     def run(winner, lo_a, lo_b, weight_b=0.01):
@@ -167,3 +167,9 @@ def test_two_runs_answers_are_compared_member_by_member():
     assert not heavy_b["same"] and heavy_b["moves"]["b"]["delay"] == pytest.approx(0.6)
     other = compare_answers(run("b", 0.0, 0.0), before)
     assert not other["same"] and not other["same_winner"] and other["same_set"]
+    reordered = run("a", 0.0, 0.0)
+    reordered["set"] = ["b", "a"]  # the ranking's scores swapped, the same members
+    assert compare_answers(reordered, before)["same_set"]
+    grown = run("a", 0.0, 0.0)
+    grown["set"] = ["a", "b", "c"]
+    assert not compare_answers(grown, before)["same_set"]

@@ -125,8 +125,8 @@ CARRIES_WEIGHT = 0.05
 
 def answers(summary) -> dict:
     """What a run answers, to compare with another run on the same recordings: the winner, the
-    set (its structures, in order), each calibrated member's weight and its quantities' 90 %
-    intervals."""
+    set (its structures, in the ranking's order), each calibrated member's weight and its
+    quantities' 90 % intervals."""
     sp = summary.get("set_posterior") or {}
     return {"winner": summary["structures"][0]["structure"],
             "set": list(summary["indistinguishable"]),
@@ -137,7 +137,8 @@ def answers(summary) -> dict:
 
 
 def compare_answers(now, before) -> dict:
-    """``now``'s answers (:func:`answers`) against ``before``'s: the same winner and set, and for
+    """``now``'s answers (:func:`answers`) against ``before``'s: the same winner and set (its
+    structures, in whatever order the ranking's scores put them), and for
     every member carrying weight in either (``CARRIES_WEIGHT``) each quantity's 90 % interval's
     ends moved by ``(|q05 - q05'| + |q95 - q95'|) / (q95' - q05')``, ``before``'s width;
     ``largest_move`` over them, and ``same`` when the winner and set agree and no move reaches
@@ -158,10 +159,11 @@ def compare_answers(now, before) -> dict:
     values = [v for m in moves.values() for v in m.values() if isinstance(v, float)]
     missing = [n for n, m in moves.items() if "missing" in m]
     largest = max(values) if values else 0.0
+    same_set = sorted(now["set"]) == sorted(before["set"])
     return {"same_winner": now["winner"] == before["winner"],
-            "same_set": now["set"] == before["set"], "moves": moves,
+            "same_set": same_set, "moves": moves,
             "largest_move": largest, "missing": missing,
-            "same": (now["winner"] == before["winner"] and now["set"] == before["set"]
+            "same": (now["winner"] == before["winner"] and same_set
                      and not missing and largest < 0.2)}
 
 
