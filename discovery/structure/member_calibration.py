@@ -80,9 +80,8 @@ def member_walkers(n_parameters) -> int:
 
 #: Points per round of a member's importance stage
 #: (:mod:`tvcid.discovery.calibration.importance_stage`): where its ratios are reliable the
-#: member's posterior costs a few rounds of these instead of a chain. The stage's target, 300
-#: effective points, is within reach of three rounds of this size.
-MEMBER_IMPORTANCE_ROUND = 300
+#: member's posterior costs a few rounds of these instead of a chain.
+MEMBER_IMPORTANCE_ROUND = 400
 
 
 def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_steps=2000,
