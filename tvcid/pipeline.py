@@ -241,7 +241,7 @@ def next_test(summary, recs, seed, out, spent=None):
     weight = {m["structure"]: m["weight"]
               for m in (summary.get("set_posterior") or {}).get("members") or ()}
     for s in summary["structures"]:  # a merged member's weight is its structure's
-        if s["indistinguishable_from_best"] and s["merged_into"] and s["structure"] in weight:
+        if s["indistinguishable_from_best"] and s["merged_into"] and s.get("structure") in weight:
             into = s["merged_into"]
             weight[into] = weight.get(into, 0.0) + weight.pop(s["structure"])
     rows = [s for s in summary["structures"]
