@@ -157,6 +157,8 @@ def test_speed_claim_judges_the_stored_run_in_reference_seconds():
     compared = record.get("compared_with")
     if compared:  # the answers against an earlier run's on the same recordings
         assert f"moved by at most {compared['largest_move']:.2f} of their width" in text
+        for name in compared.get("missing") or ():  # a member carrying weight in one run only
+            assert f"`{name}` carries weight" in text
     if record.get("sampler") == "importance":
         assert f"the winner importance sampled, {record['mcmc_steps']} points" in text
     steps = record.get("simulated_steps")

@@ -354,8 +354,12 @@ def discover_speed(records):
         text += ("; against the answers of the earlier run on the same recordings that the "
                  f"record's `compared_with` names: {'the same' if compared['same_winner'] else 'another'} "
                  f"winner, {'the same' if compared['same_set'] else 'another'} set, the 90 % "
-                 f"intervals of the members carrying weight moved by at most "
+                 f"intervals of the members carrying weight in both moved by at most "
                  f"{compared['largest_move']:.2f} of their width")
+        for name in compared.get("missing") or ():
+            side = compared["moves"][name]["missing"]
+            here, there = ("here", "there") if side == "before" else ("there", "here")
+            text += f"; `{name}` carries weight {here} and is not calibrated {there}"
         was = compared.get("simulated_steps") or {}
         now = r.get("simulated_steps") or {}
         if was and now:
