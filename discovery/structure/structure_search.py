@@ -219,14 +219,13 @@ class StructureSearch:
         staying = {s for s in tops if bound[s] <= screen or s in found}
         staying |= {s for s in tops if any(_contains(t, s) for t in staying)}
         out = [s for s in tops if s not in staying]
+        dropped = [s for s in structures if any(s == t or _contains(t, s) for t in out)
+                   and not any(s == t or _contains(t, s) for t in staying)]
         self.race_record = {
             "bounds": {s.name: bound[s] for s in order},
             "leaders": [s.name for s in order[:RACE_LEADERS]],
             "best_cost": best, "screen": screen, "dropped_tops": [s.name for s in out],
-            "dropped": sorted(s.name for s in structures
-                              if any(s == t or _contains(t, s) for t in out)
-                              and not any(s == t or _contains(t, s) for t in staying)),
-            "applied": self.race == "on"}
+            "dropped": sorted(s.name for s in dropped), "applied": self.race == "on"}
         rest = [s for s in order[RACE_LEADERS:] if s in staying or self.race == "measure"]
         search(rest)
         bar.close()
@@ -236,8 +235,7 @@ class StructureSearch:
             s.name: float(sum(found[s].cost_by_recording[n] for n in open_names))
             for s in order if s in found}
         if self.race == "on":
-            for name in self.race_record["dropped"]:
-                s = Structure.parse(name)
+            for s in dropped:
                 top = next(t for t in out if t == s or _contains(t, s))
                 self.dropped[s] = _raced_out(bound[top], top, screen)
         fits = {s: found[s] for s in tops if s in found}
