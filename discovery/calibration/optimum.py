@@ -94,7 +94,7 @@ def _quasi_newton(lp, z0, scale, hess=None, maxiter=QN_ITERATIONS):
 
     A chain point costs one simulation of every recording; Nelder-Mead needs about ``150 d`` of
     them, one at a time, where this takes one Hessian and ``(2 d + 2)`` per iteration
-    (docs/methods/calibration.md, "Where a chain starts"). Returns ``z0`` where a probe fails
+    (docs/methods/calibration.md, "Start and moves"). Returns ``z0`` where a probe fails
     (no finite posterior) before any step, else the best point reached.
     """
     h = np.asarray(scale, dtype=float)
