@@ -217,10 +217,9 @@ class StructureSearch:
         screen = in_sample_screen(best, len(self.objective.targets))
         # a leader stays whatever its cost: a search can miss its basin, so a cost is no bound
         staying = {s for s in tops if bound[s] <= screen or s in found}
-        staying |= {s for s in tops if any(_contains(t, s) for t in staying)}
+        staying |= {s for s in tops if _within(s, staying)}
         out = [s for s in tops if s not in staying]
-        dropped = [s for s in structures if any(s == t or _contains(t, s) for t in out)
-                   and not any(s == t or _contains(t, s) for t in staying)]
+        dropped = [s for s in structures if _within(s, out) and not _within(s, staying)]
         self.race_record = {
             "bounds": {s.name: bound[s] for s in order},
             "leaders": [s.name for s in order[:RACE_LEADERS]],
@@ -339,11 +338,11 @@ class StructureSearch:
         bounds = race["bounds"]
         tops = [Structure.parse(n) for n in race["dropped_tops"]]
         back = [t for t in tops if bounds[t.name] <= screen]
-        out = [t for t in tops if t not in back and not any(_contains(b, t) for b in back)]
+        out = [t for t in tops if not _within(t, back)]
         for s in structures:
             if s.name in previous:
                 continue
-            if any(t == s or _contains(t, s) for t in out):
+            if _within(s, out):
                 self.dropped[s] = _raced_out(screen)
         self.race_record = {**race, "best_cost": best, "screen": screen,
                             "dropped_tops": [t.name for t in out],
@@ -434,6 +433,11 @@ class StructureSearch:
         return StructureFit(structure=s, params=self.spaces[s].params(fr.theta), theta=fr.theta,
                             cost=fr.cost, cost_by_recording=dict(zip(names, map(float, fr.cost_by_target))),
                             origin=origin, sindy_seeds=[p.to_dict() for p in seeds])
+
+
+def _within(s, tops):
+    """``s`` is one of ``tops`` or nested in one of them."""
+    return any(s == t or _contains(t, s) for t in tops)
 
 
 def _raced_out(screen):
