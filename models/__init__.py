@@ -4,7 +4,7 @@ This package never fits anything; :mod:`tvcid.discovery` does.
 """
 from .controllers import BendingMode, TransferFunction
 from .experiments import CONTROLLER_A, CONTROLLER_B, ClosedLoop, OpenLoop
-from .features import InsufficientPeriodsError, LimitCycleFeatures, limit_cycle_features
+from .cycle_reading import InsufficientPeriodsError, LimitCycleFeatures, limit_cycle_features
 from .hypotheses import (
     HYPOTHESES,
     M000,

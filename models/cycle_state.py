@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .cycle_reading import crossing_harmonics
 from .hypotheses import DeadZonePosition
 
 __all__ = ["RecordedCycleState", "CYCLE_STATE_HARMONICS"]
@@ -51,7 +52,8 @@ class RecordedCycleState:
     @classmethod
     def from_cycle(cls, recording, t, delta, crossings, omega, n_harmonics=CYCLE_STATE_HARMONICS):
         """The state at the first of ``crossings`` (upward mean crossings of ``delta`` at the
-        times ``t``, s from the record's first sample), from the cycle's Fourier series.
+        times ``t``, s from the record's first sample), from the cycle's Fourier series
+        (:func:`tvcid.models.cycle_reading.crossing_harmonics`).
 
         ``delta = mean + sum Re(a_k e^{i k w t})`` over whole periods between the first and the
         last crossing: ``x = delta``, ``y = delta'``, the vehicle's ``theta' = mu integral(delta)``
@@ -63,12 +65,8 @@ class RecordedCycleState:
         a model whose rest is stable too is not left at rest.
         """
         exp = recording.experiment()
-        ups = np.asarray(crossings, dtype=float)
-        w = (t >= ups[0]) & (t < ups[-1])
-        k = np.arange(1, n_harmonics + 1)
-        basis = np.exp(-1j * np.outer(k, omega * (t[w] - ups[0])))
-        a = 2.0 / w.sum() * (basis @ (delta[w] - np.mean(delta[w])))  # complex amplitudes at phase 0
-        kw = k * omega
+        a = crossing_harmonics(t, delta, crossings, omega, n_harmonics)  # at the first crossing
+        kw = np.arange(1, n_harmonics + 1) * omega
         x = float(np.sum(a.real))
         y = float(np.sum((1j * kw * a).real))
         thetad = float(exp.mu * np.sum((a / (1j * kw)).real))

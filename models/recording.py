@@ -160,7 +160,7 @@ class Recording:
 
     def features(self, window=None, **kwargs):
         """Limit-cycle features of ``delta`` over the last ``window`` seconds."""
-        from .features import limit_cycle_features
+        from .cycle_reading import limit_cycle_features
 
         return limit_cycle_features(*self.window(window), **kwargs)
 

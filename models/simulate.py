@@ -101,7 +101,7 @@ class Trajectory:
 
     def features(self, window=None, **kwargs):
         """Limit-cycle features of ``delta`` over the last ``window`` seconds."""
-        from .features import limit_cycle_features
+        from .cycle_reading import limit_cycle_features
 
         sl = self.window(window)
         return limit_cycle_features(self.t[sl], self.delta[sl], **kwargs)

@@ -29,10 +29,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from tvcid.discovery.calibration import Calibration, compare
-from tvcid.discovery.calibration.ridge import RidgeAnalysis, robust_amplitude
+from tvcid.discovery.calibration.ridge import RidgeAnalysis
 from tvcid.discovery.calibration.runner import ConvergenceWarning
 from tvcid.figures import pyplot
 from tvcid.models import CONTROLLER_A, CONTROLLER_B, M002, OpenLoop
+from tvcid.models.cycle_reading import robust_amplitude
 from tvcid.models.strict_json import write_json
 from tvcid.models.synthetic import synthetic_recording
 

@@ -11,14 +11,13 @@ from tvcid.discovery.calibration import (
     Calibration,
     LogUniform,
     Uniform,
-    cycle_features,
     parse_prior,
     run_ensemble,
 )
 from tvcid.discovery.calibration.runner import ConvergenceWarning
 from tvcid.discovery.calibration.testing import moment_errors, sample_gaussian
 from tvcid.models import CONTROLLER_A, M002, simulate
-from tvcid.models.features import limit_cycle_features
+from tvcid.models.cycle_reading import cycle_features, limit_cycle_features
 from tvcid.models.recording import RecordingError
 from tvcid.models.synthetic import synthetic_recording
 

@@ -162,7 +162,7 @@ def test_a_period_two_cycle_counts_where_the_window_falls(tmp_path):
     truth the discrepancy factor stays under 5 for transients of 6 and 20 s (measured 1.0 and
     3.1; against one next window, 89 and 1.5)."""
     from tvcid.models import ClosedLoop
-    from tvcid.models.features import cycle_crossings
+    from tvcid.models.cycle_reading import cycle_crossings
     from tvcid.studies.benchmarks.scenarios import draw_scenario
 
     truth = draw_scenario(1001, ranges="papers").truth

@@ -13,10 +13,10 @@ from tvcid.discovery.calibration.ridge import (  # noqa: E402
     PAPER002_FAMILY_A,
     RidgeAnalysis,
     df_family,
-    robust_amplitude,
 )
 from tvcid.discovery.calibration.runner import ConvergenceWarning  # noqa: E402
 from tvcid.models import CONTROLLER_A, M002  # noqa: E402
+from tvcid.models.cycle_reading import robust_amplitude  # noqa: E402
 from tvcid.models.synthetic import synthetic_recording  # noqa: E402
 
 

@@ -15,7 +15,7 @@ from tvcid.models.controllers import (
     ImproperTransferFunctionError,
     TransferFunction,
 )
-from tvcid.models.features import limit_cycle_features
+from tvcid.models.cycle_reading import limit_cycle_features
 from tvcid.models.reference import simulate_reference
 
 LEAD = TransferFunction.lead(4.0, 8.0)

@@ -9,9 +9,9 @@ import pytest
 from tvcid.discovery.calibration.likelihood import FeatureTerm, WaveformTerm
 from tvcid.models import CONTROLLER_A, CONTROLLER_B, M000, M002, ActuatorParams, simulate
 from tvcid.models.batch import warm_start_state
+from tvcid.models.cycle_reading import cycle_crossings
 from tvcid.models.cycle_state import RecordedCycleState
 from tvcid.models.experiments import ClosedLoop
-from tvcid.models.features import cycle_crossings
 from tvcid.models.hypotheses import DeadZonePosition, DelayPosition
 from tvcid.models.synthetic import synthetic_recording
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from tvcid.models import InsufficientPeriodsError, limit_cycle_features
-from tvcid.models.features import upward_mean_crossings
+from tvcid.models.cycle_reading import upward_mean_crossings
 
 W0 = 8.57
 
@@ -32,7 +32,7 @@ def test_fourier_harmonics_give_each_harmonics_amplitude_and_phase():
     """``x = sum_k A_k cos(k w t + phi_k)`` over twelve whole periods: ``c_k = A_k exp(i phi_k)``
     to 1e-13 rad for k = 1..9, 0 where there is none (the powers of one exponential lose nothing
     against one exponential per harmonic)."""
-    from tvcid.models.features import fourier_harmonics
+    from tvcid.models.cycle_reading import fourier_harmonics
 
     period, dt = 0.8, 1e-4
     t = np.arange(12 * 8000) * dt
@@ -96,7 +96,7 @@ def test_small_cycle_under_sensor_noise_keeps_its_frequency():
     """Coverage draw 5's held band-pass cycles: 3.5e-4 rad at 1.9 Hz under 8.9e-5 rad of noise,
     sampled at 200 Hz. A hysteresis of 10 % of the amplitude let noise cross it (frequency read
     18-22 rad/s for 11.94); one of at least three noise sd keeps the cycle's."""
-    from tvcid.models.features import white_noise_sd
+    from tvcid.models.cycle_reading import white_noise_sd
 
     rng = np.random.default_rng(5)
     t = np.arange(0.0, 10.0, 0.005)
@@ -116,7 +116,7 @@ def test_whole_period_harmonics_over_a_span_between_samples():
     """Over exactly 13 periods that start and end between 1 kHz samples, the first and third
     harmonics to 1e-10 rad of their amplitudes; the sum over the samples between the same ends
     (what :func:`fourier_harmonics` is given) misses them by 1e-8 to 1e-7 rad, at any start."""
-    from tvcid.models.features import fourier_harmonics, whole_period_harmonics
+    from tvcid.models.cycle_reading import fourier_harmonics, whole_period_harmonics
 
     period, h = 0.7309, 1e-3
     t = np.arange(0.0, 12.0, h)
@@ -139,9 +139,9 @@ def test_settled_simulated_cycle_reads_the_same_from_window_to_window(tmp_path):
     over four successive 10 s windows agree within 0.02 of the record's noise sd in every
     feature; the harmonics summed over the samples between crossings moved by up to 0.4 sd."""
     from tvcid.discovery.calibration.likelihood import FeatureTerm
-    from tvcid.discovery.calibration.likelihood.features import cycle_features
     from tvcid.models import CONTROLLER_A, M002
     from tvcid.models.batch import BatchSimulator
+    from tvcid.models.cycle_reading import cycle_features
     from tvcid.models.synthetic import synthetic_recording
 
     rec = synthetic_recording(M002(), CONTROLLER_A, 20.0, 1e-4, 3, tmp_path / "m002.csv",
@@ -154,7 +154,7 @@ def test_settled_simulated_cycle_reads_the_same_from_window_to_window(tmp_path):
     reads = []
     for start in (30.0, 40.0, 50.0, 60.0):
         sel = (t >= start) & (t <= start + 10.0)
-        reads.append(cycle_features(t[sel], delta[0, sel]))
+        reads.append(cycle_features(t[sel], delta[0, sel], term.features))
     sd = np.sqrt(np.diag(term._data_cov))
     moves = np.abs(np.diff(reads, axis=0)) / sd
     assert np.max(moves) < 0.02, moves.max(axis=0)

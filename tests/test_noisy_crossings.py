@@ -10,9 +10,13 @@ import pytest
 from tvcid.discovery.calibration.likelihood import WaveformTerm
 from tvcid.discovery.spectral.harmonics import whole_periods
 from tvcid.discovery.spectral.samples import as_uniform_samples
-from tvcid.discovery.structure.cycle_tail import cycle_of, stationary_tail
 from tvcid.models import CONTROLLER_A
-from tvcid.models.features import CROSSING_HYSTERESIS, crossing_hysteresis
+from tvcid.models.cycle_reading import (
+    CROSSING_HYSTERESIS,
+    crossing_hysteresis,
+    cycle_of,
+    stationary_tail,
+)
 from tvcid.models.recording import Recording
 
 W = 2 * np.pi * 1.9
@@ -52,7 +56,7 @@ def test_simulated_cycle_is_measured_at_the_records_multiple():
     """A cycle whose lobes alternate is read at the record's crossings per period, not decided
     afresh per simulated run: across the subharmonic threshold the free decision halves the
     frequency (a jump of the features for a small change of a parameter), the record's does not."""
-    from tvcid.discovery.structure.cycle_tail import (
+    from tvcid.models.cycle_reading import (
         SUBHARMONIC_FRACTION,
         _sizes,
         crossing_multiple,
@@ -69,7 +73,7 @@ def test_simulated_cycle_is_measured_at_the_records_multiple():
     assert free_lo == pytest.approx(w, rel=0.02) and free_hi == pytest.approx(0.5 * w, rel=0.02)
     assert fixed_lo == pytest.approx(w, rel=0.02) and fixed_hi == pytest.approx(w, rel=0.02)
     x = np.sin(w * t) + 1.5 * SUBHARMONIC_FRACTION * np.sin(0.5 * w * t + 0.3)
-    from tvcid.models.features import crossing_hysteresis, upward_mean_crossings
+    from tvcid.models.cycle_reading import crossing_hysteresis, upward_mean_crossings
 
     every = upward_mean_crossings(t, x, float(np.mean(x)), crossing_hysteresis(x, 0.5 * np.ptp(x)))
     ups = fundamental_crossings(every, _sizes(t, x, every), signal=(t, x))

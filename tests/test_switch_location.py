@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from tvcid.models import simulate
-from tvcid.models.features import limit_cycle_features
+from tvcid.models.cycle_reading import limit_cycle_features
 from tvcid.models.kernel import _sign_switch_average
 from tvcid.models.nonlinearities import sign_switch_average
 

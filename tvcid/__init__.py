@@ -33,7 +33,7 @@ _EXPORTS = {
     "CONTROLLER_A": "tvcid.models.experiments",
     "CONTROLLER_B": "tvcid.models.experiments",
     "simulate": "tvcid.models.simulate",
-    "limit_cycle_features": "tvcid.models.features",
+    "limit_cycle_features": "tvcid.models.cycle_reading",
     "load_recording": "tvcid.models.recording",
     "load_recordings": "tvcid.models.recording",
     "save_recording": "tvcid.models.recording",

@@ -44,8 +44,12 @@ def write_pinned_figure(post, pinned, path, recordings=(), params=None, max_pane
     import numpy as np
     from matplotlib.ticker import NullFormatter
 
-    from tvcid.discovery.calibration.ridge import df_family, robust_amplitude
-    from tvcid.models.features import InsufficientPeriodsError, limit_cycle_features
+    from tvcid.discovery.calibration.ridge import df_family
+    from tvcid.models.cycle_reading import (
+        InsufficientPeriodsError,
+        limit_cycle_features,
+        robust_amplitude,
+    )
 
     combos = [c for c in pinned["pinned"] if len(c["terms"]) > 1]
     pairs = []

@@ -18,8 +18,6 @@ from .likelihood import (
     DEFAULT_FEATURES,
     LIKELIHOODS,
     IllPosedLikelihoodWarning,
-    cycle_features,
-    estimate_noise,
 )
 from .posterior import ModelComparison, Posterior, PosteriorPredictive, compare
 from .priors import SIGMA, LogUniform, Prior, Uniform, default_prior, parse_prior
@@ -43,10 +41,8 @@ __all__ = [
     "SIGMA",
     "Uniform",
     "compare",
-    "cycle_features",
     "default_moves",
     "default_prior",
-    "estimate_noise",
     "load_recordings",
     "parse_prior",
     "run_ensemble",

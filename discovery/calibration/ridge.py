@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RidgeAnalysis", "df_family", "robust_amplitude", "PAPER002_FAMILY_A"]
+__all__ = ["RidgeAnalysis", "df_family", "PAPER002_FAMILY_A"]
 
 #: docs/models.md#errata: paper 002's family at controller A with the three
 #: algebra slips corrected (K1 = 4.89e-3 rad, w = 8.57 rad/s, Td = 7 ms, f as the play half width):
@@ -34,25 +34,6 @@ PAPER002_FAMILY_A = {
     "backlash": (1e-4, 2e-4, 3e-4, 4e-4, 4.364e-4, 5e-4, 7e-4, 1e-3),
     "dead_zone": (1.011e-3, 1.111e-3, 1.208e-3, 1.301e-3, 1.333e-3, 1.389e-3, 1.554e-3, 1.769e-3),
 }
-
-
-def robust_amplitude(t, delta, bins=100):
-    """``(max - min)/2`` of the cycle in a noisy record, from its period-folded mean.
-
-    The raw ``(max - min)/2`` is biased upwards by the noise extremes (about 3.5 sd at 10 000
-    samples). Folding the record over its period (from mean crossings) and averaging each of
-    ``bins`` phase bins leaves the cycle's shape and divides the noise by the root of the samples
-    per bin.
-    """
-    from tvcid.models.features import limit_cycle_features
-
-    t = np.asarray(t, dtype=float)
-    d = np.asarray(delta, dtype=float)
-    period = 2 * np.pi / limit_cycle_features(t, d).frequency
-    phase = np.floor(((t - t[0]) / period % 1.0) * bins).astype(int)
-    means = np.bincount(phase, weights=d, minlength=bins) / np.maximum(
-        np.bincount(phase, minlength=bins), 1)
-    return 0.5 * float(np.max(means) - np.min(means))
 
 
 def df_family(amplitude, frequency=None, controller=None, params=None, backlash=None):
@@ -94,7 +75,7 @@ class RidgeAnalysis:
     pair : tuple of str
         The two parameters of the ridge (default backlash, dead_zone).
     amplitude : float or None
-        The recorded cycle amplitude ``(max - min)/2`` (rad; :func:`robust_amplitude` for noisy
+        The recorded cycle amplitude ``(max - min)/2`` (rad; :func:`tvcid.models.cycle_reading.robust_amplitude` for noisy
         data) that places the DF family; ``None`` draws no family.
     truths : dict or None
     frequency : float or None

@@ -33,7 +33,7 @@ class SimulationComparison:
     predicted_amplitude, predicted_frequency : float
         Harmonic balance (first-harmonic amplitude of ``delta``, rad; rad/s).
     simulated_first_harmonic, simulated_amplitude, simulated_frequency : float
-        From :func:`tvcid.models.features.limit_cycle_features` of the simulation: first harmonic and
+        From :func:`tvcid.models.cycle_reading.limit_cycle_features` of the simulation: first harmonic and
         ``(max - min)/2`` of ``delta`` (rad), frequency from mean crossings (rad/s).
     """
 

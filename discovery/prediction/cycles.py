@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tvcid.models.features import InsufficientPeriodsError, limit_cycle_features
+from tvcid.models.cycle_reading import InsufficientPeriodsError, limit_cycle_features
 from tvcid.models.kernel import SIGNALS
 from tvcid.models.simulate import simulate_batch
 

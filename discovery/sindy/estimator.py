@@ -25,7 +25,7 @@ import pysindy as ps
 from scipy.optimize import minimize
 from sklearn.base import BaseEstimator
 
-from tvcid.models.features import cycle_crossings
+from tvcid.models.cycle_reading import cycle_crossings
 from tvcid.models.recording import load_recordings
 
 from .candidates import Candidate

@@ -11,7 +11,7 @@ import weakref
 
 import numpy as np
 
-from tvcid.models.features import InsufficientPeriodsError, limit_cycle_features
+from tvcid.models.cycle_reading import InsufficientPeriodsError, limit_cycle_features
 from tvcid.models.recording import Recording
 from tvcid.models.simulate import DEFAULT_DT, simulate_batch
 

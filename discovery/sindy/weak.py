@@ -18,7 +18,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.polynomial import polynomial as P
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from tvcid.models.features import white_noise_sd
+from tvcid.models.cycle_reading import white_noise_sd
 
 from .library import command_jumps, delayed_command
 
@@ -177,7 +177,7 @@ class PreparedSignals:
 
 def estimate_noise(delta):
     """Robust rms of white sensor noise on a smooth signal, from its third differences
-    (:func:`tvcid.models.features.white_noise_sd` of order 3: the smooth actuator output contributes
+    (:func:`tvcid.models.cycle_reading.white_noise_sd` of order 3: the smooth actuator output contributes
     little at 200 Hz-1 kHz; the median absolute deviation ignores steps)."""
     return white_noise_sd(delta, order=3)
 

@@ -5,7 +5,7 @@ harmonics decayed steadily, the real actuator's rose between 9 and 10 Hz, "espec
 seventh harmonic (9.57 Hz)", which led to the band-pass feedback loop. This module puts that
 reading into numbers:
 
-* the fundamental from upward mean crossings (:func:`tvcid.models.features.upward_mean_crossings`, the
+* the fundamental from upward mean crossings (:func:`tvcid.models.cycle_reading.upward_mean_crossings`, the
   project's frequency convention), the record trimmed to whole periods so every harmonic falls on
   an FFT bin (``N_periods`` bins per harmonic);
 * for harmonic ``k`` the one-sided FFT amplitude at ``k f0`` (largest of the bins within one of
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tvcid.models.features import (
+from tvcid.models.cycle_reading import (
     InsufficientPeriodsError,
     cycle_crossings,
 )

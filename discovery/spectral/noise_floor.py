@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tvcid.models.features import InsufficientPeriodsError
+from tvcid.models.cycle_reading import InsufficientPeriodsError
 
 from .harmonics import whole_periods
 from .samples import SpectralInputError, as_uniform_samples

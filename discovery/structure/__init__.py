@@ -23,13 +23,11 @@ Stages, one module each:
   the report prints.
 """
 from .coordinates import SearchSpace, UnknownParameterError
-from .cycle_tail import NoCycleError
 from .estimator import DiscoveryInputError, StructureDiscovery, validate_recordings
 from .ranking import StructureFit
 
 __all__ = [
     "DiscoveryInputError",
-    "NoCycleError",
     "SearchSpace",
     "StructureDiscovery",
     "StructureFit",

@@ -31,12 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+from tvcid.models.cycle_reading import NoCycleError
 from tvcid.models.experiments import CONTROLLER_A, CONTROLLER_B, OpenLoop
 from tvcid.models.structures import Structure
 
 from ..calibration.priors import SIGMA
 from ..prediction.design import Candidate, DesignRanking, rank_experiments
-from .cycle_tail import NoCycleError
 from .indistinguishable import TOL_ABS
 from .targets import make_target
 

@@ -331,6 +331,6 @@ class StructureDiscovery:
 
     @staticmethod
     def _noise_of(rec):
-        from tvcid.discovery.calibration.likelihood import estimate_noise
+        from tvcid.models.cycle_reading import white_noise_sd
 
-        return estimate_noise(rec.delta)
+        return white_noise_sd(rec.delta)

@@ -6,7 +6,7 @@ their mean: about 1 for the generating model, whatever the experiment design.
 Each recording then counts alike, however many samples it holds.
 
 * :class:`CycleTarget` (closed loop): the frequency (unit: ``FREQUENCY_TOLERANCE`` = 0.1 %) and the
-  complex harmonics 1..``N_HARMONICS`` of ``delta`` with their phases referred to the fundamental's
+  complex harmonics 1..:data:`~tvcid.models.cycle_reading.N_HARMONICS` of ``delta`` with their phases referred to the fundamental's
   (unit: 0.3 % of the fundamental's amplitude), i.e. the cycle's waveform without its arbitrary phase;
   each unit widened by the record's own wander between pieces of ``PERIODS`` periods (a cycle that
   is not periodic, as the band-pass loop's, differs from piece to piece); the simulated cycle's
@@ -23,7 +23,7 @@ Each recording then counts alike, however many samples it holds.
 * :class:`OutputTarget` (open loop): the output error of a simulation from rest with the replayed
   command (:meth:`tvcid.models.recording.Recording.experiment`), the constant sensor offset profiled out
   (its least-squares value is the mean residual); unit: the sensor noise estimated from the record
-  (:func:`tvcid.discovery.calibration.likelihood.estimate_noise`) with a floor of 0.1 % of its rms.
+  (:func:`tvcid.models.cycle_reading.white_noise_sd`) with a floor of 0.1 % of its rms.
 
 Each target has a coarse counterpart (:meth:`CycleTarget.coarse`, :meth:`OutputTarget.coarse`):
 the same comparison over fewer periods or the record's first part, a fraction of the simulated
@@ -41,29 +41,25 @@ import threading
 
 import numpy as np
 
-from tvcid.discovery.calibration.likelihood import estimate_noise
 from tvcid.models.batch import BatchSimulator, output_rate_for
-from tvcid.models.edge_timing import edge_timing_for
-from tvcid.models.features import cycle_crossings
-from tvcid.models.cycle_state import RecordedCycleState
-
-from .cycle_tail import (
+from tvcid.models.cycle_reading import (
     N_HARMONICS,
-    NoCycleError,
     crossing_multiple,
+    cycle_crossings,
     cycle_of,
     period_sizes,
     phase_free_harmonics,
     settles,
     stationary_tail,
+    white_noise_sd,
 )
+from tvcid.models.cycle_state import RecordedCycleState
+from tvcid.models.edge_timing import edge_timing_for
 
 __all__ = [
     "CycleTarget",
     "OutputTarget",
     "make_target",
-    "NoCycleError",
-    "N_HARMONICS",
     "FREQUENCY_TOLERANCE",
     "HARMONIC_TOLERANCE",
     "OUTPUT_TOLERANCE",
@@ -419,7 +415,7 @@ class OutputTarget(_Target):
         rate = None if self.timing is not None else output_rate_for(self.dt, float(recording.sample_rate))
         self.simulator = BatchSimulator(self.experiment, float(self.tau[-1]), self.dt, rate=rate)
         self.n_residuals = self.tau.size
-        self.noise_sd = estimate_noise(self.data)
+        self.noise_sd = white_noise_sd(self.data)
         self.unit = math.hypot(self.noise_sd, OUTPUT_TOLERANCE * self.rms)
         self._var = np.full(self.tau.size, self.unit**2)
         self._mask = slice(None)

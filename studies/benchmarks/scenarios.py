@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from tvcid.models import ClosedLoop, OpenLoop, SimulationDiverged, simulate
-from tvcid.models.features import InsufficientPeriodsError
+from tvcid.models.cycle_reading import InsufficientPeriodsError, NoCycleError, stationary_tail
 from tvcid.models.hypotheses import KICK_X0, ActuatorParams
 from tvcid.models.recording import save_recording
 from tvcid.models.reference import simulate_reference
@@ -58,7 +58,7 @@ ACCEPT_DT = 2e-4
 #: ``tests/test_scenarios.py::test_the_data_step_keeps_the_solver_error_under_the_smallest_noise``).
 DATA_DT = 5e-5
 #: Seconds at the end of a 30 s run over which a truth's cycle must be settled
-#: (:func:`tvcid.discovery.structure.cycle_tail.stationary_tail`).
+#: (:func:`tvcid.models.cycle_reading.stationary_tail`).
 MIN_SETTLED = 8.0
 
 
@@ -193,8 +193,6 @@ def oscillates(params, experiment) -> bool:
     Settled as discovery reads a record: its stationary tail (the periods whose peak-to-peak stays
     within 15 % of the last ones') covers at least ``MIN_SETTLED`` s.
     """
-    from tvcid.discovery.structure.cycle_tail import NoCycleError, stationary_tail
-
     try:
         tr = simulate(params, experiment, 30.0, dt=ACCEPT_DT)
         f = tr.features(window=10.0)

@@ -15,8 +15,8 @@ an exception.
 
 Modules:
 
-* :mod:`.base` -- :class:`LikelihoodTerm` (the interface every term implements), the noise
-  estimate, the discrepancy factors and the tempering by them;
+* :mod:`.base` -- :class:`LikelihoodTerm` (the interface every term implements), the
+  discrepancy factors and the tempering by them;
 * :mod:`.solver` -- the solver's error in an output-error likelihood, by step doubling;
 * :mod:`.closed_loop` -- what the two closed-loop terms share (window, phase, simulator);
 * :mod:`.waveform`, :mod:`.features`, :mod:`.open_loop` -- one term kind each;
@@ -25,7 +25,6 @@ Modules:
 from .base import (
     DISCREPANCY_P,
     LikelihoodTerm,
-    estimate_noise,
     features_inflation,
     residual_statistics,
     tempered,
@@ -35,13 +34,10 @@ from .closed_loop import MIN_AMPLITUDE_RATIO
 from .features import (
     DEFAULT_FEATURES,
     SETTLING_FIT_GAIN,
-    SETTLING_MIN_PIECES,
     SETTLING_R2,
     SETTLING_SLOPE_SD,
     SETTLING_WINDOWS,
     FeatureTerm,
-    cycle_features,
-    settling_gain,
 )
 from .open_loop import EDGE_CHECK_REFINEMENT, OpenLoopTerm
 from .registry import LIKELIHOODS, make_term
@@ -60,8 +56,6 @@ from .waveform import (
 )
 
 __all__ = [
-    "estimate_noise",
-    "cycle_features",
     "LikelihoodTerm",
     "WaveformTerm",
     "IllPosedLikelihoodWarning",
@@ -75,12 +69,10 @@ __all__ = [
     "waveform_inflation",
     "tempered",
     "features_inflation",
-    "settling_gain",
     "SETTLING_SLOPE_SD",
     "SETTLING_R2",
     "SETTLING_WINDOWS",
     "SETTLING_FIT_GAIN",
-    "SETTLING_MIN_PIECES",
     "SOLVER_ERROR_FACTOR",
     "SOLVER_SPREAD_SAMPLES",
     "SOLVER_LOAD_LIMIT",

@@ -2,7 +2,7 @@
 
 A term is the likelihood of one recording (:class:`LikelihoodTerm`); the log posterior adds the
 terms' log-likelihoods up (:class:`tvcid.discovery.calibration.log_posterior.LogPosterior`). Shared here:
-the sensor-noise estimate (:func:`estimate_noise`), the residuals' statistics and the discrepancy
+the residuals' statistics and the discrepancy
 factors at the maximum a posteriori (:func:`waveform_inflation`, :func:`features_inflation`), and
 the tempering by which a term's log-likelihood is divided by its factor (:func:`tempered`).
 """
@@ -13,11 +13,8 @@ import math
 
 import numpy as np
 
-from tvcid.models.features import white_noise_sd
-
 __all__ = [
     "LikelihoodTerm",
-    "estimate_noise",
     "residual_statistics",
     "waveform_inflation",
     "tempered",
@@ -41,8 +38,8 @@ class LikelihoodTerm(abc.ABC):
 
     Every term also sets ``name`` (the record's), ``recording``, ``kind`` (``"waveform"`` or
     ``"features"``: how it compares the record), ``sigma_hat`` (the record's noise sd,
-    :func:`estimate_noise`), ``tau`` and ``data`` (the compared samples' times from the window's
-    start, and their values), ``n`` (the number of samples), ``dt`` (the step it was given),
+    :func:`tvcid.models.cycle_reading.white_noise_sd`), ``tau`` and ``data`` (the compared
+    samples' times from the window's start, and their values), ``n`` (the number of samples), ``dt`` (the step it was given),
     ``simulator`` (after :meth:`setup`), ``warm_start`` and ``inflation`` (the discrepancy factor
     its log-likelihood is divided by, :func:`tempered`; 1 until the calibration sets it at the
     maximum a posteriori).
@@ -74,12 +71,6 @@ class LikelihoodTerm(abc.ABC):
     @abc.abstractmethod
     def describe(self) -> dict:
         """What the term compares, as JSON-ready values (name, kind, samples, noise, ...)."""
-
-
-def estimate_noise(delta) -> float:
-    """Sensor-noise sd of a recorded signal from its second differences (robust MAD; exact for
-    white noise): :func:`tvcid.models.features.white_noise_sd`."""
-    return white_noise_sd(delta)
 
 
 def residual_statistics(residuals, sigma):

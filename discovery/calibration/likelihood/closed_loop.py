@@ -1,7 +1,7 @@
 """What the two closed-loop terms share: the compared window of a limit-cycle recording, its
 phase and period, and the simulator that runs each parameter set from a warm start
 (:class:`_ClosedLoopTerm`, the base of :class:`.waveform.WaveformTerm` and
-:class:`.features.FeatureTerm`), and the crossings both read off a simulated cycle.
+:class:`.features.FeatureTerm`).
 """
 from __future__ import annotations
 
@@ -16,26 +16,15 @@ from tvcid.models.batch import (
     output_rate_for,
     warm_start_state,
 )
+from tvcid.models.cycle_reading import cycle_crossings, white_noise_sd
 from tvcid.models.cycle_state import RecordedCycleState
-from tvcid.models.features import cycle_crossings
 
-from .base import LikelihoodTerm, estimate_noise
+from .base import LikelihoodTerm
 
 __all__ = ["MIN_AMPLITUDE_RATIO"]
 
 #: A simulated cycle smaller than this fraction of the recorded one counts as not oscillating.
 MIN_AMPLITUDE_RATIO = 0.2
-
-
-def _crossings(t, x, level):
-    """Upward crossings of ``level`` by a simulated cycle ``x``, by the rule the record's own
-    crossings follow (:func:`tvcid.models.features.upward_mean_crossings` with
-    :func:`tvcid.models.features.crossing_hysteresis`): a ripple or a small second lobe at the level
-    (the band-pass loop's, a controller held at 200 Hz) adds no crossing there
-    (:func:`tvcid.models.features.cycle_crossings`), where counting
-    every crossing of the level reads the cycle at a higher frequency than the record's and its
-    harmonics at that wrong frequency (``tests/test_calibration_core.py``)."""
-    return cycle_crossings(t, x, level)
 
 
 def _data_window(recording, window):
@@ -73,7 +62,7 @@ class _ClosedLoopTerm(LikelihoodTerm):
         span = self.tau[-1]
         if self.tau.size < 10:
             raise ValueError(f"{self.source}: the window holds {self.tau.size} samples")
-        self.sigma_hat = estimate_noise(self.data)
+        self.sigma_hat = white_noise_sd(self.data)
         self.level = float(np.mean(self.data))
         self.amplitude = 0.5 * float(np.max(self.data) - np.min(self.data))
         ups = cycle_crossings(self.tau, self.data, self.level)

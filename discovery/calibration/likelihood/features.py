@@ -6,8 +6,10 @@ noise by re-noising the recording (``n_mc`` seeded draws at the noise level esti
 widened by the cycle's own wander and settling over the window, and scales as
 ``(sigma/sigma_hat)^2`` when ``sigma`` is sampled. Amplitude as ``(max-min)/2`` is available as
 ``"amplitude"`` but is biased upwards by the noise extremes; ``"H1"`` (first-harmonic amplitude) is
-the unbiased amplitude and the default. Also here: the features of a noise-free simulated cycle
-(:func:`cycle_features`) and the test of a record still settling (:func:`settling_gain`).
+the unbiased amplitude and the default. The features are read off the record and off each
+simulated cycle by :mod:`tvcid.models.cycle_reading` (:func:`~tvcid.models.cycle_reading.limit_cycle_features`,
+:func:`~tvcid.models.cycle_reading.cycle_features`), and a record still settling is told by
+:func:`~tvcid.models.cycle_reading.settling_gain`.
 """
 from __future__ import annotations
 
@@ -17,63 +19,32 @@ import math
 import numpy as np
 
 from tvcid.models.batch import CONTINUATION_RADIUS, BatchSimulator
-from tvcid.models.features import (
+from tvcid.models.cycle_reading import (
+    SETTLING_MIN_PIECES,
     InsufficientPeriodsError,
+    cycle_features,
     limit_cycle_features,
-    whole_period_harmonics,
+    settling_gain,
 )
 
 from .base import _LOG_2PI, features_inflation, tempered
-from .closed_loop import MIN_AMPLITUDE_RATIO, _ClosedLoopTerm, _crossings
+from .closed_loop import MIN_AMPLITUDE_RATIO, _ClosedLoopTerm
 from .solver import SOLVER_ERROR_FACTOR, _step_doubling
 
 __all__ = [
     "FeatureTerm",
-    "cycle_features",
-    "settling_gain",
     "DEFAULT_FEATURES",
     "IMPRINT_WINDOWS",
     "SETTLING_SLOPE_SD",
     "SETTLING_R2",
     "SETTLING_WINDOWS",
     "SETTLING_FIT_GAIN",
-    "SETTLING_MIN_PIECES",
 ]
 
 DEFAULT_FEATURES = ("frequency", "H1", "H3", "H5", "H7")
 #: Windows of each run the start imprint compares (:meth:`FeatureTerm.transient_variance`): the
 #: first against each later one.
 IMPRINT_WINDOWS = 4
-
-
-def cycle_features(t, x, names=DEFAULT_FEATURES):
-    """Features of a noise-free cycle, by :func:`tvcid.models.features.limit_cycle_features`'s rules.
-
-    Frequency from the mean period between the first and last upward mean crossing (the
-    record's trigger rule, :func:`.closed_loop._crossings`), harmonic
-    amplitudes ``Hk`` over the whole periods between them, ``amplitude = (max - min)/2``. Vectorised
-    (no per-sample Python loop), for simulated cycles; returns ``None`` under two whole periods.
-    """
-    level = float(np.mean(x))
-    c = _crossings(t, x, level)
-    if c.size < 3:
-        return None
-    period = (c[-1] - c[0]) / (c.size - 1)
-    w0 = 2 * math.pi / period
-    ks = [int(n[1:]) for n in names if n.startswith("H")]
-    harm = {}
-    if ks:
-        coeffs = np.abs(whole_period_harmonics(t, x, c[0], c[-1], c.size - 1, max(ks)))
-        harm = {f"H{k}": float(coeffs[k - 1]) for k in ks}
-    out = []
-    for n in names:
-        if n == "frequency":
-            out.append(w0)
-        elif n == "amplitude":
-            out.append(0.5 * float(np.max(x) - np.min(x)))
-        else:
-            out.append(harm[n])
-    return np.asarray(out)
 
 
 def _check_feature_names(names):
@@ -101,39 +72,8 @@ SETTLING_WINDOWS = 2.0
 #: explains its pieces' frequency or size this much better than a constant (chi-square gain in
 #: units of the fit's own residual variance where that exceeds the noise): an F of 50, p ~ 1e-5 at
 #: 12 pieces (a lower gain lets settled records whose pieces scatter beyond their noise count
-#: as settling) ...
+#: as settling), from at least :data:`tvcid.models.cycle_reading.SETTLING_MIN_PIECES` pieces.
 SETTLING_FIT_GAIN = 100.0
-#: ... from at least this many pieces (three parameters and three degrees of freedom).
-SETTLING_MIN_PIECES = 6
-
-
-def settling_gain(centres, values, noise_var) -> float:
-    """How much better ``a + b exp((c_last - c) / T)`` fits a record's piece features than a
-    constant: the chi-square gain at the best time constant ``T`` of a grid, in units of the
-    fit's residual variance where that exceeds the noise (a two-mode settling is not one
-    exponential). 0 with fewer than :data:`SETTLING_MIN_PIECES` pieces.
-
-    ``centres`` (s, increasing), ``values`` (the pieces' feature), ``noise_var`` (each piece's
-    feature variance under sensor noise).
-    """
-    c = np.asarray(centres, dtype=float)
-    f = np.asarray(values, dtype=float)
-    w = 1.0 / np.maximum(np.asarray(noise_var, dtype=float), 1e-300)
-    n = c.size
-    if n < SETTLING_MIN_PIECES or not np.all(np.isfinite(f)):
-        return 0.0
-    chi_constant = float(np.sum(w * (f - np.sum(w * f) / np.sum(w)) ** 2))
-    best = math.inf
-    for T in np.geomspace(0.25 * (c[1] - c[0]), c[-1] - c[0], 200):
-        X = np.stack([np.ones(n), np.exp((c[-1] - c) / T)], axis=1)
-        A = X.T @ (X * w[:, None])
-        if np.linalg.cond(A) > 1e12:
-            continue
-        beta = np.linalg.solve(A, X.T @ (w * f))
-        best = min(best, float(np.sum(w * (f - X @ beta) ** 2)))
-    if not math.isfinite(best):
-        return 0.0
-    return (chi_constant - best) / max(1.0, best / (n - 3))
 
 
 class FeatureTerm(_ClosedLoopTerm):

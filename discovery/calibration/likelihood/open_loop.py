@@ -13,8 +13,9 @@ import math
 import numpy as np
 
 from tvcid.models.batch import BatchSimulator, output_rate_for
+from tvcid.models.cycle_reading import white_noise_sd
 
-from .base import LikelihoodTerm, estimate_noise, waveform_inflation
+from .base import LikelihoodTerm, waveform_inflation
 from .solver import _WaveformSolverError
 
 __all__ = ["OpenLoopTerm", "EDGE_CHECK_REFINEMENT"]
@@ -55,7 +56,7 @@ class OpenLoopTerm(_WaveformSolverError, LikelihoodTerm):
         self.edge_theta = None
         self._time_edges(self.dt)
         self.n = self.tau.size
-        self.sigma_hat = estimate_noise(self.data)
+        self.sigma_hat = white_noise_sd(self.data)
         self.data_rate = float(recording.sample_rate)
         self.inflation = 1.0  # model-discrepancy factor (tempering; Calibration sets it at the MAP)
         self.warm_start = None

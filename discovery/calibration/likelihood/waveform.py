@@ -15,9 +15,10 @@ import warnings
 import numpy as np
 
 from tvcid.models.batch import BatchSimulator
+from tvcid.models.cycle_reading import cycle_crossings
 
 from .base import waveform_inflation
-from .closed_loop import MIN_AMPLITUDE_RATIO, _ClosedLoopTerm, _crossings
+from .closed_loop import MIN_AMPLITUDE_RATIO, _ClosedLoopTerm
 from .solver import _WaveformSolverError
 
 __all__ = [
@@ -128,7 +129,7 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
         t = self.simulator.t
         after = t >= self.transient
         tm, m = t[after], delta[0, after]
-        c = _crossings(tm, m, float(np.mean(m)))
+        c = cycle_crossings(tm, m, float(np.mean(m)))
         if c.size < 3:
             return float("nan")
         period = (c[-1] - c[0]) / (c.size - 1)
@@ -148,7 +149,7 @@ class WaveformTerm(_WaveformSolverError, _ClosedLoopTerm):
         amp = 0.5 * float(np.max(m) - np.min(m))
         if amp < MIN_AMPLITUDE_RATIO * self.amplitude:
             return None
-        c = _crossings(tm, m, float(np.mean(m)))
+        c = cycle_crossings(tm, m, float(np.mean(m)))
         c = c[c >= transient + self.phase0]
         if c.size == 0:
             return None
