@@ -26,6 +26,10 @@ within ``drop`` of the top there, and a line through the last two bins does not 
 ``top - drop`` before the outermost draw, the draws end before the profile falls: that end is
 *open*, reported as reaching the prior's floor (or ceiling) where the prior stops the draws there,
 and as "or below" (or above) the outermost draw where a chain has not gone farther.
+
+A quantity's range, its width against its prior's and its nearness to a prior's end are all
+judged in the quantity's own coordinate (:class:`QuantityCoordinate`): log where its values are
+positive and span over a decade, its own units otherwise.
 """
 from __future__ import annotations
 
@@ -33,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AllowedRange", "allowed_range", "in_log_coordinate", "ALLOWED_DROP", "ALLOWED_BINS",
-           "MIN_BIN_DRAWS"]
+__all__ = ["AllowedRange", "QuantityCoordinate", "allowed_range", "ALLOWED_DROP", "ALLOWED_BINS",
+           "MIN_BIN_DRAWS", "LOG_SPAN"]
 
 #: Drop of the log posterior (nats) that bounds the values the recordings allow: a profile
 #: likelihood's 95 % point for one quantity (3.84 / 2).
@@ -46,6 +50,38 @@ ALLOWED_BINS = 40
 MIN_BIN_DRAWS = 25
 #: Bins on each side of a crossing through which its line is fitted.
 _CROSSING_BINS = 3
+#: A positive quantity whose values span more than this ratio (a decade) is judged in log.
+LOG_SPAN = 10
+
+
+@dataclass(frozen=True)
+class QuantityCoordinate:
+    """The coordinate a quantity is judged in: log where its values are positive and span over
+    a decade (:data:`LOG_SPAN`), its own units otherwise.
+
+    Its profile's bins (:func:`allowed_range`), its width against its prior's and its nearness
+    to a prior's end (:mod:`tvcid.discovery.structure.set_posterior`) all take this coordinate.
+
+    Attributes
+    ----------
+    log : bool
+        The quantity is judged in log.
+    """
+
+    log: bool
+
+    @classmethod
+    def of_range(cls, lo, hi) -> QuantityCoordinate:
+        """The coordinate of a quantity whose values range over ``[lo, hi]``."""
+        return cls(bool(lo > 0 and hi > LOG_SPAN * lo))
+
+    def to(self, values):
+        """``values`` (in the quantity's units) in this coordinate."""
+        return np.log(values) if self.log else values
+
+    def back(self, x):
+        """``x`` (in this coordinate) in the quantity's units."""
+        return np.exp(x) if self.log else x
 
 
 @dataclass(frozen=True)
@@ -171,13 +207,6 @@ def _crossing(centre, profile, count, fitted, level, order, extreme):
     return float(np.clip(c[k] + (level - at_k) / slope, min(inner, outer), max(inner, outer)))
 
 
-def in_log_coordinate(lo, hi) -> bool:
-    """Whether a quantity ranging over ``[lo, hi]`` is judged in log: positive and spanning over a
-    decade (its bins here, its width against its prior's and its nearness to a prior's end in
-    :mod:`tvcid.discovery.structure.set_posterior`)."""
-    return bool(lo > 0 and hi > 10 * lo)
-
-
 def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS,
                   min_draws=MIN_BIN_DRAWS) -> AllowedRange | None:
     """The values of one quantity the recordings allow, read off a member's draws.
@@ -191,8 +220,8 @@ def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS,
     drop : float
         Nats under the profile's top that bound the range (:data:`ALLOWED_DROP`).
     bins : int
-        Bins of the quantity's range (in log where its values are positive and span over a
-        decade), merged where sparse (:data:`MIN_BIN_DRAWS`).
+        Bins of the quantity's range in its :class:`QuantityCoordinate`, merged where sparse
+        (:data:`MIN_BIN_DRAWS`).
 
     Returns
     -------
@@ -209,8 +238,8 @@ def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS,
     lo, hi = float(v.min()), float(v.max())
     if hi <= lo:
         return AllowedRange(lo, hi)
-    log = in_log_coordinate(lo, hi)
-    x = np.log(v) if log else v
+    coordinate = QuantityCoordinate.of_range(lo, hi)
+    x = coordinate.to(v)
     index = _bins(x, bins, min_draws)
     centre, profile, count = _profile(x, lp, index)
     if centre.size < 3:
@@ -224,5 +253,5 @@ def allowed_range(values, log_prob, drop=ALLOWED_DROP, bins=ALLOWED_BINS,
                       float(x.max()))]
     low = float(x.min()) if ends[0] is None else max(ends[0], float(x.min()))
     high = float(x.max()) if ends[1] is None else min(ends[1], float(x.max()))
-    back = np.exp if log else float
-    return AllowedRange(float(back(low)), float(back(high)), ends[0] is None, ends[1] is None)
+    return AllowedRange(float(coordinate.back(low)), float(coordinate.back(high)), ends[0] is None,
+                        ends[1] is None)

@@ -28,8 +28,8 @@ disagree, not because each is uncertain.
 
 A quantity is *not pinned* when, in a member that has it, its 90 % interval spans more than half
 of the 90 % interval its prior implies (the member's priors sampled and mapped through
-:func:`member_quantities`, in the quantity's own coordinate: log where its values are positive
-and span over a decade): composite quantities are judged on their own draws, not through the
+:func:`member_quantities`, in the quantity's own coordinate,
+:class:`tvcid.discovery.calibration.profile_range.QuantityCoordinate`): composite quantities are judged on their own draws, not through the
 parameters they are made of. Beside its interval, each quantity has the range the recordings
 *allow* (:func:`tvcid.discovery.calibration.profile_range.allowed_range`): where its profile log
 posterior stays within 1.92 nats of the best, the members' ranges joined; an end the prior sets
@@ -42,7 +42,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tvcid.discovery.calibration.profile_range import ALLOWED_DROP, allowed_range, in_log_coordinate
+from tvcid.discovery.calibration.profile_range import (
+    ALLOWED_DROP,
+    QuantityCoordinate,
+    allowed_range,
+)
 from tvcid.discovery.calibration.step_error import widen_draws
 from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
 
@@ -237,7 +241,7 @@ def _quantiles(values) -> dict:
 
 def width_over_prior(values, prior_values) -> float | None:
     """The 90 % width of a quantity's draws over the 90 % width its prior implies, both in the
-    prior draws' coordinate (log where they are positive and span over a decade); ``None``
+    prior draws' :class:`~tvcid.discovery.calibration.profile_range.QuantityCoordinate`; ``None``
     without prior draws."""
     if prior_values is None:
         return None
@@ -246,11 +250,12 @@ def width_over_prior(values, prior_values) -> float | None:
     p, v = p[np.isfinite(p)], v[np.isfinite(v)]
     if p.size < 20 or v.size < 20:
         return None
-    if in_log_coordinate(p.min(), p.max()):
+    coordinate = QuantityCoordinate.of_range(p.min(), p.max())
+    if coordinate.log:
         v = v[v > 0]
         if v.size < 20:
             return None
-        p, v = np.log(p), np.log(v)
+    p, v = coordinate.to(p), coordinate.to(v)
     prior_width = float(np.diff(np.quantile(p, (0.05, 0.95)))[0])
     width = float(np.diff(np.quantile(v, (0.05, 0.95)))[0])
     return width / prior_width if prior_width > 0 else (0.0 if width == 0 else float("inf"))
@@ -432,10 +437,12 @@ def _prior_bounds(prior_draws):
 
 
 def _near(value, end, bounds) -> bool:
-    """Whether ``value`` lies within :data:`PRIOR_END` of the prior's range from its ``end``."""
+    """Whether ``value`` lies within :data:`PRIOR_END` of the prior's range from its ``end``, in
+    the prior range's :class:`~tvcid.discovery.calibration.profile_range.QuantityCoordinate`
+    (its own units for a value not positive)."""
     lo, hi = bounds
-    if in_log_coordinate(lo, hi) and value > 0:
-        value, end, lo, hi = (math.log(v) for v in (value, end, lo, hi))
+    coordinate = QuantityCoordinate(bool(QuantityCoordinate.of_range(lo, hi).log and value > 0))
+    value, end, lo, hi = (coordinate.to(v) for v in (value, end, lo, hi))
     return abs(value - end) <= PRIOR_END * (hi - lo)
 
 
