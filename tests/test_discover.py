@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from tvcid.discovery.members.member_calibration import member_walkers
 from tvcid.discovery.structure import StructureDiscovery
 from tvcid.discovery.structure.indistinguishable import TOL_ABS
 from tvcid.discovery.structure.search import Objective
-from tvcid.discovery.structure.member_calibration import member_walkers
 from tvcid.models.recording import save_recording
 from tvcid.models.structures import Structure, shared_choices
 from tvcid.studies.benchmarks.discovery import coordinate_errors

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from tvcid.discovery.structure.set_posterior import MemberPosterior, combine
+from tvcid.discovery.members.set_posterior import MemberPosterior, combine
 from tvcid.models.quantities import member_quantities
 from tvcid.models import hypothesis
 from tvcid.models.structures import Structure, shared_choices

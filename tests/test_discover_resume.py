@@ -140,7 +140,7 @@ def test_a_member_whose_chain_cannot_start_is_left_out_and_named(tmp_path, recor
     set-coverage draw's member whose runs do not sustain the recorded cycle): the run goes on,
     the set's posterior is the first member's, and the report names the member left out."""
     from tvcid.discovery.calibration.start import NoFiniteStartError
-    from tvcid.discovery.structure import member_calibration
+    from tvcid.discovery.members import member_calibration
 
     import tvcid.discovery.structure
     import tvcid.pipeline

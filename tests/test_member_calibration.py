@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tvcid.discovery.calibration.priors import step_under_delay
-from tvcid.discovery.structure.member_calibration import (
+from tvcid.discovery.members.member_calibration import (
     MEMBER_DELAY_FLOOR,
     calibrate_member,
     member_delay_floor,

@@ -1,4 +1,4 @@
-"""tvcid.discovery.structure.member_evidence: a member's evidence by importance sampling from its draws,
+"""tvcid.discovery.members.member_evidence: a member's evidence by importance sampling from its draws,
 checked on known curved distributions in 9 dimensions (a banana and a ring) whose normalising
 constants are known, and against the chain-length draws a member gives it."""
 import math
@@ -8,8 +8,8 @@ import pytest
 from scipy import stats
 from scipy.special import logsumexp
 
-from tvcid.discovery.structure.member_evidence import (
-    GOOD_K,
+from tvcid.discovery.calibration.importance import GOOD_K
+from tvcid.discovery.members.member_evidence import (
     ImportanceDraws,
     Proposal,
     importance_draws,
@@ -162,7 +162,7 @@ def test_a_second_round_keeps_the_estimate_exact_and_moves_towards_mass_the_chai
     low) and the second recovers part of it in each of 4 seeds, while its Pareto k says the
     estimate is not to be trusted: a chain that misses mass is not repaired by importance
     sampling."""
-    from tvcid.discovery.structure.member_evidence import _second_round
+    from tvcid.discovery.members.member_evidence import _second_round
 
     draws, log_lik = _banana(0.3)
     for seed in range(5):

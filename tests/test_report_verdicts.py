@@ -1,12 +1,12 @@
 """One verdict per component: the summary's "decided" / "not decided", its table's "present or
 absent" and the members' weights come from one rule
-(:func:`tvcid.discovery.structure.set_weights.weighed_choices`, :data:`DECIDING_SHARE`), and every
+(:func:`tvcid.discovery.members.set_weights.weighed_choices`, :data:`DECIDING_SHARE`), and every
 row's words agree with each other."""
 import numpy as np
 import pytest
 
-from tvcid.discovery.structure.set_posterior import MemberPosterior, combine, decided_absent
-from tvcid.discovery.structure.set_weights import DECIDING_SHARE, weighed_choices
+from tvcid.discovery.members.set_posterior import MemberPosterior, combine, decided_absent
+from tvcid.discovery.members.set_weights import DECIDING_SHARE, weighed_choices
 from tvcid.report import summary_lines
 
 A = "dz_velocity+delay_before_first_integrator+friction+backlash"

@@ -1,4 +1,4 @@
-"""tvcid.discovery.structure.set_posterior: the linear block's DC gain and bandwidth, the members'
+"""tvcid.discovery.members.set_posterior: the linear block's DC gain and bandwidth, the members'
 quantities, their weighted mixture with the structure-dependence rule, the not-pinned verdict of
 every quantity against its prior-implied spread, the range the recordings allow, components the
 set leaves open and the step error's widening; and how the report's summary prints them."""
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from tvcid.discovery.structure.set_posterior import (
+from tvcid.discovery.calibration.profile_range import allowed_range
+from tvcid.discovery.members.set_posterior import (
     STRUCTURE_DEPENDENCE,
     MemberPosterior,
-    allowed_range,
     combine,
     left_open_quantities,
 )
@@ -293,7 +293,7 @@ def test_the_richer_structure_of_a_component_left_open_is_calibrated_too():
     """The set's distinct members lack a backlash the set leaves open: the best structure with
     one, merged into a member, joins the calibration; a decided component adds none; one richer
     structure holding two open components serves both."""
-    from tvcid.discovery.structure.set_posterior import richer_members
+    from tvcid.discovery.members.set_posterior import richer_members
 
     base = "dz_velocity+delay_output"
     rows = [{"structure": base, "indistinguishable_from_best": True, "merged_into": None},

@@ -1,4 +1,4 @@
-"""tvcid.discovery.structure.set_weights: the members' weights as their posterior probabilities (each
+"""tvcid.discovery.members.set_weights: the members' weights as their posterior probabilities (each
 one's evidence, by importance sampling, at a common temperature), and the share of the members
 the cap leaves uncalibrated, read off the ranking.
 
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from tvcid.discovery.structure.member_evidence import Proposal, importance_draws
-from tvcid.discovery.structure.ranking_shares import (
+from tvcid.discovery.members.member_evidence import Proposal, importance_draws
+from tvcid.discovery.members.ranking_shares import (
     RANKING_RULE,
     ranking_shares,
     uncalibrated_share,
 )
-from tvcid.discovery.structure.set_weights import (
+from tvcid.discovery.members.set_weights import (
     DECIDING_SHARE,
     EVIDENCE_RULE,
     common_temperature,

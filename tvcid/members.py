@@ -3,7 +3,7 @@
 :func:`calibrate_member_task` does all of one member's own work: its chain
 (:func:`member_chain`, checkpointed in ``chain-<tag>.h5`` of the output
 directory), its summary, its step error and the importance draws of its evidence for the weights
-(:func:`tvcid.discovery.structure.member_evidence.member_importance_draws`); or, screening, the chain
+(:func:`tvcid.discovery.members.member_evidence.member_importance_draws`); or, screening, the chain
 and the draws alone. It
 gets everything as arguments and hands back a :class:`MemberRun`, both of which pickle, so it
 runs the same in this process (the default) or on a Dask worker; :func:`tvcid.set_stage.calibrate_set`
@@ -39,7 +39,7 @@ class MemberRun:
         Combined quantity -> draws, of the posterior and of the priors alone.
     step_error : dict
         Combined quantity -> its step error.
-    draws : tvcid.discovery.structure.member_evidence.ImportanceDraws or None
+    draws : tvcid.discovery.members.member_evidence.ImportanceDraws or None
         Its evidence's importance draws, for the weights (only when the set has several members).
     simulated_seconds : float
         Seconds simulated: the chain (start included), the step error, the importance draws.
@@ -120,8 +120,8 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     from tvcid.discovery.calibration.pinned import pinned_combinations
     from tvcid.discovery.calibration.start import NoFiniteStartError
     from tvcid.discovery.calibration.step_error import measure_step_error, widen_quantiles
-    from tvcid.discovery.structure.member_evidence import member_importance_draws
-    from tvcid.discovery.structure.set_posterior import not_pinned, prior_quantities
+    from tvcid.discovery.members.member_evidence import member_importance_draws
+    from tvcid.discovery.members.set_posterior import not_pinned, prior_quantities
     from tvcid.models.quantities import member_quantities
 
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
@@ -186,7 +186,7 @@ def _corrected(recordings, offsets):
 
 def member_chain(row, recs, offsets, fixed, seed, quick, max_steps, progress, out):
     """MCMC of one member of the set
-    (:func:`tvcid.discovery.structure.member_calibration.calibrate_member`) on all recordings with
+    (:func:`tvcid.discovery.members.member_calibration.calibrate_member`) on all recordings with
     their offsets removed, checkpointed in ``out``. Returns ``(posterior, priors, simulated
     seconds of the start and of the sampling, chain file name)``.
 
@@ -195,7 +195,7 @@ def member_chain(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     ranking of a fresh run holds an open saturation as infinity, the same ranking read back from
     ``discovery.json`` as ``null``, and both must name the same chain for a rerun to resume it.
     """
-    from tvcid.discovery.structure.member_calibration import calibrate_member
+    from tvcid.discovery.members.member_calibration import calibrate_member
     from tvcid.models import params_from_dict
     from tvcid.models.structures import Structure
 

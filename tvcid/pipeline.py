@@ -226,7 +226,7 @@ def next_test(summary, recs, seed, out, spent=None):
     members at their fitted parameters, refitted to the recordings for the best
     candidates; the default menu acquired at the recordings' highest rate, the recordings'
     median noise); writes ``next_test.png``. A calibrated member whose weight is under
-    :data:`tvcid.discovery.structure.set_weights.DECIDING_SHARE` is left out (``left_out``: the data
+    :data:`tvcid.discovery.members.set_weights.DECIDING_SHARE` is left out (``left_out``: the data
     have decided against it), the weight of the members merged into it counted as its own; one
     beyond the calibration's cap stays. ``None`` for a set of one.
     A dict ``spent`` gets what it simulated, ``simulated_seconds`` and ``simulated_steps``."""
@@ -234,7 +234,7 @@ def next_test(summary, recs, seed, out, spent=None):
         default_candidates,
         discriminating_tests,
     )
-    from tvcid.discovery.structure.set_weights import DECIDING_SHARE
+    from tvcid.discovery.members.set_weights import DECIDING_SHARE
     from tvcid.discovery.structure.targets import make_target
     from tvcid.models import params_from_dict
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from tvcid.discovery.structure.set_posterior import (decided_absent, partly_present,
+from tvcid.discovery.members.set_posterior import (decided_absent, partly_present,
                                                printed_present_or_absent)
 from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS
 from tvcid.models.hypotheses import parameter_unit
@@ -302,7 +302,7 @@ def summary_lines(summary) -> list:
 
 def _decided_line(summary, best) -> str:
     """What the set and the weights decide, and what they leave open with each side's share:
-    one rule (:func:`tvcid.discovery.structure.set_weights.weighed_choices`) for this line and the
+    one rule (:func:`tvcid.discovery.members.set_weights.weighed_choices`) for this line and the
     table's "present or absent"."""
     choices = (summary.get("set_posterior") or {}).get("choices")
     if not choices:  # no calibration: the set's structures alone

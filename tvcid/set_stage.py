@@ -3,8 +3,8 @@ calibrated, screened by their weight, weighed and combined (:func:`calibrate_set
 
 Each member's own work is :func:`tvcid.members.calibrate_member_task`, a task of an executor
 (this process, or a Dask cluster); this module runs the two rounds, weighs the members by their
-evidence (:mod:`tvcid.discovery.structure.set_weights`), decides every structural choice by one rule
-and mixes the members (:func:`tvcid.discovery.structure.set_posterior.combine`).
+evidence (:mod:`tvcid.discovery.members.set_weights`), decides every structural choice by one rule
+and mixes the members (:func:`tvcid.discovery.members.set_posterior.combine`).
 """
 from __future__ import annotations
 
@@ -30,18 +30,18 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     """The posterior over the set: every distinct member calibrated (:func:`tvcid.members.member_chain`,
     at most :data:`MAX_MEMBERS`, best score first), and the richer structure of each component
     the set leaves open that no distinct member has
-    (:func:`tvcid.discovery.structure.set_posterior.richer_members`).
+    (:func:`tvcid.discovery.members.set_posterior.richer_members`).
 
     A set of several members is calibrated in two rounds. First every member's chain runs
     :data:`SCREEN_STEPS` steps and the members are weighed by their evidence
-    (:func:`tvcid.discovery.structure.set_weights.evidence_weights`); a member whose weight stays under
-    :data:`tvcid.discovery.structure.set_weights.DECIDING_SHARE` even at its estimate's allowance is
+    (:func:`tvcid.discovery.members.set_weights.evidence_weights`); a member whose weight stays under
+    :data:`tvcid.discovery.members.set_weights.DECIDING_SHARE` even at its estimate's allowance is
     *screened*: its chain stops there and its short chain gives its ranges (the report says so).
     Then the others' chains continue to the cap. The screening is stored in ``discovery.json``
     (``set_screening``), so a resumed run screens the same members. Each member's step error is
     measured (:func:`tvcid.discovery.calibration.step_error.measure_step_error`) and its evidence
     estimated again from its final chain; the members are combined by those weights
-    (:func:`tvcid.discovery.structure.set_posterior.combine`), and the members beyond the cap named
+    (:func:`tvcid.discovery.members.set_posterior.combine`), and the members beyond the cap named
     with their share of the weight by the ranking. A member whose chain cannot start (no point
     about its fit where every recording's likelihood is finite) is left out and named in
     ``set_posterior.failed``. Adds ``posterior`` (the first calibrated member's, the winner's
@@ -54,14 +54,14 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     ``timings``, ``cpu_seconds``, ``simulated_seconds`` and ``simulated_steps`` (``mcmc``, of
     which ``mcmc_start`` in seconds and ``mcmc_evidence``)."""
     from tvcid.discovery.executors import LocalProcesses
-    from tvcid.discovery.structure.ranking_shares import uncalibrated_share
-    from tvcid.discovery.structure.set_posterior import (
+    from tvcid.discovery.members.ranking_shares import uncalibrated_share
+    from tvcid.discovery.members.set_posterior import (
         MemberPosterior,
         combine,
         left_open_quantities,
         richer_members,
     )
-    from tvcid.discovery.structure.set_weights import (
+    from tvcid.discovery.members.set_weights import (
         DECIDING_SHARE,
         evidence_weights,
         weighed_choices,

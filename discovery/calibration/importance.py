@@ -15,7 +15,7 @@ effective sample size of at least ``target_ess``. Elsewhere (a curved ridge, two
 maximum on a prior bound) the caller runs its chain, started from the run's points.
 
 The same points, with each recording's untempered log-likelihood, are the member's evidence
-draws (:func:`tvcid.discovery.structure.member_evidence.log_evidence`).
+draws (:func:`tvcid.discovery.members.member_evidence.log_evidence`).
 """
 from __future__ import annotations
 

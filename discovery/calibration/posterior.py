@@ -189,7 +189,7 @@ class Posterior:
         burn-in) each give an interval per parameter, and ``largest`` is the largest
         ``(|q05_a - q05_b| + |q95_a - q95_b|) / (q95 - q05)`` over the parameters (``parameter``
         names it), the whole kept chain's width in the denominator, in the sampling coordinates
-        (log for log-uniform priors, as :func:`tvcid.discovery.structure.set_posterior.not_pinned`
+        (log for log-uniform priors, as :func:`tvcid.discovery.members.set_posterior.not_pinned`
         judges widths). A converged chain's halves agree to a few per cent of the width; a chain
         still wandering differs by a large part of it. ``None`` for a chain under 20 kept
         steps. For an importance run the halves are its points of even and odd index

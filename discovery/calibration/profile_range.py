@@ -60,7 +60,7 @@ class QuantityCoordinate:
     a decade (:data:`LOG_SPAN`), its own units otherwise.
 
     Its profile's bins (:func:`allowed_range`), its width against its prior's and its nearness
-    to a prior's end (:mod:`tvcid.discovery.structure.set_posterior`) all take this coordinate.
+    to a prior's end (:mod:`tvcid.discovery.members.set_posterior`) all take this coordinate.
 
     Attributes
     ----------

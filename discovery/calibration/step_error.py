@@ -508,7 +508,7 @@ def widen_draws(values, error, bounds=None):
     Each side of the median is stretched about it, linearly, so that the draws' 5 % and 95 %
     quantiles become the widened interval's ends; draws already wide enough are returned as they
     are. The stretched draws are clipped to ``bounds``. Mixing members' draws widened each by
-    its own step error (:func:`tvcid.discovery.structure.set_posterior.combine`) carries each
+    its own step error (:func:`tvcid.discovery.members.set_posterior.combine`) carries each
     member's error at its weight, where widening the mixture by the largest error would let one
     member that the step does not resolve widen every other member's answer.
 

@@ -18,9 +18,9 @@ Stages, one module each:
 * :mod:`.estimator` -- :class:`StructureDiscovery`, which runs them in turn, and
   :func:`validate_recordings`;
 * :mod:`.discrimination` -- which further test would tell the set's members apart;
-* :mod:`.member_calibration`, :mod:`.set_weights` (with :mod:`.ranking_shares`) and
-  :mod:`.set_posterior` -- the set's members calibrated, weighted and mixed into the posterior
-  the report prints.
+* :mod:`.closure` -- whether the set's calibrated members would answer a user's questions alike.
+
+The set's members are calibrated, weighted and mixed in :mod:`tvcid.discovery.members`.
 """
 from .coordinates import SearchSpace, UnknownParameterError
 from .estimator import DiscoveryInputError, StructureDiscovery, validate_recordings

@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from tvcid.discovery.calibration import Calibration
+from tvcid.discovery.members.member_calibration import member_priors
 from tvcid.discovery.speed import evaluation_steps
-from tvcid.discovery.structure.member_calibration import member_priors
 from tvcid.models.batch import BatchSimulator
 from tvcid.models.cycle_reading import cycle_features
 from tvcid.models.strict_json import write_json

@@ -46,7 +46,7 @@ GOALS = {"point": 1.3, "batch": 1.0}
 def log_posterior():
     """The set member calibration's log posterior of M000 on the bundled recordings."""
     from tvcid.discovery.calibration import Calibration
-    from tvcid.discovery.structure.member_calibration import member_priors, member_walkers
+    from tvcid.discovery.members.member_calibration import member_priors, member_walkers
 
     truth = M000()
     structure = Structure.of_params(truth)

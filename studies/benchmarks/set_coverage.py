@@ -13,7 +13,7 @@ samples); the whole ``tvcid discover`` runs on them (:func:`tvcid.pipeline.disco
 structure search, the set, the calibration of every member and their combination.
 
 The row judges what the report prints for every quantity of the combined posterior
-(:func:`tvcid.discovery.structure.set_posterior.combine`: the dead zone at each place, the threshold,
+(:func:`tvcid.discovery.members.set_posterior.combine`: the dead zone at each place, the threshold,
 the backlash, the friction offset, the band-pass gain, the delay, the DC gain and the bandwidth),
 each by one rule of :mod:`tvcid.studies.benchmarks.set_judge`, named in the row: ``interval`` (a pinned
 quantity on its printed 90 % interval), ``allowed`` (a not-pinned one on the range the

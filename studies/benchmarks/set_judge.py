@@ -36,8 +36,8 @@ from __future__ import annotations
 
 import math
 
+from tvcid.discovery.members.set_posterior import printed_present_or_absent
 from tvcid.discovery.structure.coordinates import BOUNDS
-from tvcid.discovery.structure.set_posterior import printed_present_or_absent
 from tvcid.models.quantities import COMPONENT_QUANTITIES
 
 #: The rules a judged quantity is judged by (the module docstring).

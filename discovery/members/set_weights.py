@@ -2,11 +2,11 @@
 
 The set (:mod:`tvcid.discovery.structure.indistinguishable`) holds the structures whose held-out scores
 the ranking cannot separate from the best; each member is calibrated on its own
-(:func:`tvcid.discovery.structure.member_calibration.calibrate_member`). A member's weight is its
+(:func:`tvcid.discovery.members.member_calibration.calibrate_member`). A member's weight is its
 posterior probability given the recordings, with every member equally probable beforehand:
 ``w_m = Z_m / sum_k Z_k``, ``Z_m`` its evidence (the likelihood averaged over its prior), each
 estimated by importance sampling from the member's chain
-(:mod:`tvcid.discovery.structure.member_evidence`).
+(:mod:`tvcid.discovery.members.member_evidence`).
 
 **A common temperature.** Each member's chain samples its likelihood divided, recording by
 recording, by its own discrepancy factor (:func:`tvcid.discovery.calibration.likelihood.base.tempered`):
@@ -33,7 +33,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .member_evidence import GOOD_K, ImportanceDraws, log_evidence
+from tvcid.discovery.calibration.importance import GOOD_K
+
+from .member_evidence import ImportanceDraws, log_evidence
 from .ranking_shares import RANKING_RULE, ranking_shares
 
 __all__ = ["SetWeights", "evidence_weights", "common_temperature", "weighed_choices",

@@ -1,7 +1,7 @@
 """The posterior over the set of structures the recordings cannot tell apart.
 
 Each distinct member of the indistinguishable set (:mod:`tvcid.discovery.structure.indistinguishable`)
-is calibrated on its own (:mod:`tvcid.discovery.structure.member_calibration`), every parameter the
+is calibrated on its own (:mod:`tvcid.discovery.members.member_calibration`), every parameter the
 recordings inform sampled, the linear block included; where the set leaves a component open
 (backlash, friction offset, band-pass loop) and no distinct member has it, the richer structure
 merged into one is calibrated too.
@@ -19,7 +19,7 @@ physical quantities they share:
   -3 dB frequency of ``K1/(s^3 + K2 s^2 + K3 s + K K1)``, the position loop without its delay and
   nonlinearities).
 
-The weights come from the data (:mod:`tvcid.discovery.structure.set_weights`); the equal-weight
+The weights come from the data (:mod:`tvcid.discovery.members.set_weights`); the equal-weight
 mixture is kept beside them as the alternative the report states.
 
 A quantity *depends on the structure* when the spread of the members' medians exceeds half the
@@ -42,18 +42,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tvcid.discovery.calibration.profile_range import (
-    ALLOWED_DROP,
-    QuantityCoordinate,
-    allowed_range,
-)
+from tvcid.discovery.calibration.profile_range import QuantityCoordinate, allowed_range
 from tvcid.discovery.calibration.step_error import widen_draws
 from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
 
 from .set_weights import DECIDING_SHARE
 
-__all__ = ["MemberPosterior", "SetPosterior", "allowed_range", "combine",
-           "not_pinned", "prior_quantities", "richer_members", "decided_absent", "ALLOWED_DROP"]
+__all__ = ["MemberPosterior", "SetPosterior", "combine", "not_pinned", "prior_quantities",
+           "richer_members", "decided_absent"]
 
 #: A quantity depends on the structure when the members' medians spread by more than this
 #: fraction of the median width of their 90 % intervals.
@@ -268,13 +264,13 @@ NEGLIGIBLE_WEIGHT = 0.01
 
 def partly_present(q) -> bool:
     """Whether the members with combined quantity ``q``'s component and those without it both
-    keep at least :data:`~tvcid.discovery.structure.set_weights.DECIDING_SHARE` of the weight."""
+    keep at least :data:`~tvcid.discovery.members.set_weights.DECIDING_SHARE` of the weight."""
     return DECIDING_SHARE <= q.get("present", 1.0) <= 1.0 - DECIDING_SHARE
 
 
 def decided_absent(q) -> bool:
     """Whether the weights decide combined quantity ``q``'s component absent: the members with
-    it hold under :data:`~tvcid.discovery.structure.set_weights.DECIDING_SHARE` of the weight (and
+    it hold under :data:`~tvcid.discovery.members.set_weights.DECIDING_SHARE` of the weight (and
     the set does not leave it open to uncalibrated members)."""
     return q.get("present", 1.0) < DECIDING_SHARE and not q.get("left_open")
 

@@ -35,7 +35,7 @@ from scipy.special import logsumexp
 from tvcid.discovery.calibration.importance import GOOD_K, StudentT, pareto_k
 
 __all__ = ["Proposal", "ImportanceDraws", "Evidence", "importance_draws", "member_importance_draws",
-           "run_draws", "log_evidence", "GOOD_K", "EVIDENCE_DRAWS"]
+           "run_draws", "log_evidence", "EVIDENCE_DRAWS"]
 
 #: Proposal points of a member's evidence (:func:`member_importance_draws`).
 EVIDENCE_DRAWS = 400

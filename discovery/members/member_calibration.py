@@ -3,7 +3,7 @@
 Each distinct member of the indistinguishable set (:mod:`tvcid.discovery.structure.indistinguishable`)
 is calibrated on its own (:func:`calibrate_member`), every parameter its structure has sampled, the
 linear block included, within the structure search's box widened to hold the member's fit
-(:func:`member_priors`); :mod:`tvcid.discovery.structure.set_posterior` then mixes the members.
+(:func:`member_priors`); :mod:`tvcid.discovery.members.set_posterior` then mixes the members.
 """
 from __future__ import annotations
 
