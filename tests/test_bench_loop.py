@@ -1,5 +1,5 @@
 """The experiment-loop benchmark (tvcid.studies.benchmarks.loop) and the closure rule it reports
-(tvcid.discovery.structure.closure)."""
+(tvcid.discovery.prediction.closure)."""
 import dataclasses
 import json
 import shutil
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tvcid.discovery.structure.closure import SetClosure, _squared_distances, _within
+from tvcid.discovery.prediction.closure import SetClosure, _squared_distances, _within
 
 BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
 
@@ -89,8 +89,8 @@ def test_members_agree_on_a_test_when_their_difference_is_inside_their_own_sprea
     """Paper 002's model with its dead zone scattered by 2 %: two members drawn alike agree on an
     open-loop square; a member with twice the dead zone parts from them, its distance to them many
     times their own spread."""
-    from tvcid.discovery.structure.closure import menu_agreement
-    from tvcid.discovery.structure.discrimination import default_candidates
+    from tvcid.discovery.prediction.closure import menu_agreement
+    from tvcid.discovery.prediction.discrimination import default_candidates
     from tvcid.models import M002
 
     base = M002()

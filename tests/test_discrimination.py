@@ -1,9 +1,9 @@
-"""Which test tells structures apart (tvcid.discovery.structure.discrimination)."""
+"""Which test tells structures apart (tvcid.discovery.prediction.discrimination)."""
 import numpy as np
 import pytest
 
 from tvcid.discovery.prediction.design import Candidate
-from tvcid.discovery.structure.discrimination import (
+from tvcid.discovery.prediction.discrimination import (
     DECIDES,
     default_candidates,
     design_over_set,

@@ -151,3 +151,31 @@ def test_no_circular_import():
     found = cycles(graph)
     assert not found, "circular imports:\n" + "\n".join(
         " -> ".join(_loop(graph, c)) for c in found)
+
+
+def subpackage_graph(graph, parent="tvcid.discovery") -> dict[str, set[str]]:
+    """``{subpackage: the sibling subpackages its modules import}`` of ``parent``'s subpackages
+    (a module directly in ``parent`` is its own node)."""
+    def node(module):
+        rest = module[len(parent) + 1:].split(".")
+        return f"{parent}.{rest[0]}"
+
+    inside = [m for m in graph if m.startswith(parent + ".")]
+    out = {node(m): set() for m in inside}
+    for m in inside:
+        out[node(m)].update(node(w) for w in graph[m] if w.startswith(parent + "."))
+    for n, targets in out.items():
+        targets.discard(n)
+    return out
+
+
+def test_no_circular_import_between_discovery_stages():
+    """The discovery's subpackages import one another in layers: no subpackage reaches itself
+    through another's modules (calibration below the structure search, the search below the set's
+    members and below prediction, which names the next test)."""
+    graph = subpackage_graph(import_graph())
+    assert {"tvcid.discovery.structure", "tvcid.discovery.members",
+            "tvcid.discovery.prediction"} <= set(graph)
+    found = cycles(graph)
+    assert not found, "circular imports between subpackages:\n" + "\n".join(
+        " -> ".join(_loop(graph, c)) for c in found)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from tvcid.discovery.members.set_posterior import MemberPosterior, combine, decided_absent
-from tvcid.discovery.members.set_weights import DECIDING_SHARE, weighed_choices
+from tvcid.discovery.members.set_weights import weighed_choices
+from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 from tvcid.report import summary_lines
 
 A = "dz_velocity+delay_before_first_integrator+friction+backlash"

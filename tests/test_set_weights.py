@@ -18,11 +18,11 @@ from tvcid.discovery.members.ranking_shares import (
     uncalibrated_share,
 )
 from tvcid.discovery.members.set_weights import (
-    DECIDING_SHARE,
     EVIDENCE_RULE,
     common_temperature,
     evidence_weights,
 )
+from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 
 N_OBS = 20
 BOX = 5.0

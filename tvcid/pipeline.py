@@ -222,7 +222,7 @@ def median_sensor_noise(summary) -> float:
 
 def next_test(summary, recs, seed, out, spent=None):
     """The test that would tell apart the structures the recordings cannot
-    (:func:`tvcid.discovery.structure.discrimination.discriminating_tests` on the set's unmerged
+    (:func:`tvcid.discovery.prediction.discrimination.discriminating_tests` on the set's unmerged
     members at their fitted parameters, refitted to the recordings for the best
     candidates; the default menu acquired at the recordings' highest rate, the recordings'
     median noise); writes ``next_test.png``. A calibrated member whose weight is under
@@ -230,11 +230,11 @@ def next_test(summary, recs, seed, out, spent=None):
     have decided against it), the weight of the members merged into it counted as its own; one
     beyond the calibration's cap stays. ``None`` for a set of one.
     A dict ``spent`` gets what it simulated, ``simulated_seconds`` and ``simulated_steps``."""
-    from tvcid.discovery.structure.discrimination import (
+    from tvcid.discovery.prediction.discrimination import (
         default_candidates,
         discriminating_tests,
     )
-    from tvcid.discovery.members.set_weights import DECIDING_SHARE
+    from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
     from tvcid.discovery.structure.targets import make_target
     from tvcid.models import params_from_dict
 

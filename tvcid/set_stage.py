@@ -35,7 +35,7 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     A set of several members is calibrated in two rounds. First every member's chain runs
     :data:`SCREEN_STEPS` steps and the members are weighed by their evidence
     (:func:`tvcid.discovery.members.set_weights.evidence_weights`); a member whose weight stays under
-    :data:`tvcid.discovery.members.set_weights.DECIDING_SHARE` even at its estimate's allowance is
+    :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` even at its estimate's allowance is
     *screened*: its chain stops there and its short chain gives its ranges (the report says so).
     Then the others' chains continue to the cap. The screening is stored in ``discovery.json``
     (``set_screening``), so a resumed run screens the same members. Each member's step error is

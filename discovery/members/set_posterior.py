@@ -46,7 +46,7 @@ from tvcid.discovery.calibration.profile_range import QuantityCoordinate, allowe
 from tvcid.discovery.calibration.step_error import widen_draws
 from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
 
-from .set_weights import DECIDING_SHARE
+from ..structure.indistinguishable import DECIDING_SHARE
 
 __all__ = ["MemberPosterior", "SetPosterior", "combine", "not_pinned", "prior_quantities",
            "richer_members", "decided_absent"]
@@ -264,13 +264,13 @@ NEGLIGIBLE_WEIGHT = 0.01
 
 def partly_present(q) -> bool:
     """Whether the members with combined quantity ``q``'s component and those without it both
-    keep at least :data:`~tvcid.discovery.members.set_weights.DECIDING_SHARE` of the weight."""
+    keep at least :data:`~tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` of the weight."""
     return DECIDING_SHARE <= q.get("present", 1.0) <= 1.0 - DECIDING_SHARE
 
 
 def decided_absent(q) -> bool:
     """Whether the weights decide combined quantity ``q``'s component absent: the members with
-    it hold under :data:`~tvcid.discovery.members.set_weights.DECIDING_SHARE` of the weight (and
+    it hold under :data:`~tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` of the weight (and
     the set does not leave it open to uncalibrated members)."""
     return q.get("present", 1.0) < DECIDING_SHARE and not q.get("left_open")
 

@@ -34,16 +34,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tvcid.discovery.calibration.importance import GOOD_K
+from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 
 from .member_evidence import ImportanceDraws, log_evidence
 from .ranking_shares import RANKING_RULE, ranking_shares
 
 __all__ = ["SetWeights", "evidence_weights", "common_temperature", "weighed_choices",
-           "EVIDENCE_RULE", "EQUAL_RULE", "DECIDING_SHARE"]
+           "EVIDENCE_RULE", "EQUAL_RULE"]
 
-#: A member, or a side of a structural choice, holding less than this share of the weight is
-#: decided against: its component is "decided" and its chain is not run to its cap.
-DECIDING_SHARE = 0.05
 #: Standard errors of a member's log evidence added before it is judged under the share.
 SE_ALLOWANCE = 2.0
 #: The equal-weight alternative's rule.

@@ -3,7 +3,9 @@
 * :func:`load_posterior_draws` -- posterior draws back from ``tvcid fit``/``discover`` output;
 * :func:`predict_cycle`, :func:`cycle_map` -- the limit cycle at one controller setting or over a
   grid, median and 90 % band over the draws, beside the describing function of the median model;
-* :func:`rank_experiments` -- which test to run next, by the expected information gain.
+* :func:`rank_experiments` -- which test to run next, by the expected information gain;
+* :mod:`.discrimination` -- which further test would tell the set's structures apart;
+* :mod:`.closure` -- whether the set's calibrated members would answer a user's questions alike.
 """
 from .cycles import (
     CycleMap,

@@ -23,7 +23,7 @@ in quadrature: the sum of the half-widths (``2 h`` for two equal ones, against `
 bounds the difference of two Gaussian measurements of one value at 98 %, not 90 %. Otherwise the
 choice of structure changes the answer there, and the output says so. Where the members carry
 weights, a member under the deciding share
-(:data:`tvcid.discovery.members.set_weights.DECIDING_SHARE`) is not counted: the data have decided
+(:data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`) is not counted: the data have decided
 against it, and the output names it (``not_counted``). Without ``r``, members
 whose chains pin them tightly would be called apart for differences no recording could show (two
 members of one set, fitting the recorded cycles alike, predict them 0.1-0.5 % apart with bands
@@ -151,10 +151,10 @@ def members_agree(bands: dict, resolution=None, weights=None) -> tuple:
 
     ``bands``: member -> a :meth:`.cycles.CyclePrediction.to_dict`; ``resolution``: relative sd
     per quantity (:func:`measurement_resolution`; ``None``: the bands alone); ``weights``: member
-    -> weight, where a member under :data:`tvcid.discovery.members.set_weights.DECIDING_SHARE` (the
+    -> weight, where a member under :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` (the
     data have decided against it) is not counted (``None``: every member counts). Returns
     ``(agree, [(a, b, why), ...])``."""
-    from tvcid.discovery.members.set_weights import DECIDING_SHARE
+    from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 
     resolution = resolution or {}
     counted = {n: b for n, b in bands.items()
@@ -206,7 +206,7 @@ class SetPrediction:
         """The mixture's bands and oscillating fraction (the module's rule), the verdict, and per
         member its :meth:`.cycles.CyclePrediction.to_dict` with its ``weight`` and
         ``share_of_band`` (its part of the mixture's oscillating mass)."""
-        from tvcid.discovery.members.set_weights import DECIDING_SHARE
+        from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 
         w = self.member_weights()
         bands = {n: p.to_dict() for n, p in self.members.items()}

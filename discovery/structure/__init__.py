@@ -16,11 +16,11 @@ Stages, one module each:
 * :mod:`.indistinguishable` -- the set rule: the structures the recordings cannot tell from the
   best, and the merges;
 * :mod:`.estimator` -- :class:`StructureDiscovery`, which runs them in turn, and
-  :func:`validate_recordings`;
-* :mod:`.discrimination` -- which further test would tell the set's members apart;
-* :mod:`.closure` -- whether the set's calibrated members would answer a user's questions alike.
+  :func:`validate_recordings`.
 
-The set's members are calibrated, weighted and mixed in :mod:`tvcid.discovery.members`.
+The set's members are calibrated, weighted and mixed in :mod:`tvcid.discovery.members`; which
+further test would tell them apart, and whether they would answer a user's questions alike, is
+in :mod:`tvcid.discovery.prediction` (``discrimination``, ``closure``).
 """
 from .coordinates import SearchSpace, UnknownParameterError
 from .estimator import DiscoveryInputError, StructureDiscovery, validate_recordings

@@ -19,12 +19,16 @@ import math
 import numpy as np
 from scipy import stats
 
-__all__ = ["TOL_ABS", "MARGIN_QUANTILE", "indistinguishable_margin", "margin_degrees",
+__all__ = ["TOL_ABS", "DECIDING_SHARE", "MARGIN_QUANTILE", "indistinguishable_margin", "margin_degrees",
            "margin_floors", "indistinguishable_set"]
 
 #: Floor of the margin within which a score is indistinguishable from the best, per recording
 #: (:func:`indistinguishable_margin`).
 TOL_ABS = 0.1
+#: A member of the set, or a side of a structural choice, holding less than this share of the
+#: set's weight is decided against: its component is "decided" and its chain is not run to its
+#: cap.
+DECIDING_SHARE = 0.05
 #: One-sided quantile of the margin: a structure is left out when its score exceeds the best's by
 #: more than this quantile of the difference's t distribution (2 standard errors where the
 #: error is known: the normal's quantile at 2).

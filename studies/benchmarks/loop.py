@@ -14,7 +14,7 @@ sensor and read back as a measured recording, and added to the run
 * the fit ceiling: the minimal structures that fit the recordings at least as well as the true
   parameters themselves (:func:`tvcid.studies.benchmarks.discovery.as_well_as_truth`); no rule based on
   the fit can report a set smaller than that;
-* whether the set is *closed* (:func:`tvcid.discovery.structure.closure.set_closure`): one structure,
+* whether the set is *closed* (:func:`tvcid.discovery.prediction.closure.set_closure`): one structure,
   or members whose posterior responses to every test of the menu and whose predicted cycles at
   three controller settings the recordings did not use agree within their bands.
 
@@ -100,8 +100,8 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     """What round ``k`` of a draw leaves: the set, the truth in it, the fit ceiling, closure."""
     from tvcid.discovery.prediction.draws import load_set_draws
     from tvcid.discovery.prediction.set_prediction import measurement_resolution
-    from tvcid.discovery.structure.closure import set_closure
-    from tvcid.discovery.structure.discrimination import default_candidates
+    from tvcid.discovery.prediction.closure import set_closure
+    from tvcid.discovery.prediction.discrimination import default_candidates
     from tvcid.discovery.structure.targets import make_target
     from tvcid.models.recording import load_recordings
     from tvcid.pipeline import median_sensor_noise
@@ -160,7 +160,7 @@ def reuse_round_zero(reuse, seed, draw_dir, run_dir) -> bool:
 def run_draw(seed, out_dir, quick, config=None, ranges="wide", reuse=None) -> dict:
     """The draw's discovery, then up to ``config.rounds`` suggested tests added; round 0 copied
     from ``reuse`` where that holds the draw's discovery (:func:`reuse_round_zero`)."""
-    from tvcid.discovery.structure.discrimination import default_candidates
+    from tvcid.discovery.prediction.discrimination import default_candidates
     from tvcid.pipeline import add_recordings, discover
 
     config = config or (QUICK if quick else FULL)

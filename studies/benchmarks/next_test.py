@@ -3,7 +3,7 @@
 ``python -m tvcid.studies.benchmarks.next_test [--seeds 1004,1009,1010,1011,1016] [--out DIR]``
 
 Hypothesis: where the discovery leaves several structures indistinguishable,
-:func:`tvcid.discovery.structure.discrimination.discriminating_tests` (the default menu, at the
+:func:`tvcid.discovery.prediction.discrimination.discriminating_tests` (the default menu, at the
 recordings' highest rate and median estimated noise, the members refitted) predicts which pairs
 of structures the best test of the menu would decide. Checked by running that test: it is
 recorded from the draw's truth by the plain-Python reference path with the draw's own sensor,
@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from tvcid.discovery.structure import StructureDiscovery
-from tvcid.discovery.structure.discrimination import default_candidates, discriminating_tests
+from tvcid.discovery.prediction.discrimination import default_candidates, discriminating_tests
 from tvcid.models.strict_json import write_json
 
 from ..common import code_commit

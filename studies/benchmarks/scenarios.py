@@ -341,7 +341,7 @@ def write_recording(scenario: Scenario, index, path, dt=None):
 
 
 def design_of(candidate, rate) -> RecordingDesign:
-    """A test of the next-test menu (:class:`tvcid.discovery.structure.discrimination.CandidateTest`) as
+    """A test of the next-test menu (:class:`tvcid.discovery.prediction.discrimination.CandidateTest`) as
     a recording of the generator's designs, acquired at ``rate`` (Hz)."""
     exp = candidate.experiment
     if candidate.kind == "closed":

@@ -37,7 +37,7 @@ def register(sub):
 def run(args) -> int:
     from tvcid.discovery.prediction import load_set_draws
     from tvcid.discovery.prediction.design import load_candidates, rank_experiments
-    from tvcid.discovery.structure.discrimination import design_over_set
+    from tvcid.discovery.prediction.discrimination import design_over_set
     from tvcid.models.strict_json import write_json
 
     candidates = load_candidates(args.candidates)

@@ -1,11 +1,11 @@
 """Which test would tell apart the structures the recordings cannot: model discrimination.
 
-:class:`.estimator.StructureDiscovery` reports the structures whose held-out scores the recordings
-cannot separate (:func:`.indistinguishable.indistinguishable_set`). This module asks which further
+:class:`tvcid.discovery.structure.estimator.StructureDiscovery` reports the structures whose held-out scores the recordings
+cannot separate (:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_set`). This module asks which further
 test would separate them. Each candidate test (:class:`tvcid.discovery.prediction.design.Candidate`: an
 open-loop square, sine or step, or a controller setting) is recorded synthetically from the best
 member with the recordings' sensor noise and turned into the discovery's own target
-(:func:`.targets.make_target`: limit-cycle features, or the output error of a simulation from
+(:func:`tvcid.discovery.structure.targets.make_target`: limit-cycle features, or the output error of a simulation from
 rest). Every member is simulated through it at its fitted parameters; the cost a member would pay
 on the new recording if another member were the truth is the squared distance of their residual
 vectors, in the target's units (a cost is a mean of squared residuals, about 1 for the generating
@@ -36,9 +36,9 @@ from tvcid.models.experiments import CONTROLLER_A, CONTROLLER_B, OpenLoop
 from tvcid.models.structures import Structure
 
 from ..calibration.priors import SIGMA
-from ..prediction.design import Candidate, DesignRanking, rank_experiments
-from .indistinguishable import TOL_ABS
-from .targets import make_target
+from .design import Candidate, DesignRanking, rank_experiments
+from ..structure.indistinguishable import TOL_ABS
+from ..structure.targets import make_target
 
 __all__ = ["DiscriminationRanking", "default_candidates", "discriminating_tests", "design_over_set",
            "DECIDES"]
@@ -157,8 +157,8 @@ def discriminating_tests(members, candidates=None, noise_sd=1e-5, dt=5e-4, seed=
     seed : int
         Seed of the synthetic records' noise.
     recorded : sequence of targets, optional
-        The recordings the members were fitted to (:attr:`.estimator.StructureDiscovery.targets_`
-        or :func:`.targets.make_target` of each): with them the ``n_refit`` best candidates at
+        The recordings the members were fitted to (:attr:`tvcid.discovery.structure.estimator.StructureDiscovery.targets_`
+        or :func:`tvcid.discovery.structure.targets.make_target` of each): with them the ``n_refit`` best candidates at
         fixed parameters are weighed again with the members refitted; without
         them only the comparison at fixed parameters is made (a refit to the new test alone
         would bend every structure to it).
@@ -249,7 +249,7 @@ def _target_of(params, cand, noise_sd, dt, seed, path, spent=None):
 def _weighed(cand, members, names, noise_sd, dt, seed, path, spent):
     """One candidate's separation matrix and verdict (or the reason it was skipped); what it
     simulates is counted in ``spent``."""
-    from .search import Objective
+    from ..structure.search import Objective
 
     target = _target_of(members[0], cand, noise_sd, dt, seed, path, spent)
     if isinstance(target, str):
@@ -287,8 +287,8 @@ def _refitted(test, cand, members, names, recorded, noise_sd, dt, seed, tmp, spe
     test shows no cycle is told from every member that shows one. What it simulates is counted
     in ``spent``.
     """
-    from .coordinates import SearchSpace
-    from .search import Objective, refine
+    from ..structure.coordinates import SearchSpace
+    from ..structure.search import Objective, refine
 
     k = len(members)
     targets = [_target_of(p, cand, noise_sd, dt, seed, tmp / f"refit{j:02d}.csv", spent)

@@ -137,8 +137,8 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
         (:func:`tvcid.discovery.prediction.set_prediction.measurement_resolution`), by which the
         predicted cycles' bands are widened before they are compared.
     """
-    from tvcid.discovery.prediction.cycles import PredictionConfig
-    from tvcid.discovery.prediction.set_prediction import predict_cycle_over_set
+    from .cycles import PredictionConfig
+    from .set_prediction import predict_cycle_over_set
 
     names = list(member_draws)
     if len(names) <= 1:
