@@ -30,8 +30,9 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-class Terminated(Exception):
-    """SIGTERM, turned into an exception so that open files are closed on the way out."""
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an exception so that open files are closed on the way out; raised
+    like Ctrl-C, so that no ``except Exception`` takes it for a failure and goes on."""
 
 
 def _raise_terminated(signum, frame):
