@@ -181,6 +181,21 @@ def test_sindy_stops_at_once(tmp_path, recording, monkeypatch):
     assert record.cut_short and not (tmp_path / "out" / "discovery.json").exists()
 
 
+def test_a_command_started_with_sigint_ignored_still_stops_on_it(tmp_path, recording,
+                                                                 monkeypatch):
+    """A command started with SIGINT ignored (a background job of a non-interactive shell:
+    ``tvcid discover ... &`` in a script) stops on it all the same, with the one line; the
+    handler it started with is back once it returns."""
+    from tvcid.discovery.sindy import WeakSINDyActuator
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    record = signal_on_first_call(monkeypatch, WeakSINDyActuator, "fit", repeats=REPEATS)
+    outcome = run_cli(["discover", recording, *_fixes(SEARCH_FIXED), "--no-mcmc",
+                       "--no-progress", "--out", str(tmp_path / "out")])
+    assert_stopped(outcome, record)
+    assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+
+
 @pytest.fixture
 def small_search(monkeypatch):
     """Searches cut short, no SINDy seeds, no next test: the search stages in a few seconds."""
