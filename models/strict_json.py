@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["jsonable", "dumps", "write_json"]
+__all__ = ["jsonable", "dumps", "write_json", "write_text_atomic"]
 
 
 def jsonable(obj, default=None):
@@ -41,7 +42,24 @@ def dumps(obj, default=None, indent=2) -> str:
 
 
 def write_json(path, obj, default=None, indent=2) -> Path:
-    """Write ``obj`` to ``path`` as strict JSON (:func:`dumps`), with a final newline."""
+    """Write ``obj`` to ``path`` as strict JSON (:func:`dumps`), with a final newline, atomically
+    (:func:`write_text_atomic`)."""
+    return write_text_atomic(path, dumps(obj, default, indent) + "\n")
+
+
+def write_text_atomic(path, text) -> Path:
+    """Write ``text`` to ``path`` (UTF-8) whole or not at all: into a file beside it, then renamed
+    over it.
+
+    An interruption (Ctrl-C, SIGTERM, a kill) while it writes leaves the earlier file as it was:
+    a run resumed from that directory reads either one or the other, never a truncated file.
+    """
     path = Path(path)
-    path.write_text(dumps(obj, default, indent) + "\n")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():  # not renamed: interrupted, or the write failed
+            tmp.unlink()
     return path

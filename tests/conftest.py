@@ -23,6 +23,7 @@ FILE_SECONDS = {
     "test_calibration_recovery.py": 70,
     "test_discover_dask.py": 58,
     "test_no_orphans.py": 46,
+    "test_interrupt.py": 45,
     "test_kernel_vs_reference.py": 44,
     "test_describing_controllers.py": 43,
     "test_calibration_mismatch.py": 42,

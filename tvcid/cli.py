@@ -6,8 +6,9 @@ Each command module exposes ``register(subparsers)``, which adds its parser and 
 never imports them.
 
 Errors reach the user as one line on stderr: exit status 2 for bad input (a file, an option, a
-parameter; the line names it), 130 for an interruption (Ctrl-C or SIGTERM; long commands resume
-when run again), 1 for an internal error (a bug: ``TVCID_DEBUG=1`` shows its traceback).
+parameter; the line names it), 130 for an interruption (Ctrl-C, SIGINT or SIGTERM, whatever
+handler the process started with; long commands resume when run again), 1 for an internal error
+(a bug: ``TVCID_DEBUG=1`` shows its traceback).
 """
 from __future__ import annotations
 
@@ -30,8 +31,9 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-class Terminated(Exception):
-    """SIGTERM, turned into an exception so that open files are closed on the way out."""
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an exception so that open files are closed on the way out; raised
+    like Ctrl-C, so that no ``except Exception`` takes it for a failure and goes on."""
 
 
 def _raise_terminated(signum, frame):
@@ -65,9 +67,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     name = f"tvcid {args.command}"
     try:
-        previous = signal.signal(signal.SIGTERM, _raise_terminated)
-    except ValueError:  # not the main thread: leave SIGTERM alone
-        previous = None
+        # SIGINT raises also where the command started with it ignored (a background job of a
+        # non-interactive shell, `tvcid discover ... &` in a script, which kill -INT would not stop)
+        previous = {signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler),
+                    signal.SIGTERM: signal.signal(signal.SIGTERM, _raise_terminated)}
+    except ValueError:  # not the main thread: leave the signals alone
+        previous = {}
     try:
         return int(args.func(args) or 0)
     except (ValueError, TypeError, OSError) as exc:
@@ -89,8 +94,8 @@ def main(argv=None) -> int:
               "TVCID_DEBUG=1 for the traceback and please report it)", file=sys.stderr)
         return EXIT_INTERNAL
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():  # None: a handler not set from Python
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
 
 
 def _one_line(exc) -> str:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tvcid.models.strict_json import jsonable, write_json
+from tvcid.models.strict_json import jsonable, write_json, write_text_atomic
 
 __all__ = ["DiscoveryResult"]
 
@@ -138,7 +138,7 @@ class DiscoveryResult:
         out = Path(out if out is not None else self.out)
         out.mkdir(parents=True, exist_ok=True)
         write_json(out / "discovery.json", self.summary, default=_json_default)
-        (out / "report.md").write_text(self.report())
+        write_text_atomic(out / "report.md", self.report())
         self.out = out
         return out
 
