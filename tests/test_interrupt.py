@@ -242,7 +242,7 @@ def test_the_next_test_stops_at_once_and_the_same_command_reuses_the_ranking(
     """Ctrl-C while the next test weighs its first candidate: status 130 with the one line, the
     ranking written before it kept. The same command again reuses that ranking and makes the
     next test (stubbed here: its cost is not at issue)."""
-    from tvcid.discovery.structure import discrimination
+    from tvcid.discovery.prediction import discrimination
 
     out = tmp_path / "out"
     args = ["discover", recording, *_fixes(FIXED), "--seed", "1", "--no-mcmc", "--no-progress",
@@ -267,7 +267,7 @@ def set_runs(tmp_path_factory, recording):
     after step :data:`STOP_AT` of the first member's chain, stopped again in the first member's
     weights (its evidence's importance draws), then run to its end. Each run's outcome and the
     chain steps it saved, ``(chain file, iteration)``, and the directory."""
-    from tvcid.discovery.structure import member_evidence
+    from tvcid.discovery.members import member_evidence
 
     out = tmp_path_factory.mktemp("set") / "out"
     args = ["discover", recording, *_fixes(FIXED), "--quick", "--seed", "1", "--max-steps",
