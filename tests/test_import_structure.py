@@ -63,7 +63,7 @@ def imported_modules(name: str, path: Path, modules) -> set[str]:
 
 @functools.lru_cache(maxsize=1)
 def import_graph() -> dict[str, set[str]]:
-    """``{module: the package's modules it imports}`` (read once per session)."""
+    """``{module: the package's modules it imports}`` (read once per test run)."""
     modules = package_modules()
     return {name: imported_modules(name, path, modules) for name, path in modules.items()}
 
