@@ -12,7 +12,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 __all__ = ["EXIT_INTERRUPTED", "Terminated", "init_worker", "map_pool", "process_pool",
-           "run_interruptible", "sigterm_raises"]
+           "run_interruptible", "sigterm_raises", "interruptions_raise"]
 
 
 #: Exit status of a script stopped by Ctrl-C or SIGTERM (128 + SIGINT, as ``tvcid`` uses).
@@ -72,6 +72,14 @@ def sigterm_raises():
     return _handlers(SIGTERM=_raise_terminated)
 
 
+def interruptions_raise():
+    """Ctrl-C (SIGINT) raises KeyboardInterrupt and SIGTERM :class:`Terminated` over the block,
+    whatever handlers the process started with: a command started in the background of a script
+    begins with SIGINT ignored, and ``kill -INT`` would not stop it. The handlers found are put
+    back after; only in the main thread (elsewhere a no-op)."""
+    return _handlers(SIGINT=signal.default_int_handler, SIGTERM=_raise_terminated)
+
+
 def run_interruptible(main, argv=None) -> int:
     """``main(argv)``'s exit status; Ctrl-C or SIGTERM give one line on stderr and status 130.
 
@@ -80,7 +88,7 @@ def run_interruptible(main, argv=None) -> int:
     """
     spec = getattr(sys.modules.get(main.__module__), "__spec__", None)
     prog = f"python -m {spec.name}" if spec is not None else Path(sys.argv[0]).name
-    with sigterm_raises():
+    with interruptions_raise():
         try:
             return main(argv)
         except KeyboardInterrupt:

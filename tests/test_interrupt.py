@@ -369,3 +369,23 @@ def test_design_stops_at_once_and_runs_again(set_runs, tmp_path, monkeypatch):
         status, _, err = run_cli(args)
     assert status == 0, err[-800:]
     assert json.loads((tmp_path / "design" / "design.json").read_text())["ranking"]
+
+
+def test_a_benchmark_started_with_sigint_ignored_still_stops_on_it(capsys):
+    """A benchmark script's entry (:func:`tvcid.discovery.parallel.run_interruptible`) started
+    with SIGINT ignored stops on it as a command does: status 130 and the one line, within a
+    second of the signal; the handler it started with is back once it returns."""
+    from tvcid.discovery.parallel import EXIT_INTERRUPTED, run_interruptible
+
+    def main(argv):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(10.0)  # reached only if the signal is ignored
+        return 0
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    t0 = time.perf_counter()
+    status = run_interruptible(main, [])
+    assert time.perf_counter() - t0 < 1.0
+    assert status == EXIT_INTERRUPTED
+    assert "interrupted" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN

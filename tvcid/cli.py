@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 
 from .commands import COMMAND_MODULES
@@ -30,14 +29,6 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, turned into an exception so that open files are closed on the way out; raised
-    like Ctrl-C, so that no ``except Exception`` takes it for a failure and goes on."""
-
-
-def _raise_terminated(signum, frame):
-    raise Terminated()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,18 +52,19 @@ def plugin_commands() -> tuple:
 
 
 def main(argv=None) -> int:
-    from tvcid.models import SimulationDiverged
+    from tvcid.discovery.parallel import interruptions_raise
 
     parser = build_parser()
     args = parser.parse_args(argv)
     name = f"tvcid {args.command}"
-    try:
-        # SIGINT raises also where the command started with it ignored (a background job of a
-        # non-interactive shell, `tvcid discover ... &` in a script, which kill -INT would not stop)
-        previous = {signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler),
-                    signal.SIGTERM: signal.signal(signal.SIGTERM, _raise_terminated)}
-    except ValueError:  # not the main thread: leave the signals alone
-        previous = {}
+    with interruptions_raise():
+        return _run(args, name)
+
+
+def _run(args, name) -> int:
+    """The command's exit status, every error as one line (the module's rules)."""
+    from tvcid.models import SimulationDiverged
+
     try:
         return int(args.func(args) or 0)
     except (ValueError, TypeError, OSError) as exc:
@@ -83,7 +75,7 @@ def main(argv=None) -> int:
         print(f"{name}: error: {_one_line(exc)} (the loop is unstable with these parameters "
               "and controller settings)", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except (KeyboardInterrupt, Terminated):
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM raised as one
         print(f"{name}: interrupted; what was saved is kept (run the same command again to resume "
               "a chain or a discovery)", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -93,9 +85,6 @@ def main(argv=None) -> int:
         print(f"{name}: internal error: {type(exc).__name__}: {_one_line(exc)} (a bug; rerun with "
               "TVCID_DEBUG=1 for the traceback and please report it)", file=sys.stderr)
         return EXIT_INTERNAL
-    finally:
-        for signum, handler in previous.items():  # None: a handler not set from Python
-            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
 
 
 def _one_line(exc) -> str:
