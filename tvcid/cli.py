@@ -30,7 +30,6 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="tvcid",

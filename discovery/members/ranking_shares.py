@@ -7,10 +7,11 @@ recordings of each recording's mean squared residual in units of what it resolve
 recording for the generating model), not a log density, so ``exp(-score / 2)`` would count a
 recording's hundreds of residuals as one, and ``exp(-n score / 2)`` would count their correlated
 stretches as independent. The ranking's own yardstick is the standard error behind its margin
-(:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_margin`): that of a score's difference from the best. A
-member's share is its probability of having the lowest expected held-out score, its difference
-from the best normal with that standard error. The members the cap leaves uncalibrated get their share this way
-(:func:`uncalibrated_share`), so the report can say what part of the weight was not calibrated.
+(:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_margin`): that of a score's
+difference from the best. A member's share is its probability of having the lowest expected held-out
+score, its difference from the best normal with that standard error. The members the cap leaves
+uncalibrated get their share this way (:func:`uncalibrated_share`), so the report can say what part
+of the weight was not calibrated.
 """
 from __future__ import annotations
 
@@ -33,14 +34,14 @@ RANKING_RULE = ("probability of the lowest expected two-fold held-out score, eac
 def ranking_shares(rows, seed=0, n_draws=RANKING_DRAWS) -> dict:
     """Approximate weights of the set's members from the ranking alone (no calibration).
 
-    Each member's share is the probability that its expected two-fold held-out score is the
-    lowest: its difference from the best score is drawn normal, with mean the observed
-    difference and standard error ``margin_se``, the one behind its ``margin``
-    (:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_margin`; half the margin in a ranking that stores
-    none); the best's own row (no margin) is exact; the differences are drawn independently with a seeded
-    ``numpy.random.Generator``, which ignores that they share the best's error (the shares then
-    lean slightly towards equal). A score is not a log density (the module docstring), so it is
-    not put through ``exp(-score / 2)``.
+    Each member's share is the probability that its expected two-fold held-out score is the lowest:
+    its difference from the best score is drawn normal, with mean the observed difference and
+    standard error ``margin_se``, the one behind its ``margin``
+    (:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_margin`; half the margin
+    in a ranking that stores none); the best's own row (no margin) is exact; the differences are
+    drawn independently with a seeded ``numpy.random.Generator``, which ignores that they share the
+    best's error (the shares then lean slightly towards equal). A score is not a log density (the
+    module docstring), so it is not put through ``exp(-score / 2)``.
 
     Parameters
     ----------

@@ -29,9 +29,10 @@ disagree, not because each is uncertain.
 A quantity is *not pinned* when, in a member that has it, its 90 % interval spans more than half
 of the 90 % interval its prior implies (the member's priors sampled and mapped through
 :func:`member_quantities`, in the quantity's own coordinate,
-:class:`tvcid.discovery.calibration.profile_range.QuantityCoordinate`): composite quantities are judged on their own draws, not through the
-parameters they are made of. Beside its interval, each quantity has the range the recordings
-*allow* (:func:`tvcid.discovery.calibration.profile_range.allowed_range`): where its profile log
+:class:`tvcid.discovery.calibration.profile_range.QuantityCoordinate`): composite quantities are
+judged on their own draws, not through the parameters they are made of. Beside its interval,
+each quantity has the range the recordings *allow*
+(:func:`tvcid.discovery.calibration.profile_range.allowed_range`): where its profile log
 posterior stays within 1.92 nats of the best, the members' ranges joined; an end the prior sets
 is *open* (the prior's floor or ceiling).
 """
@@ -59,6 +60,8 @@ STRUCTURE_DEPENDENCE = 0.5
 NOT_PINNED_FRACTION = 0.5
 #: Prior draws that map a member's priors to its quantities' prior-implied spread.
 PRIOR_DRAWS = 4000
+
+
 def prior_quantities(params: dict, priors: dict, n=PRIOR_DRAWS, seed=0) -> dict:
     """The combined quantities under a member's priors alone: ``n`` draws of every prior in
     ``priors`` (name -> :class:`tvcid.discovery.calibration.priors.Prior`) mapped through
@@ -264,14 +267,15 @@ NEGLIGIBLE_WEIGHT = 0.01
 
 def partly_present(q) -> bool:
     """Whether the members with combined quantity ``q``'s component and those without it both
-    keep at least :data:`~tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` of the weight."""
+    keep at least :data:`~tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` of the
+    weight."""
     return DECIDING_SHARE <= q.get("present", 1.0) <= 1.0 - DECIDING_SHARE
 
 
 def decided_absent(q) -> bool:
     """Whether the weights decide combined quantity ``q``'s component absent: the members with
-    it hold under :data:`~tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` of the weight (and
-    the set does not leave it open to uncalibrated members)."""
+    it hold under :data:`~tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` of the weight
+    (and the set does not leave it open to uncalibrated members)."""
     return q.get("present", 1.0) < DECIDING_SHARE and not q.get("left_open")
 
 

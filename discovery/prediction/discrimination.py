@@ -1,15 +1,17 @@
 """Which test would tell apart the structures the recordings cannot: model discrimination.
 
-:class:`tvcid.discovery.structure.estimator.StructureDiscovery` reports the structures whose held-out scores the recordings
-cannot separate (:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_set`). This module asks which further
-test would separate them. Each candidate test (:class:`tvcid.discovery.prediction.design.Candidate`: an
-open-loop square, sine or step, or a controller setting) is recorded synthetically from the best
-member with the recordings' sensor noise and turned into the discovery's own target
-(:func:`tvcid.discovery.structure.targets.make_target`: limit-cycle features, or the output error of a simulation from
-rest). Every member is simulated through it at its fitted parameters; the cost a member would pay
-on the new recording if another member were the truth is the squared distance of their residual
-vectors, in the target's units (a cost is a mean of squared residuals, about 1 for the generating
-model), so it reads on the scale of the discovery's scores.
+:class:`tvcid.discovery.structure.estimator.StructureDiscovery` reports the structures whose
+held-out scores the recordings cannot separate
+(:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_set`). This module asks which
+further test would separate them. Each candidate test
+(:class:`tvcid.discovery.prediction.design.Candidate`: an open-loop square, sine or step, or a
+controller setting) is recorded synthetically from the best member with the recordings' sensor noise
+and turned into the discovery's own target (:func:`tvcid.discovery.structure.targets.make_target`:
+limit-cycle features, or the output error of a simulation from rest). Every member is simulated
+through it at its fitted parameters; the cost a member would pay on the new recording if another
+member were the truth is the squared distance of their residual vectors, in the target's units (a
+cost is a mean of squared residuals, about 1 for the generating model), so it reads on the scale of
+the discovery's scores.
 
 That comparison at fixed parameters (the discrimination designs of Box and Hill, 1967) screens
 the whole menu, but a refit absorbs most of it. So the ``REFIT_CANDIDATES`` best candidates are
@@ -157,11 +159,12 @@ def discriminating_tests(members, candidates=None, noise_sd=1e-5, dt=5e-4, seed=
     seed : int
         Seed of the synthetic records' noise.
     recorded : sequence of targets, optional
-        The recordings the members were fitted to (:attr:`tvcid.discovery.structure.estimator.StructureDiscovery.targets_`
-        or :func:`tvcid.discovery.structure.targets.make_target` of each): with them the ``n_refit`` best candidates at
-        fixed parameters are weighed again with the members refitted; without
-        them only the comparison at fixed parameters is made (a refit to the new test alone
-        would bend every structure to it).
+        The recordings the members were fitted to
+        (:attr:`tvcid.discovery.structure.estimator.StructureDiscovery.targets_` or
+        :func:`tvcid.discovery.structure.targets.make_target` of each): with them the ``n_refit``
+        best candidates at fixed parameters are weighed again with the members refitted; without
+        them only the comparison at fixed parameters is made (a refit to the new test alone would
+        bend every structure to it).
     n_refit : int
         Candidates weighed again with the members refitted.
 

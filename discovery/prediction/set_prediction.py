@@ -17,17 +17,16 @@ under each:
     |m_a - m_b| <= sqrt(h_a^2 + r_a^2 + h_b^2 + r_b^2),
 
 with ``h`` a member's 90 % half-width on the side facing the other (its band, moved out by the
-solver error) and ``r = 1.645 s m`` the 90 % half-width of a recording's measurement of the
-cycle at relative sd ``s`` (:func:`measurement_resolution`; 0 without one). Independent spreads add
-in quadrature: the sum of the half-widths (``2 h`` for two equal ones, against ``sqrt(2) h``)
-bounds the difference of two Gaussian measurements of one value at 98 %, not 90 %. Otherwise the
-choice of structure changes the answer there, and the output says so. Where the members carry
-weights, a member under the deciding share
-(:data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`) is not counted: the data have decided
-against it, and the output names it (``not_counted``). Without ``r``, members
-whose chains pin them tightly would be called apart for differences no recording could show (two
-members of one set, fitting the recorded cycles alike, predict them 0.1-0.5 % apart with bands
-narrower than that).
+solver error) and ``r = 1.645 s m`` the 90 % half-width of a recording's measurement of the cycle at
+relative sd ``s`` (:func:`measurement_resolution`; 0 without one). Independent spreads add in
+quadrature: the sum of the half-widths (``2 h`` for two equal ones, against ``sqrt(2) h``) bounds
+the difference of two Gaussian measurements of one value at 98 %, not 90 %. Otherwise the choice of
+structure changes the answer there, and the output says so. Where the members carry weights, a
+member under the deciding share (:data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`)
+is not counted: the data have decided against it, and the output names it (``not_counted``). Without
+``r``, members whose chains pin them tightly would be called apart for differences no recording
+could show (two members of one set, fitting the recorded cycles alike, predict them 0.1-0.5 % apart
+with bands narrower than that).
 """
 from __future__ import annotations
 
@@ -149,10 +148,10 @@ def _apart(a, b, resolution=0.0) -> bool:
 def members_agree(bands: dict, resolution=None, weights=None) -> tuple:
     """Whether the members' predictions agree (the module's rule), and the disagreeing pairs.
 
-    ``bands``: member -> a :meth:`.cycles.CyclePrediction.to_dict`; ``resolution``: relative sd
-    per quantity (:func:`measurement_resolution`; ``None``: the bands alone); ``weights``: member
-    -> weight, where a member under :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` (the
-    data have decided against it) is not counted (``None``: every member counts). Returns
+    ``bands``: member -> a :meth:`.cycles.CyclePrediction.to_dict`; ``resolution``: relative sd per
+    quantity (:func:`measurement_resolution`; ``None``: the bands alone); ``weights``: member ->
+    weight, where a member under :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`
+    (the data have decided against it) is not counted (``None``: every member counts). Returns
     ``(agree, [(a, b, why), ...])``."""
     from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 

@@ -19,8 +19,8 @@ import math
 import numpy as np
 from scipy import stats
 
-__all__ = ["TOL_ABS", "DECIDING_SHARE", "MARGIN_QUANTILE", "indistinguishable_margin", "margin_degrees",
-           "margin_floors", "indistinguishable_set"]
+__all__ = ["TOL_ABS", "DECIDING_SHARE", "MARGIN_QUANTILE", "indistinguishable_margin",
+           "margin_degrees", "margin_floors", "indistinguishable_set"]
 
 #: Floor of the margin within which a score is indistinguishable from the best, per recording
 #: (:func:`indistinguishable_margin`).
