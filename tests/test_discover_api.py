@@ -53,7 +53,7 @@ def test_the_set_posterior_and_its_intervals_are_read_by_name(summary, tmp_path)
     """``set_posterior`` is the summary's; ``interval(name)`` its combined (q05, q95), the same
     after the JSON round trip; the set's delay interval holds both members' delays, where the
     winner's alone holds only its own."""
-    result = DiscoveryResult(summary)
+    result = DiscoveryResult.from_dict(summary)
     assert result.set_posterior is summary["set_posterior"]
     combined = summary["set_posterior"]["quantities"]
     for name in ("delay", "dead_zone[velocity]", "dc_gain"):
@@ -78,13 +78,13 @@ def test_a_bad_interval_request_is_a_one_line_error(summary, case, message):
     """An unknown quantity names those there are; a run without MCMC has no set posterior
     (``set_posterior`` is ``None``); a component left open that no calibrated member holds has
     no interval; only the 90 % interval is stored."""
-    result = DiscoveryResult(summary)
+    result = DiscoveryResult.from_dict(summary)
     if case == "no set":
-        result = DiscoveryResult({k: v for k, v in summary.items()
+        result = DiscoveryResult.from_dict({k: v for k, v in summary.items()
                                   if k not in ("posterior", "set_posterior")})
         assert result.set_posterior is None
     if case == "left open":  # a copy: the summary is the module's
-        result = DiscoveryResult({**summary, "set_posterior": {
+        result = DiscoveryResult.from_dict({**summary, "set_posterior": {
             **summary["set_posterior"], "left_open_uncalibrated": ["backlash"]}})
     with pytest.raises(ValueError, match=message) as err:
         result.interval({"unknown": "dead_zone", "left open": "backlash"}.get(case, "delay"),
@@ -103,7 +103,7 @@ def test_discover_prints_the_sets_quantities_and_points_to_the_winners_posterior
     from tvcid.cli import main
     from tvcid.report import summary_lines
 
-    result = DiscoveryResult(summary, tmp_path)
+    result = DiscoveryResult.from_dict(summary, tmp_path)
     monkeypatch.setattr(tvcid.pipeline, "discover", lambda *a, **k: result)
     assert main(["discover", "cycle.csv", "--no-progress", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out.splitlines()

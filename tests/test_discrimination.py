@@ -99,6 +99,7 @@ def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     from tvcid.models import M002, M001i
     from tvcid.models.recording import load_recording, save_recording
     from tvcid.pipeline import next_test
+    from tvcid.run_record import RunRecord
     from tvcid.report import _next_test_lines
 
     def entry(params, inside=True, merged=None):
@@ -112,7 +113,7 @@ def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     keep = cycle.columns["t"] >= cycle.columns["t"][-1] - 10.0
     tail = {k: v[keep] - v[keep][0] if k == "t" else v[keep] for k, v in cycle.columns.items()}
     recs = [load_recording(save_recording(tmp_path / "cycle_A_tail.csv", tail, cycle.meta))]
-    nt = next_test(summary, recs, 0, tmp_path)
+    nt = next_test(RunRecord.from_dict(summary), recs, 0, tmp_path)
     assert nt["members"] == ["dz_error+delay_output+backlash", "dz_velocity+delay_output+backlash"]
     assert nt["noise_sd"] == pytest.approx(3e-5) and nt["n_pairs"] == 1
     # the best candidates were weighed with the members refitted to the recording (neither was
@@ -124,7 +125,7 @@ def test_discover_names_the_test_that_would_decide_its_set(tmp_path):
     text = "\n".join(_next_test_lines(nt))
     assert "## A test that would decide" in text and best["name"] in text
     assert ("No candidate decides any pair" in text) == (best["pairs_decided"] == 0)
-    assert next_test({"structures": structures[:1], "sensor_noise": {}}, recs, 0, tmp_path) is None
+    assert next_test(RunRecord(structures[:1]), recs, 0, tmp_path) is None
     assert _next_test_lines(None) == []
 
 
@@ -134,6 +135,7 @@ def test_the_next_test_leaves_out_the_members_the_weights_decided_against(tmp_pa
     section of candidates."""
     from tvcid.models import M002, M001i
     from tvcid.pipeline import next_test
+    from tvcid.run_record import RunRecord
     from tvcid.report import _next_test_headline, _next_test_lines
 
     rows = [{"structure": n, "params": p.to_dict(), "indistinguishable_from_best": True,
@@ -141,7 +143,7 @@ def test_the_next_test_leaves_out_the_members_the_weights_decided_against(tmp_pa
     summary = {"structures": rows, "sensor_noise": {},
                "set_posterior": {"members": [{"structure": "a", "weight": 0.97},
                                              {"structure": "b", "weight": 0.03}]}}
-    nt = next_test(summary, [], 0, tmp_path)
+    nt = next_test(RunRecord.from_dict(summary), [], 0, tmp_path)
     assert nt["left_out"] == [{"structure": "b", "weight": 0.03}] and nt["members"] == ["a"]
     assert _next_test_headline(nt, 2) == ("Next test: none needed: the weights leave one "
                                           "structure, `a` (the others hold under 5 % of the "
@@ -155,6 +157,7 @@ def test_a_merged_members_weight_counts_for_the_structure_it_is_merged_into(tmp_
     5 %) left out, and the summary names it."""
     from tvcid.models import M002, M001i
     from tvcid.pipeline import next_test
+    from tvcid.run_record import RunRecord
     from tvcid.report import _next_test_headline
 
     rows = [{"structure": n, "params": p.to_dict(), "indistinguishable_from_best": True,
@@ -164,7 +167,7 @@ def test_a_merged_members_weight_counts_for_the_structure_it_is_merged_into(tmp_
                "set_posterior": {"members": [{"structure": "a", "weight": 1e-9},
                                              {"structure": "b", "weight": 1e-6},
                                              {"structure": "a+x", "weight": 1.0 - 1e-6}]}}
-    nt = next_test(summary, [], 0, tmp_path)
+    nt = next_test(RunRecord.from_dict(summary), [], 0, tmp_path)
     assert nt["members"] == ["a"] and [x["structure"] for x in nt["left_out"]] == ["b"]
     assert "`a`" in _next_test_headline(nt, 2)
 

@@ -27,12 +27,10 @@ import numpy as np
 from tvcid.discovery.speed import cpu_seconds
 
 from .result import DiscoveryResult
+from .run_record import DISCOVERY_FORMAT, RunCost, RunRecord
 from .set_stage import calibrate_set
 
 __all__ = ["DiscoveryResult", "add_recordings", "discover", "next_test", "inputs_hash"]
-
-#: Layout of ``discovery.json``; ``--add`` refuses a directory written in another one.
-DISCOVERY_FORMAT = 2
 
 
 def discover(files, out, fixed=None, seed=0, quick=False, max_steps=None, mcmc=True,
@@ -94,34 +92,28 @@ def _discover(recs, out, fixed, seed, quick, max_steps, mcmc, progress, search, 
     from tvcid.models.structures import shared_choices
 
     inputs = inputs_hash(recs, fixed, seed, search)
-    previous = _previous_ranking(out, inputs)
-    if previous is not None:
-        summary = previous
-        summary["resumed_ranking"] = True
+    record = _previous_ranking(out, inputs)
+    if record is not None:
+        record.resumed_ranking = True
         # the same data under the names given now (a run copied from elsewhere)
-        summary["recordings"] = [str(r.path) for r in recs]
-        offsets = summary["sensor_offset"]
-        t_disc = summary["timings"].get("discovery", 0.0)
-        summary.setdefault("decided", shared_choices(summary["indistinguishable"]))
+        record.recordings = [str(r.path) for r in recs]
+        record.decided = record.decided or shared_choices(record.indistinguishable)
     else:
-        summary, offsets, t_disc = _rank_structures(
-            recs, fixed, seed, search, progress, inputs, executor=executor)
-        _write(out, summary)  # the ranking survives whatever happens to the chain
+        record = _rank_structures(recs, fixed, seed, search, progress, inputs,
+                                  executor=executor)
+        _write(out, record)  # the ranking survives whatever happens to the chain
     if mcmc:  # a finished chain resumes at once; a larger --max-steps continues it
-        summary = calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps,
-                             progress, out, executor)
-        _write(out, summary)
-    if "next_test" not in summary:  # after the weights: it splits the members that carry them
+        calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, executor)
+        _write(out, record)
+    if not record.next_test_named:  # after the weights: it splits the members that carry them
         t0, c0 = time.perf_counter(), cpu_seconds()
         spent = {"simulated_seconds": 0.0, "simulated_steps": 0.0}
-        summary["next_test"] = next_test(summary, recs, seed, out, spent)
-        summary["timings"]["next_test"] = time.perf_counter() - t0
-        summary.setdefault("cpu_seconds", {})["next_test"] = cpu_seconds() - c0
-        summary.setdefault("simulated_seconds", {})["next_test"] = spent["simulated_seconds"]
-        summary.setdefault("simulated_steps", {})["next_test"] = spent["simulated_steps"]
-    summary["timings"]["discovery"] = t_disc
-    _write(out, summary)
-    return DiscoveryResult(summary, out)
+        record.next_test = next_test(record, recs, seed, out, spent)
+        record.next_test_named = True
+        record.cost.add("next_test", wall=time.perf_counter() - t0, cpu=cpu_seconds() - c0,
+                        **spent)
+    _write(out, record)
+    return DiscoveryResult(record, out)
 
 
 def _hash_samples(h, rec):
@@ -148,14 +140,19 @@ def _earlier_run(out, fixed):
         earlier = json.loads(path.read_text())
     except ValueError as exc:
         raise ValueError(f"--add: {path} is not valid JSON ({exc})") from None
-    if not isinstance(earlier, dict) or earlier.get("format") != DISCOVERY_FORMAT:
-        found = earlier.get("format") if isinstance(earlier, dict) else None
+    found = earlier.get("format") if isinstance(earlier, dict) else None
+    try:
+        if found != DISCOVERY_FORMAT:
+            raise ValueError
+        earlier = RunRecord.from_dict(earlier)
+    except ValueError:
         raise ValueError(f"--add: {path} was written by another version of tvcid discover (layout "
-                         f"{found!r}, this one adds to {DISCOVERY_FORMAT}); run the discovery again")
+                         f"{found!r}, this one adds to {DISCOVERY_FORMAT}); run the discovery again"
+                         ) from None
     given = {k: getattr(v, "value", v) for k, v in (fixed or {}).items()}
-    if given and given != earlier["fixed"]:
+    if given and given != earlier.fixed:
         raise ValueError(f"--add: --fix {given} differs from the earlier run's fixed set-up "
-                         f"{earlier['fixed'] or 'none'} (--add keeps the earlier set-up; leave "
+                         f"{earlier.fixed or 'none'} (--add keeps the earlier set-up; leave "
                          "--fix out)")
     return earlier
 
@@ -180,15 +177,15 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
         check_dask_address(dask)
     out = Path(out)
     earlier = _earlier_run(out, fixed)
-    added = earlier.get("added") or []
+    added = earlier.added or []
     new = validate_recordings(new_files)
     new_paths = [str(r.path) for r in new]
-    if added and new_paths == added[-len(new_paths):] and all(p in earlier["recordings"] for p in new_paths):
+    if added and new_paths == added[-len(new_paths):] and all(p in earlier.recordings for p in new_paths):
         # the same --add, interrupted after its ranking: resume it
-        return discover(earlier["recordings"], out, fixed=earlier["fixed"], seed=earlier["seed"],
+        return discover(earlier.recordings, out, fixed=earlier.fixed, seed=earlier.seed,
                         quick=quick, max_steps=max_steps, mcmc=mcmc, progress=progress,
-                        search=earlier["search"], dask=dask)
-    old = validate_recordings(earlier["recordings"])
+                        search=earlier.search, dask=dask)
+    old = validate_recordings(earlier.recordings)
     known = {Path(r.path).resolve(): r for r in old}
     hashes = {_data_hash(r): r for r in old}
     for r in new:
@@ -196,31 +193,31 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
         if twin is not None:
             raise ValueError(f"--add: {r.path} is already in the run (as {twin.path})")
     recs = old + new
-    fixed, seed, search = earlier["fixed"], earlier["seed"], earlier["search"]
+    fixed, seed, search = earlier.fixed, earlier.seed, earlier.search
     previous = {}
-    for row in earlier["structures"]:
+    for row in earlier.structures:
         if row.get("cost") is not None and math.isfinite(row["cost"]):
             previous[row["structure"]] = params_from_dict("custom", row["params"])
     inputs = inputs_hash(recs, fixed, seed, search)
-    summary, offsets, t_disc = _rank_structures(recs, fixed, seed, search, progress,
-                                                inputs, previous=previous,
-                                                previous_race=earlier.get("race"))
-    summary["added"] = added + new_paths
-    summary["earlier_set"] = earlier["indistinguishable"]
-    _write(out, summary)  # the ranking survives whatever happens to the chains
-    return discover(summary["recordings"], out, fixed=fixed, seed=seed, quick=quick,
+    record = _rank_structures(recs, fixed, seed, search, progress, inputs, previous=previous,
+                              previous_race=earlier.race)
+    record.added = added + new_paths
+    record.earlier_set = earlier.indistinguishable
+    _write(out, record)  # the ranking survives whatever happens to the chains
+    return discover(record.recordings, out, fixed=fixed, seed=seed, quick=quick,
                     max_steps=max_steps, mcmc=mcmc, progress=progress, search=search, dask=dask)
 
 
-def median_sensor_noise(summary) -> float:
-    """The median of a discovery's per-recording sensor-noise estimates (rad); 1e-6 rad for
-    noise-free recordings, where the code's own tolerance sets the units."""
-    noises = [float(v) for v in summary["sensor_noise"].values()
+def median_sensor_noise(sensor_noise) -> float:
+    """The median of a discovery's per-recording sensor-noise estimates (``sensor_noise``,
+    recording to rad); 1e-6 rad for noise-free recordings, where the code's own tolerance sets
+    the units."""
+    noises = [float(v) for v in sensor_noise.values()
               if isinstance(v, (int, float)) and math.isfinite(v) and v > 0]
     return float(np.median(noises)) if noises else 1e-6
 
 
-def next_test(summary, recs, seed, out, spent=None):
+def next_test(record, recs, seed, out, spent=None):
     """The test that would tell apart the structures the recordings cannot
     (:func:`tvcid.discovery.prediction.discrimination.discriminating_tests` on the set's unmerged
     members at their fitted parameters, refitted to the recordings for the best
@@ -238,14 +235,12 @@ def next_test(summary, recs, seed, out, spent=None):
     from tvcid.discovery.structure.targets import make_target
     from tvcid.models import params_from_dict
 
-    weight = {m["structure"]: m["weight"]
-              for m in (summary.get("set_posterior") or {}).get("members") or ()}
-    for s in summary["structures"]:  # a merged member's weight is its structure's
+    weight = record.member_weights()
+    for s in record.structures:  # a merged member's weight is its structure's
         if s["indistinguishable_from_best"] and s["merged_into"] and s.get("structure") in weight:
             into = s["merged_into"]
             weight[into] = weight.get(into, 0.0) + weight.pop(s["structure"])
-    rows = [s for s in summary["structures"]
-            if s["indistinguishable_from_best"] and s["merged_into"] is None]
+    rows = record.set_rows()
     left_out = [{"structure": s["structure"], "weight": weight[s["structure"]]} for s in rows
                 if weight.get(s.get("structure"), 1.0) < DECIDING_SHARE]
     members = [params_from_dict("custom", s["params"]) for s in rows
@@ -256,7 +251,7 @@ def next_test(summary, recs, seed, out, spent=None):
         return ({"best": None, "tests": [], "left_out": left_out,
                  "members": [s["structure"] for s in rows if s["structure"] not in
                              {x["structure"] for x in left_out}]} if left_out else None)
-    noise = median_sensor_noise(summary)
+    noise = median_sensor_noise(record.sensor_noise)
     rate = max(r.sample_rate for r in recs)
     recorded = [make_target(r, 5e-4) for r in recs]  # the targets ignore a constant offset
     ranking = discriminating_tests(members, default_candidates(rate), noise_sd=noise, seed=seed,
@@ -291,12 +286,12 @@ def _previous_ranking(out, inputs):
     """A finished ranking of the same inputs in ``out``, or ``None``."""
     path = out / "discovery.json"
     try:
-        summary = json.loads(path.read_text())
+        record = RunRecord.from_dict(json.loads(path.read_text()))
     except (OSError, ValueError):
         return None
-    if summary.get("inputs") != inputs or not summary.get("structures"):
+    if record.inputs != inputs or not record.structures:
         return None
-    return summary
+    return record
 
 
 def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None, executor=None,
@@ -307,37 +302,24 @@ def _rank_structures(recs, fixed, seed, search, progress, inputs, previous=None,
     disc = StructureDiscovery(fixed=fixed, seed=seed, search=search, progress=progress,
                               executor=executor).fit(recs, previous=previous,
                                                      previous_race=previous_race)
-    t_disc = time.perf_counter() - t0
-    summary = {
-        "format": DISCOVERY_FORMAT,
-        "recordings": [str(r.path) for r in recs],
-        "targets": [t.describe() for t in disc.targets_],
-        "fixed": {k: (v if not hasattr(v, "value") else v.value) for k, v in (fixed or {}).items()},
-        "structures": [f.to_dict() for f in disc.ranking_],
-        "indistinguishable": [f.structure.name for f in disc.indistinguishable_],
-        "decided": disc.decided_,
-        "pruned": disc.pruned_,
-        "race": disc.race_,
-        "sindy": disc.sindy_,
-        "sensor_offset": disc.offsets_,
-        "sensor_noise": disc.noise_,
-        "estimated": {"sensor_offset": "per recording, profiled (least squares) at the best fit",
-                      "sensor_noise": "open loop: rms output error at the best fit; closed loop: "
-                                      "second differences"},
-        "simulations": disc.n_simulations_,
-        "searches": dict(disc.searches_),
-        "timings": {**disc.timings_},
-        "cpu_seconds": {**disc.cpu_seconds_, "discovery": disc.cpu_seconds_["total"]},
-        "simulated_seconds": {**disc.simulated_seconds_},
-        "simulated_steps": {**disc.simulated_steps_},
-        "seed": seed,
-        "search": search,
-        "inputs": inputs,
-        "resumed_ranking": False,
-    }
-    summary["timings"]["discovery"] = t_disc
-    return summary, disc.offsets_, t_disc
+    cost = RunCost(wall={**disc.timings_}, cpu={**disc.cpu_seconds_},
+                   simulated_seconds={**disc.simulated_seconds_},
+                   simulated_steps={**disc.simulated_steps_})
+    cost.add("discovery", wall=time.perf_counter() - t0, cpu=disc.cpu_seconds_["total"])
+    return RunRecord(
+        structures=[f.to_dict() for f in disc.ranking_],
+        recordings=[str(r.path) for r in recs],
+        targets=[t.describe() for t in disc.targets_],
+        fixed={k: (v if not hasattr(v, "value") else v.value) for k, v in (fixed or {}).items()},
+        indistinguishable=[f.structure.name for f in disc.indistinguishable_],
+        decided=disc.decided_, pruned=disc.pruned_, race=disc.race_, sindy=disc.sindy_,
+        sensor_offset=disc.offsets_, sensor_noise=disc.noise_,
+        estimated={"sensor_offset": "per recording, profiled (least squares) at the best fit",
+                   "sensor_noise": "open loop: rms output error at the best fit; closed loop: "
+                                   "second differences"},
+        simulations=disc.n_simulations_, searches=dict(disc.searches_), cost=cost, seed=seed,
+        search=search, inputs=inputs)
 
 
-def _write(out, summary):
-    DiscoveryResult(summary, out).save()
+def _write(out, record):
+    DiscoveryResult(record, out).save()

@@ -1,5 +1,6 @@
-"""The result of ``tvcid discover``: :class:`DiscoveryResult`, the content of ``discovery.json``
-with its readers, its report and its plot."""
+"""The result of ``tvcid discover``: :class:`DiscoveryResult`, its run record
+(:class:`tvcid.run_record.RunRecord`, the content of ``discovery.json``) with its readers, its
+report and its plot."""
 from __future__ import annotations
 
 import json
@@ -10,6 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from tvcid.models.strict_json import jsonable, write_json, write_text_atomic
+
+from .run_record import RunRecord
 
 __all__ = ["DiscoveryResult"]
 
@@ -23,21 +26,33 @@ def _json_default(v):
 
 @dataclass
 class DiscoveryResult:
-    """What :func:`discover` found: the content of ``discovery.json``, with its readers.
+    """What :func:`discover` found: its run record, with its readers.
 
     Attributes
     ----------
-    summary : dict
+    record : tvcid.run_record.RunRecord
         The ranking (``structures``, best first), the set the recordings cannot tell apart
         (``indistinguishable``), the structural choices they decide (``decided``), the sensor
         offsets and noise, the next test, the posterior over the set (``set_posterior``: each
-        calibrated member's and their combination) and the winner's alone (``posterior``).
+        calibrated member's and their combination), the winner's alone (``posterior``) and
+        what each stage cost.
     out : Path or None
         The directory it was written to.
     """
 
-    summary: dict
+    record: RunRecord
     out: Path | None = None
+
+    @classmethod
+    def from_dict(cls, summary, out=None) -> "DiscoveryResult":
+        """A result from ``discovery.json``'s content (:meth:`RunRecord.from_dict`)."""
+        return cls(RunRecord.from_dict(summary), out)
+
+    @property
+    def summary(self) -> dict:
+        """``discovery.json``'s content (:meth:`RunRecord.to_dict`; its values are the
+        record's own)."""
+        return self.record.to_dict()
 
     @classmethod
     def load(cls, path) -> "DiscoveryResult":
@@ -49,30 +64,31 @@ class DiscoveryResult:
             summary = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
             raise ValueError(f"{path}: not a discovery.json ({exc})") from None
-        if not isinstance(summary, dict) or "structures" not in summary:
-            raise ValueError(f"{path}: not a discovery.json (no 'structures')")
-        return cls(summary, path.parent)
+        try:
+            return cls.from_dict(summary, path.parent)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
 
     @property
     def best(self) -> dict:
         """The winner's row: ``structure``, ``score``, ``params``, ``coordinate_sd``, ..."""
-        return self.summary["structures"][0]
+        return self.record.structures[0]
 
     @property
     def indistinguishable(self) -> list:
         """Names of the structures the recordings cannot tell from the winner (merged ones too)."""
-        return list(self.summary["indistinguishable"])
+        return list(self.record.indistinguishable)
 
     @property
     def decided(self) -> dict:
         """Each structural choice: its value where the set agrees on it, else ``None``."""
-        return dict(self.summary["decided"])
+        return dict(self.record.decided)
 
     @property
     def posterior(self):
         """The MCMC summary of the winner alone (``parameters``: q05, q50, q95 each), or
         ``None``; the set's combined posterior is :attr:`set_posterior`."""
-        return self.summary.get("posterior")
+        return self.record.posterior
 
     @property
     def set_posterior(self):
@@ -82,7 +98,7 @@ class DiscoveryResult:
         ``dc_gain``, ...) to its median and 90 % interval (``q50``, ``q05``, ``q95``), unit and
         verdicts; ``members`` holds each calibrated structure's own posterior.
         """
-        return self.summary.get("set_posterior")
+        return self.record.set_posterior
 
     def interval(self, name, level=0.90) -> tuple:
         """The combined 90 % interval ``(q05, q95)`` of quantity ``name`` over the set.
@@ -124,8 +140,8 @@ class DiscoveryResult:
         return tuple(float(v) if v is not None and math.isfinite(v) else math.nan for v in ends)
 
     def to_dict(self) -> dict:
-        """The summary as strict JSON values (non-finite numbers as ``None``)."""
-        return jsonable(self.summary, _json_default)
+        """``discovery.json``'s content as strict JSON values (non-finite numbers as ``None``)."""
+        return jsonable(self.record.to_dict(), _json_default)
 
     def report(self) -> str:
         """``report.md``'s text (:func:`tvcid.report.discovery_report`)."""
@@ -137,7 +153,7 @@ class DiscoveryResult:
         """Write ``discovery.json`` and ``report.md`` into ``out`` (default: where it came from)."""
         out = Path(out if out is not None else self.out)
         out.mkdir(parents=True, exist_ok=True)
-        write_json(out / "discovery.json", self.summary, default=_json_default)
+        write_json(out / "discovery.json", self.record.to_dict(), default=_json_default)
         write_text_atomic(out / "report.md", self.report())
         self.out = out
         return out
@@ -147,7 +163,7 @@ class DiscoveryResult:
         apart in colour; returns the axes."""
         import matplotlib.pyplot as plt
 
-        rows = self.summary["structures"][:20]
+        rows = self.record.structures[:20]
         if ax is None:
             ax = plt.subplots(figsize=(7, 0.3 * len(rows) + 1.2))[1]
         scores = [s["score"] if s["score"] is not None else np.nan for s in rows]

@@ -25,8 +25,7 @@ MAX_MEMBERS = 6
 SCREEN_STEPS = 300
 
 
-def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progress, out,
-               executor=None):
+def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, executor=None):
     """The posterior over the set: every distinct member calibrated (:func:`tvcid.members.member_chain`,
     at most :data:`MAX_MEMBERS`, best score first), and the richer structure of each component
     the set leaves open that no distinct member has
@@ -37,22 +36,22 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     (:func:`tvcid.discovery.members.set_weights.evidence_weights`); a member whose weight stays under
     :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` even at its estimate's allowance is
     *screened*: its chain stops there and its short chain gives its ranges (the report says so).
-    Then the others' chains continue to the cap. The screening is stored in ``discovery.json``
+    Then the others' chains continue to the cap. The screening is written to ``discovery.json``
     (``set_screening``), so a resumed run screens the same members. Each member's step error is
     measured (:func:`tvcid.discovery.calibration.step_error.measure_step_error`) and its evidence
     estimated again from its final chain; the members are combined by those weights
     (:func:`tvcid.discovery.members.set_posterior.combine`), and the members beyond the cap named
     with their share of the weight by the ranking. A member whose chain cannot start (no point
     about its fit where every recording's likelihood is finite) is left out and named in
-    ``set_posterior.failed``. Adds ``posterior`` (the first calibrated member's, the winner's
+    ``set_posterior.failed``. Sets the record's ``posterior`` (the first calibrated member's, the winner's
     where it calibrates) and ``set_posterior`` (the members', their weights and the combined
     one). Each member's own work is a task of ``executor``
     (:func:`tvcid.members.calibrate_member_task`; default: one after the other in this
     process), combined here in the members' order; each member's row of
     ``set_posterior.members`` gets what its tasks cost (``simulated_steps``,
-    ``simulated_seconds``, ``cpu_seconds``, ``wall_seconds``), and the stage's cost goes to
-    ``timings``, ``cpu_seconds``, ``simulated_seconds`` and ``simulated_steps`` (``mcmc``, of
-    which ``mcmc_start`` in seconds and ``mcmc_evidence``)."""
+    ``simulated_seconds``, ``cpu_seconds``, ``wall_seconds``), and the stage's cost goes to the
+    record's :class:`tvcid.run_record.RunCost` (``mcmc``, of which ``mcmc_start`` and
+    ``mcmc_evidence``); returns ``record``."""
     from tvcid.discovery.executors import LocalProcesses
     from tvcid.discovery.members.ranking_shares import uncalibrated_share
     from tvcid.discovery.members.set_posterior import (
@@ -70,15 +69,14 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     from .members import calibrate_member_task
 
     t0, c0 = time.perf_counter(), cpu_seconds()
-    rows = [s for s in summary["structures"]
-            if s["indistinguishable_from_best"] and s["merged_into"] is None]
+    rows = record.set_rows()
     best_score = rows[0]["score"]
-    calibrated = rows[:MAX_MEMBERS] + richer_members(summary["structures"], summary["decided"])
+    calibrated = rows[:MAX_MEMBERS] + richer_members(record.structures, record.decided)
     executor = executor if executor is not None else LocalProcesses(1)
     here = isinstance(executor, LocalProcesses) and executor.jobs == 1
     n = len(calibrated)
     cap = max_steps or (150 if quick else 2000)
-    shared = (recs, offsets, fixed, seed, quick)
+    shared = (recs, record.sensor_offset, fixed, seed, quick)
     show = progress and here  # a worker's bars would garble this terminal
     cost = {"simulated_seconds": 0.0, "simulated_steps": 0.0, "start": 0.0, "start_steps": 0.0,
             "evidence_seconds": 0.0, "evidence_steps": 0.0, "elsewhere_cpu": 0.0,
@@ -102,7 +100,7 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     screened, first_draws, first_failed, first_converged = set(), {}, {}, set()
     screen_steps = min(SCREEN_STEPS, cap)
     if n > 1 and screen_steps < cap:
-        screening = summary.get("set_screening")
+        screening = record.set_screening
         names_now = [r["structure"] for r in calibrated]
         if not screening or screening.get("members") != names_now \
                 or screening.get("steps") != screen_steps:
@@ -124,8 +122,8 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
                          "weights": None if weighed is None else weighed.weights,
                          "upper": None if weighed is None else weighed.upper,
                          "screened": [] if weighed is None else weighed.screened()}
-            summary["set_screening"] = screening
-            _write(out, summary)  # a resumed run screens the same members
+            record.set_screening = screening
+            _write(out, record)  # a resumed run screens the same members
         screened = set(screening["screened"])
     todo = [r for r in calibrated if r["structure"] not in first_failed]
     m = len(todo)
@@ -145,7 +143,7 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
             failed.append({"structure": row["structure"], "reason": run.failed})
             continue
         if not members:
-            summary["posterior"] = run.kept
+            record.posterior = run.kept
             from .figures import write_posterior_figures
 
             write_posterior_figures(run.posterior, out, seed=seed)
@@ -154,7 +152,7 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
         kept = run.kept
         if row["structure"] in screened:
             kept = {**kept, "screened": {"steps": screen_steps, "share": DECIDING_SHARE,
-                                         "upper_weight": summary["set_screening"]["upper"][
+                                         "upper_weight": record.set_screening["upper"][
                                              row["structure"]]}}
         from .figures import write_pinned_figure
 
@@ -171,11 +169,11 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
             draws[row["structure"]] = d
     names = [m.structure for m in members]
     if not members:
-        summary["set_posterior"] = {"criterion": "no member calibrated", "quantities": {},
+        record.set_posterior = {"criterion": "no member calibrated", "quantities": {},
                                     "members": [], "failed": failed,
                                     "not_calibrated": [r["structure"] for r in rows[MAX_MEMBERS:]]}
-        _record_cost(summary, t0, cost)
-        return summary
+        _record_cost(record, t0, cost)
+        return record
     if len(members) > 1:
         weighting = evidence_weights({m: draws[m] for m in names},
                                      rows=[r for r in calibrated if r["structure"] in names],
@@ -183,7 +181,7 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
         weights = weighting.weights
     else:
         weighting, weights = None, {names[0]: 1.0}
-    choices = weighed_choices(summary["decided"], weights, summary["indistinguishable"])
+    choices = weighed_choices(record.decided, weights, record.indistinguishable)
     # a component whose other side only uncalibrated members hold prints "present or absent"
     left_open = left_open_quantities({c: None if v["by"] == "open" and None in v["weights"].values()
                                       else True for c, v in choices.items()})
@@ -202,25 +200,25 @@ def calibrate_set(summary, recs, offsets, fixed, seed, quick, max_steps, progres
     combined["screened"] = sorted(screened & set(names))
     for row in combined["members"]:  # what each member's own work cost, both rounds
         row.update(by_member[row["structure"]])
-    summary["set_posterior"] = combined
-    _record_cost(summary, t0, cost)
-    return summary
+    record.set_posterior = combined
+    _record_cost(record, t0, cost)
+    return record
 
 
-def _record_cost(summary, t0, cost):
+def _record_cost(record, t0, cost):
     """The set stage's wall time, CPU seconds (this process's, its ended children's and its
-    workers'), simulated seconds and kernel steps into ``summary``."""
-    summary["timings"]["mcmc"] = time.perf_counter() - t0
-    summary.setdefault("cpu_seconds", {})["mcmc"] = (cpu_seconds() - cost["cpu_at_start"]
-                                                     + cost["elsewhere_cpu"])
-    summary.setdefault("simulated_seconds", {})["mcmc"] = cost["simulated_seconds"]
-    summary["simulated_seconds"]["mcmc_start"] = cost["start"]  # of which the chains' starts
-    # of which the importance draws of the members' evidence, for the weights
-    summary["simulated_seconds"]["mcmc_evidence"] = cost["evidence_seconds"]
-    summary.setdefault("simulated_steps", {})["mcmc"] = cost["simulated_steps"]
-    summary["simulated_steps"]["mcmc_start"] = cost["start_steps"]
-    summary["simulated_steps"]["mcmc_evidence"] = cost["evidence_steps"]
+    workers'), simulated seconds and kernel steps into ``record.cost``; of which the chains'
+    starts (``mcmc_start``) and the importance draws of the members' evidence
+    (``mcmc_evidence``)."""
+    record.cost.add("mcmc", wall=time.perf_counter() - t0,
+                    cpu=cpu_seconds() - cost["cpu_at_start"] + cost["elsewhere_cpu"],
+                    simulated_seconds=cost["simulated_seconds"],
+                    simulated_steps=cost["simulated_steps"])
+    record.cost.add("mcmc_start", simulated_seconds=cost["start"],
+                    simulated_steps=cost["start_steps"])
+    record.cost.add("mcmc_evidence", simulated_seconds=cost["evidence_seconds"],
+                    simulated_steps=cost["evidence_steps"])
 
 
-def _write(out, summary):
-    DiscoveryResult(summary, out).save()
+def _write(out, record):
+    DiscoveryResult(record, out).save()

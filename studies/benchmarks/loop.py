@@ -120,7 +120,7 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
                                if s.get("cost") is not None and math.isfinite(s["cost"])]}
     ceiling = as_well_as_truth(ceiling_row)
     rate = max(r.sample_rate for r in recordings)
-    noise = median_sensor_noise(summary)
+    noise = median_sensor_noise(summary["sensor_noise"])
     t0 = time.perf_counter()
     controller_rate = next((r.controller_rate for r in scenario.recordings if r.kind == "closed"), None)
     closure = set_closure(load_set_draws(out_dir, n_draws=config.closure_draws, seed=seed),
