@@ -155,3 +155,47 @@ def test_an_unknown_start_optimizer_is_refused():
     with pytest.raises(ValueError, match="start_optimizer must be one of"):
         Calibration("M000", params=("dead_zone",), start_optimizer="newton").fit(
             [load_recording("data/m000_closed_A.csv")])
+
+
+@pytest.mark.parametrize("restarts", [0, 1, 3])
+def test_the_polish_restarts_at_most_as_often_as_it_is_allowed(restarts, monkeypatch):
+    """A misfit that never goes (a wrong model's factor stays over 1) on a curved valley where
+    every restart along the principal axes still gains: the polish restarts exactly
+    ``polish_restarts`` times, each from the last one's better point, and 0 keeps the start."""
+    from types import SimpleNamespace
+
+    import tvcid.discovery.calibration.start as start_module
+    from tvcid.discovery.calibration.start import StartSearch
+
+    hessians = []
+    real = start_module._hessian
+    monkeypatch.setattr(start_module, "_hessian",
+                        lambda *a, **k: hessians.append(1) or real(*a, **k))
+    monkeypatch.setattr(start_module, "_profile_sigma", lambda lp, z, names: z)
+
+    def value(z):  # a banana: an axis-aligned simplex creeps along it
+        return -0.5 * (z[:, 0] ** 2 / 1e3 + 25.0 * (z[:, 1] - 0.05 * z[:, 0] ** 2) ** 2)
+
+    lp = _Box(value, 2, half_width=500.0)
+    search = StartSearch()
+    search.polish_restarts, search.start_optimizer, search.names_ = restarts, "nelder-mead", ()
+    search._inflations_at = lambda lp, z: [2.0]
+    search.terms_ = [SimpleNamespace()]
+    z0 = np.array([-60.0, 180.0])
+    end, factors = search._polish(lp, z0)
+    assert len(hessians) == restarts and factors == [2.0]
+    assert (lp(end) > lp(z0) + 0.1) if restarts else np.array_equal(end, z0)
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("polish_restarts", -1, r"^polish_restarts must be an integer >= 0 \(got -1\)$"),
+    ("polish_restarts", 1.5, r"^polish_restarts must be an integer >= 0 \(got 1\.5\)$"),
+    ("importance_rounds", 0, r"^importance_rounds must be an integer >= 1 \(got 0\)$"),
+    ("importance_rounds", "2", r"^importance_rounds must be an integer >= 1 \(got '2'\)$"),
+])
+def test_a_bad_limit_of_the_start_or_the_importance_rounds_is_refused(option, value, message):
+    from tvcid.models.recording import load_recording
+
+    with pytest.raises(ValueError, match=message):
+        Calibration("M000", params=("dead_zone",), **{option: value}).fit(
+            [load_recording("data/m000_closed_A.csv")])

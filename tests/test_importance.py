@@ -84,6 +84,24 @@ def test_resumed_rounds_give_the_same_run():
     np.testing.assert_allclose(again.log_weights, run.log_weights)
 
 
+def test_a_run_capped_at_two_rounds_then_continued_is_the_run_straight_through():
+    """The set's screening stops a member's importance run after two rounds; a member the
+    weights keep continues from the stored rounds to the same points and weights as a run that
+    was never stopped (a start a third too narrow and 1.5 sd off needs more than two rounds)."""
+    mean, cov, log_lik = _gaussian(2)
+    sd = np.sqrt(np.diag(cov))
+    start = StudentT(mean + 1.5 * sd, 0.1 * cov)
+    straight, _ = _run(log_lik, start, 2)
+    saved = []
+    capped, new = _run(log_lik, start, 2, rounds=2, save=lambda j, *r: saved.append(r))
+    assert len(capped.counts) == 2 < len(straight.counts) and new == capped.n
+    assert not capped.reliable(IMPORTANCE_TARGET_ESS)
+    continued, new = _run(log_lik, start, 2, stored=saved)
+    assert new == straight.n - capped.n
+    np.testing.assert_array_equal(continued.points, straight.points)
+    np.testing.assert_allclose(continued.log_weights, straight.log_weights)
+
+
 def _banana(z):
     # Rosenbrock-like curved ridge in the first two coordinates, Gaussian elsewhere
     x, y = z[:, 0], z[:, 1]

@@ -36,6 +36,7 @@ def test_discover_weighs_its_members_by_their_evidence(tmp_path, out=None):
     (over 5 %). The next test leaves out the screened member, and the summary never calls the
     backlash both present-or-absent and decided."""
     from tvcid.discovery.structure import validate_recordings
+    from tvcid.run_record import RunRecord
     from tvcid.set_stage import _write, calibrate_set
 
     rng = np.random.default_rng(2024)
@@ -71,9 +72,9 @@ def test_discover_weighs_its_members_by_their_evidence(tmp_path, out=None):
                "estimated": {"sensor_offset": "-", "sensor_noise": "-"}}
     out = tmp_path / "run"
     out.mkdir(exist_ok=True)
-    summary = calibrate_set(summary, recs, {}, fixed, seed=1, quick=False, max_steps=400,
-                         progress=False, out=out)
-    _write(out, summary)
+    record = calibrate_set(RunRecord.from_dict(summary), recs, fixed, seed=1, quick=False,
+                           max_steps=400, progress=False, out=out)
+    _write(out, record)
     sp = json.loads((out / "discovery.json").read_text())["set_posterior"]
     w = sp["weighting"]
     assert w["method"] == "evidence" and sp["criterion"] == w["rule"]

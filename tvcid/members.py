@@ -76,7 +76,7 @@ class MemberRun:
 
 
 def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out,
-                          weigh, screen=False):
+                          weigh, screen=False, sampling=None):
     """One member's calibration and what the set needs of it.
 
     Parameters
@@ -98,6 +98,11 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     screen : bool
         The chain (to ``max_steps``) and the importance draws only: what the screening of the
         set's members by weight needs (:func:`tvcid.set_stage.calibrate_set`).
+    sampling : dict, optional
+        Limits of the member's sampling, passed to
+        :func:`tvcid.discovery.members.member_calibration.calibrate_member`
+        (``polish_restarts``, ``importance_rounds``, ``importance_only``; default none): the
+        screening's (:data:`tvcid.set_stage.SCREENING`).
 
     Returns
     -------
@@ -108,14 +113,14 @@ def calibrate_member_task(row, recs, offsets, fixed, seed, quick, max_steps, pro
     t0, c0 = time.perf_counter(), time.process_time()
     with one_blas_thread():  # also on a worker: the kernels own its cores
         run = _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out,
-                           weigh, screen)
+                           weigh, screen, sampling)
     run.cpu_seconds, run.wall_seconds = time.process_time() - c0, time.perf_counter() - t0
     run.pid = os.getpid()
     return run
 
 
 def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, out, weigh,
-                 screen):
+                 screen, sampling):
     """:func:`calibrate_member_task`'s work, untimed."""
     from tvcid.discovery.calibration.pinned import pinned_combinations
     from tvcid.discovery.calibration.start import NoFiniteStartError
@@ -127,7 +132,7 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     out.mkdir(parents=True, exist_ok=True)  # a worker's own disk may not hold it yet
     try:
         post, priors, seconds, chain = member_chain(row, recs, offsets, fixed, seed, quick,
-                                                    max_steps, progress, out)
+                                                    max_steps, progress, out, sampling)
     except NoFiniteStartError as exc:
         return MemberRun(row["structure"], failed=str(exc))
     simulated = seconds["start"] + seconds["sampling"]
@@ -141,7 +146,9 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
                     "evidence_steps": draws.simulated_steps}
     if screen:
         return MemberRun(row["structure"], kept={"converged": post.report.converged,
-                                                 "iterations": int(post.report.iterations)},
+                                                 "iterations": int(post.report.iterations),
+                                                 "pareto_k": getattr(post.report, "pareto_k",
+                                                                     None)},
                          draws=draws, simulated_seconds=simulated, simulated_steps=steps,
                          start_seconds=seconds["start"],
                          start_steps=seconds.get("start_steps", 0.0), **evidence)
@@ -184,7 +191,8 @@ def _corrected(recordings, offsets):
     return out
 
 
-def member_chain(row, recs, offsets, fixed, seed, quick, max_steps, progress, out):
+def member_chain(row, recs, offsets, fixed, seed, quick, max_steps, progress, out,
+                 sampling=None):
     """MCMC of one member of the set
     (:func:`tvcid.discovery.members.member_calibration.calibrate_member`) on all recordings with
     their offsets removed, checkpointed in ``out``. Returns ``(posterior, priors, simulated
@@ -205,5 +213,5 @@ def member_chain(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     post, priors, simulated = calibrate_member(
         p, Structure.parse(row["structure"]), _corrected(recs, offsets), fixed=fixed, seed=seed,
         max_steps=max_steps or (150 if quick else 2000), backend=out / f"chain-{tag}.h5",
-        progress=progress)
+        progress=progress, **(sampling or {}))
     return post, priors, simulated, f"chain-{tag}.h5"

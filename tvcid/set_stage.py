@@ -8,6 +8,7 @@ and mixes the members (:func:`tvcid.discovery.members.set_posterior.combine`).
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 
@@ -15,7 +16,7 @@ from tvcid.discovery.speed import cpu_seconds
 
 from .result import DiscoveryResult
 
-__all__ = ["calibrate_set", "MAX_MEMBERS", "SCREEN_STEPS"]
+__all__ = ["calibrate_set", "MAX_MEMBERS", "SCREEN_STEPS", "SCREENING"]
 
 #: Distinct members of the set calibrated at most (best score first); the rest are listed in
 #: ``set_posterior.not_calibrated`` with their share of the weight by the ranking.
@@ -23,6 +24,19 @@ MAX_MEMBERS = 6
 #: Steps of every member's chain before the members are weighed and those under the deciding
 #: share are screened (:func:`calibrate_set`).
 SCREEN_STEPS = 300
+#: A member's sampling in the screening round: its start keeps the local search's maximum (no
+#: restarts while a recording shows a misfit), and an importance-sampled member stops after two
+#: rounds, reliable or not, with no chain after them (``Calibration``'s ``polish_restarts``,
+#: ``importance_rounds``, ``importance_only``). A member the weights keep continues from there,
+#: drawing the points a single run would; a screened one stops.
+SCREENING = {"polish_restarts": 0, "importance_rounds": 2, "importance_only": True}
+#: Pareto ``k`` of a screening's importance run at or over which its evidence (PSIS's threshold
+#: of a reliable estimate) screens the member only with a margin: ...
+SCREEN_MAX_K = 0.7
+#: ... its weight, even at its allowance, under the deciding share by this many nats. Such an
+#: estimate of the log evidence errs low by an amount its standard error does not bound; a
+#: member this far under the share would need that error to be larger than any seen.
+SCREEN_UNSURE_NATS = 20.0
 
 
 def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, executor=None):
@@ -31,12 +45,14 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     the set leaves open that no distinct member has
     (:func:`tvcid.discovery.members.set_posterior.richer_members`).
 
-    A set of several members is calibrated in two rounds. First every member's chain runs
-    :data:`SCREEN_STEPS` steps and the members are weighed by their evidence
-    (:func:`tvcid.discovery.members.set_weights.evidence_weights`); a member whose weight stays under
-    :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` even at its estimate's allowance is
-    *screened*: its chain stops there and its short chain gives its ranges (the report says so).
-    Then the others' chains continue to the cap. The screening is written to ``discovery.json``
+    A set of several members is calibrated in two rounds. First every member is sampled within
+    :data:`SCREENING` (two rounds of importance sampling, or where the start gives it no
+    proposal a chain of :data:`SCREEN_STEPS` steps) and the members are weighed by their evidence
+    (:func:`tvcid.discovery.members.set_weights.evidence_weights`); a member whose weight stays
+    under :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` even at its
+    estimate's allowance (by :data:`SCREEN_UNSURE_NATS` more where its importance run's Pareto
+    ``k`` is :data:`SCREEN_MAX_K` or over) is *screened*: its sampling stops there and gives its ranges (the
+    report says so). Then the others continue to convergence or the cap. The screening is written to ``discovery.json``
     (``set_screening``), so a resumed run screens the same members. Each member's step error is
     measured (:func:`tvcid.discovery.calibration.step_error.measure_step_error`) and its evidence
     estimated again from its final chain; the members are combined by those weights
@@ -106,11 +122,15 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
                 or screening.get("steps") != screen_steps:
             runs = executor.map(calibrate_member_task, calibrated, *([x] * n for x in shared),
                                 [screen_steps] * n, [show] * n, [out.resolve()] * n, [True] * n,
-                                [True] * n)
+                                [True] * n, [SCREENING] * n)
+            unsure = set()  # an importance run whose ratios screen only with a margin
             for row, run in zip(calibrated, runs):
                 account(run)
                 if run.failed is None:
                     first_draws[row["structure"]] = run.draws
+                    k = run.kept.get("pareto_k")
+                    if k is not None and not k < SCREEN_MAX_K:
+                        unsure.add(row["structure"])
                     if run.kept.get("converged"):  # its chain stops here whatever its cap
                         first_converged.add(row["structure"])
                 else:  # not started again below
@@ -121,7 +141,10 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
                          "share": DECIDING_SHARE,
                          "weights": None if weighed is None else weighed.weights,
                          "upper": None if weighed is None else weighed.upper,
-                         "screened": [] if weighed is None else weighed.screened()}
+                         "screened": [] if weighed is None else
+                         [m for m in weighed.screened() if m not in unsure
+                          or weighed.upper.get(m, weighed.weights[m])
+                          < DECIDING_SHARE * math.exp(-SCREEN_UNSURE_NATS)]}
             record.set_screening = screening
             _write(out, record)  # a resumed run screens the same members
         screened = set(screening["screened"])
@@ -133,7 +156,8 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     settled = (screened | first_converged) & set(first_draws)
     weigh = [n > 1 and r["structure"] not in settled for r in todo]
     runs = executor.map(calibrate_member_task, todo, *([x] * m for x in shared), caps,
-                        [show] * m, [out.resolve()] * m, weigh, [False] * m)
+                        [show] * m, [out.resolve()] * m, weigh, [False] * m,
+                        [SCREENING if r["structure"] in screened else None for r in todo])
     members, draws = [], {}
     failed = [{"structure": name, "reason": why} for name, why in first_failed.items()]
     for row, run in zip(todo, runs):

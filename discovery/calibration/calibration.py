@@ -28,7 +28,7 @@ from tvcid.models.recording import load_recordings
 from ..threads import one_blas_thread
 from .backend import H5_GROUP, CheckpointBackend
 from .importance import ImportanceReport
-from .importance_stage import IMPORTANCE_TARGET_ESS, ImportanceStage
+from .importance_stage import IMPORTANCE_ROUNDS, IMPORTANCE_TARGET_ESS, ImportanceStage
 from .likelihood.features import DEFAULT_FEATURES, FeatureTerm
 from .likelihood.registry import LIKELIHOODS, make_term
 from .likelihood.waveform import (
@@ -41,7 +41,7 @@ from .moves import LaplaceAdaptation
 from .posterior import Posterior
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates, step_under_delay
 from .runner import run_ensemble
-from .start import START_OPTIMIZERS, StartSearch
+from .start import POLISH_RESTARTS, START_OPTIMIZERS, StartSearch
 
 __all__ = ["Calibration", "truths_from_recordings"]
 
@@ -162,6 +162,10 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         quasi-Newton steps on gradients and a Hessian by central differences over each axis' sd,
         their points in batches (:func:`.optimum._quasi_newton`: a fraction of the simulations
         where the start is near the maximum, as a structure search's fit is).
+    polish_restarts : int
+        Restarts of the local search along the principal axes while its optimum leaves some
+        recording a discrepancy factor over 1 (:meth:`.start.StartSearch._polish`); 0 keeps the
+        local search's optimum.
     stop_when_converged : bool
         False runs every chain to ``max_steps`` (e.g. to map a ridge).
     discrepancy : bool
@@ -200,6 +204,14 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         posterior (``posterior_.importance``, ``report_`` an
         :class:`.importance.ImportanceReport`, ``sampler_`` None), else the chain starts from
         their points. Learned attribute ``importance_`` (the run, or None).
+    importance_rounds : int
+        Rounds of the importance stage at most (default ``IMPORTANCE_ROUNDS``); a later fit on
+        the same checkpoint with more continues from the stored rounds, drawing the points a
+        single run would have.
+    importance_only : bool
+        Where the importance stage runs, its run is the posterior even if its ratios are not yet
+        reliable (``report_.converged`` False): no chain follows. A screening's choice, which a
+        later fit on the same checkpoint without it continues.
     check_every : int
         Steps between convergence checks (``N > tau_factor * tau``; an autocorrelation estimate
         costs far less than a step's simulations, so the chain stops within 10 steps of where
@@ -214,7 +226,9 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
                  max_steps=4000, check_every=10, tau_factor=50.0, moves=None, pool=None,
                  backend=None, seed=0, progress=False, warm_start=True, optimize_start=True,
                  stop_when_converged=True, spread="axes", discrepancy=True, laplace_move=True,
-                 global_search=True, importance=0, start_optimizer="nelder-mead"):
+                 global_search=True, importance=0, start_optimizer="nelder-mead",
+                 polish_restarts=POLISH_RESTARTS, importance_rounds=IMPORTANCE_ROUNDS,
+                 importance_only=False):
         self.hypothesis = hypothesis
         self.params = params
         self.priors = priors
@@ -246,6 +260,9 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         self.global_search = global_search
         self.importance = importance
         self.start_optimizer = start_optimizer
+        self.polish_restarts = polish_restarts
+        self.importance_rounds = importance_rounds
+        self.importance_only = importance_only
 
     # -- set-up ---------------------------------------------------------------------------------
     def _default_dt(self, base, names, priors, start):
@@ -314,6 +331,12 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
                              f"(got {self.start_optimizer!r})")
         if self.transient < 0:
             raise ValueError(f"transient must be >= 0 (got {self.transient})")
+        if not isinstance(self.polish_restarts, (int, np.integer)) or self.polish_restarts < 0:
+            raise ValueError(f"polish_restarts must be an integer >= 0 (got "
+                             f"{self.polish_restarts!r})")
+        if not isinstance(self.importance_rounds, (int, np.integer)) or self.importance_rounds < 1:
+            raise ValueError(f"importance_rounds must be an integer >= 1 (got "
+                             f"{self.importance_rounds!r})")
         base = self._base()
         names = check_parameter_names(self.params, base)
         priors = dict(self.priors or {})
@@ -599,7 +622,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
             new = self._run_importance()
             report = ImportanceReport.of(self.importance_, IMPORTANCE_TARGET_ESS, new,
                                          time.perf_counter() - t0)
-            if report.converged:  # the ratios are reliable: the run is the posterior
+            if report.converged or self.importance_only:  # reliable, or all that is asked
                 self.sampler_, self.report_ = None, report
                 self.posterior_ = Posterior.from_importance(self, self.importance_, report,
                                                             seed=self.seed)

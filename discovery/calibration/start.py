@@ -31,12 +31,13 @@ from .optimum import (
     laplace_covariance,
 )
 
-__all__ = ["StartSearch", "START_OPTIMIZERS"]
+__all__ = ["StartSearch", "START_OPTIMIZERS", "POLISH_RESTARTS"]
 
 #: The local searches of the maximum a posteriori (``Calibration(start_optimizer=...)``).
 START_OPTIMIZERS = ("nelder-mead", "quasi-newton")
 
-#: Restarts of the local search while its optimum leaves a discrepancy (:meth:`StartSearch._polish`)
+#: Restarts of the local search while its optimum leaves a discrepancy (:meth:`StartSearch._polish`),
+#: the default of ``Calibration(polish_restarts=...)`` ...
 POLISH_RESTARTS = 3
 #: ... each kept only if it gains more than this (nats).
 POLISH_GAIN = 0.1
@@ -65,9 +66,10 @@ class StartSearch:
     :class:`tvcid.discovery.calibration.calibration.Calibration`.
 
     Reads the estimator's set-up (``log_posterior_``, ``terms_``, ``names_``, ``start_``,
-    ``n_walkers``, ``backend`` and the options ``optimize_start``, ``start_optimizer``, ``features_fallback``,
-    ``discrepancy``, ``global_search``, ``spread``, ``laplace_move``) and uses its per-record steps
-    (``_fall_back_slow``, ``_refine_steps_at``, ``_chooses_transient``, ``_choose_transients``).
+    ``n_walkers``, ``backend`` and the options ``optimize_start``, ``start_optimizer``,
+    ``features_fallback``, ``discrepancy``, ``global_search``, ``polish_restarts``, ``spread``,
+    ``laplace_move``) and uses its per-record steps (``_fall_back_slow``, ``_refine_steps_at``,
+    ``_chooses_transient``, ``_choose_transients``).
     Sets ``map_start_``, ``inflation_``, ``laplace_`` and ``initial_axes_``.
     """
 
@@ -155,7 +157,7 @@ class StartSearch:
     def _polish(self, lp, z0):
         """Nelder-Mead restarted along the principal axes at its optimum while that optimum
         leaves some recording a discrepancy factor over 1 and the restart gains over
-        ``POLISH_GAIN`` nats (at most ``POLISH_RESTARTS`` times); ``(z0, factors there)``.
+        ``POLISH_GAIN`` nats (at most ``polish_restarts`` times); ``(z0, factors there)``.
 
         On a ridge an axis-aligned simplex stops short of the maximum, and the misfit there
         would read as model discrepancy; a right model at its maximum keeps 1, so a restart is
@@ -163,7 +165,7 @@ class StartSearch:
         """
         ndim = len(z0)
         factors = self._inflations_at(lp, z0)
-        for _ in range(POLISH_RESTARTS):
+        for _ in range(self.polish_restarts):
             if max(factors) <= 1.0:
                 break
             scale = _axis_scales(lp, z0)
