@@ -354,7 +354,7 @@ def discover_speed(records):
         text += ("; against the answers of the earlier run on the same recordings that the "
                  f"record's `compared_with` names: {'the same' if compared['same_winner'] else 'another'} "
                  f"winner, {'the same' if compared['same_set'] else 'another'} set, the 90 % "
-                 f"intervals of the members carrying weight in both moved by at most "
+                 f"intervals of the members carrying weight in either run moved by at most "
                  f"{compared['largest_move']:.2f} of their width")
         for name in compared.get("missing") or ():
             side = compared["moves"][name]["missing"]
