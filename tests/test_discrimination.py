@@ -243,6 +243,22 @@ def test_an_importance_sampled_member_is_named_with_its_diagnostic():
     assert _chain_cell({**drawn, "posterior": {"iterations": 400}}) == "converged"
 
 
+def test_a_screened_member_says_what_its_short_run_was():
+    """A member the weights screened after its importance rounds names its points; one screened
+    after its chain's steps names the steps."""
+    from tvcid.report import _chain_cell
+
+    screened = {"share": 0.05, "steps": 300, "upper_weight": 2e-10}
+    member = {"structure": "a", "converged": False, "posterior": {
+        "sampler": "importance", "iterations": 800, "screened": screened}}
+    assert _chain_cell(member) == ("screened: under 5 % of the weight after 800 importance "
+                                   "points (at most 0.0 % allowing for its estimate's error), so "
+                                   "not run further; its ranges are its short run's")
+    chain = {**member, "posterior": {"sampler": "ensemble", "iterations": 300,
+                                     "screened": screened}}
+    assert "after 300 steps (at most" in _chain_cell(chain)
+
+
 def test_a_pair_is_decided_in_fact_by_the_members_the_second_set_keeps_merged_ones_included():
     """The next-test benchmark's count: a richer structure the first set merged into a member
     keeps that member when the second set needs it; a structure outside the first set keeps none."""

@@ -65,10 +65,11 @@ def _chain_cell(m) -> str:
         return _sampled_by(post)
     screened = post.get("screened")
     if screened:
-        return (f"screened: under {100 * screened['share']:.0f} % of the weight after "
-                f"{screened['steps']} steps (at most {100 * screened['upper_weight']:.1f} % "
-                "allowing for its estimate's error), so not run to the cap; its ranges are its "
-                "short chain's")
+        run = (f"{post.get('iterations', '?')} importance points" if post.get("sampler") ==
+               "importance" else f"{screened['steps']} steps")
+        return (f"screened: under {100 * screened['share']:.0f} % of the weight after {run} (at "
+                f"most {100 * screened['upper_weight']:.1f} % allowing for its estimate's error), "
+                "so not run further; its ranges are its short run's")
     d = post.get("interval_drift")
     moves = (f"; its intervals move by up to {100 * d['largest']:.0f} % of their width between the "
              "chain's halves" if d else "")
