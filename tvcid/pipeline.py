@@ -141,14 +141,16 @@ def _earlier_run(out, fixed):
     except ValueError as exc:
         raise ValueError(f"--add: {path} is not valid JSON ({exc})") from None
     found = earlier.get("format") if isinstance(earlier, dict) else None
-    try:
-        if found != DISCOVERY_FORMAT:
-            raise ValueError
-        earlier = RunRecord.from_dict(earlier)
-    except ValueError:
+    record = None
+    if found == DISCOVERY_FORMAT:
+        try:
+            record = RunRecord.from_dict(earlier)
+        except ValueError:
+            pass  # a key this version does not write: refused as another layout
+    if record is None:
         raise ValueError(f"--add: {path} was written by another version of tvcid discover (layout "
-                         f"{found!r}, this one adds to {DISCOVERY_FORMAT}); run the discovery again"
-                         ) from None
+                         f"{found!r}, this one adds to {DISCOVERY_FORMAT}); run the discovery again")
+    earlier = record
     given = {k: getattr(v, "value", v) for k, v in (fixed or {}).items()}
     if given and given != earlier.fixed:
         raise ValueError(f"--add: --fix {given} differs from the earlier run's fixed set-up "

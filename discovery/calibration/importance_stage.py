@@ -3,8 +3,8 @@ approximation before any chain, checkpointed round by round.
 
 A part of :class:`tvcid.discovery.calibration.calibration.Calibration` (as
 :class:`.start.StartSearch` and :class:`.moves.LaplaceAdaptation` are): it reads ``importance``
-(points per round; 0 switches the stage off), ``importance_rounds`` (at most), ``laplace_``, ``log_posterior_``, ``terms_``,
-``seed``, ``n_walkers`` and ``backend``, and sets ``importance_``. Where the run's ratios are
+(points per round; 0 switches the stage off), ``importance_rounds`` (at most), ``laplace_``,
+``log_posterior_``, ``terms_``, ``seed``, ``n_walkers`` and ``backend``, and sets ``importance_``. Where the run's ratios are
 reliable (:meth:`.importance.ImportanceRun.reliable`) it is the posterior; elsewhere the chain
 starts from its points (:meth:`_walkers_from_importance`) instead of a ball about the maximum.
 """
@@ -78,8 +78,7 @@ class ImportanceStage:
 
         self.importance_, new = adaptive_importance(
             lp.log_prior, self.record_log_likelihoods, temperature, start, rng_of_round,
-            int(self.importance), int(getattr(self, "importance_rounds", IMPORTANCE_ROUNDS)),
-            IMPORTANCE_TARGET_ESS, stored=stored,
+            int(self.importance), int(self.importance_rounds), IMPORTANCE_TARGET_ESS, stored=stored,
             save=save)
         return new
 

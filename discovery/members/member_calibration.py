@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import math
 
+from tvcid.discovery.calibration.importance_stage import IMPORTANCE_ROUNDS
+from tvcid.discovery.calibration.start import POLISH_RESTARTS
+
 __all__ = ["MEMBER_DELAY_FLOOR", "MEMBER_IMPORTANCE_ROUND", "calibrate_member",
            "member_delay_floor", "member_priors", "member_walkers"]
 
@@ -85,8 +88,8 @@ MEMBER_IMPORTANCE_ROUND = 400
 
 
 def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_steps=2000,
-                     backend=None, progress=False, polish_restarts=None, importance_rounds=None,
-                     importance_only=False):
+                     backend=None, progress=False, polish_restarts=POLISH_RESTARTS,
+                     importance_rounds=IMPORTANCE_ROUNDS, importance_only=False):
     """MCMC of one member of the set on ``recordings`` (features likelihood, 10 s windows):
     every parameter of ``structure`` but the ``fixed`` ones, the linear block included, within
     :func:`member_priors`; starts at ``params`` (the member's fit, with the cycle's initial
@@ -100,7 +103,7 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     (``MEMBER_IMPORTANCE_ROUND`` points each); where their ratios are reliable they are the
     posterior, else the chain starts from their points. ``polish_restarts``,
     ``importance_rounds`` and ``importance_only`` limit the start's restarts, the rounds and the
-    chain after them (:class:`tvcid.discovery.calibration.Calibration`'s; default its own). Returns ``(posterior, priors, simulated
+    chain after them (:class:`tvcid.discovery.calibration.Calibration`'s). Returns ``(posterior, priors, simulated
     seconds)``: the last a dict, ``start`` (the set-up and the start's searches) and
     ``sampling`` (this call's steps; a resumed chain's earlier steps are not counted again)."""
     import warnings
@@ -121,10 +124,9 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
                           likelihood="features", window=10.0, n_walkers=member_walkers(len(names)),
                           max_steps=max_steps, seed=seed, backend=backend, progress=progress,
                           global_search=False, importance=MEMBER_IMPORTANCE_ROUND,
-                          start_optimizer="quasi-newton", importance_only=importance_only,
-                          **{k: v for k, v in (("polish_restarts", polish_restarts),
-                                               ("importance_rounds", importance_rounds))
-                             if v is not None}).fit(recordings)
+                          start_optimizer="quasi-newton", polish_restarts=polish_restarts,
+                          importance_rounds=importance_rounds,
+                          importance_only=importance_only).fit(recordings)
     start = cal.start_simulated_seconds_
     return cal.posterior_, priors, {"start": start,
                                     "sampling": cal.log_posterior_.simulated_seconds - start,
