@@ -157,3 +157,22 @@ def test_the_share_of_uncalibrated_members_follows_their_held_out_scores():
     assert dropped.sentence() == (f"dropped: far, failed (about {100 * dropped.share:.0f} % of "
                                   "the weight by their held-out scores)")
     assert uncalibrated_share(rows[:2], ["best", "next"]).sentence() == ""
+
+
+def test_an_unreliable_screening_run_screens_its_member_only_far_under_the_share():
+    """The set stage's screening: a member under 5 % even at its allowance is screened; one whose
+    importance run has Pareto k of 0.7 or more only when its allowance is 20 nats under 5 %; a
+    member over the share never."""
+    import math
+
+    from tvcid.discovery.members.set_weights import SetWeights
+    from tvcid.set_stage import screened_members
+
+    far = 0.05 * math.exp(-20.5)
+    weighed = SetWeights({"a": 0.9, "b": 0.01, "c": far / 2, "d": 0.09 - far / 2}, "evidence",
+                         "rule", upper={"a": 0.95, "b": 0.02, "c": far, "d": 0.1})
+    assert screened_members(weighed) == ["b", "c"]
+    assert screened_members(weighed, unsure={"b", "c", "d"}) == ["c"]
+    near = SetWeights(weighed.weights, "evidence", "rule",
+                      upper={**weighed.upper, "c": 0.05 * math.exp(-19.5)})
+    assert screened_members(near, unsure={"c"}) == ["b"]

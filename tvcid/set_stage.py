@@ -16,7 +16,7 @@ from tvcid.discovery.speed import cpu_seconds
 
 from .result import DiscoveryResult
 
-__all__ = ["calibrate_set", "MAX_MEMBERS", "SCREEN_STEPS", "SCREENING"]
+__all__ = ["calibrate_set", "screened_members", "MAX_MEMBERS", "SCREEN_STEPS", "SCREENING"]
 
 #: Distinct members of the set calibrated at most (best score first); the rest are listed in
 #: ``set_posterior.not_calibrated`` with their share of the weight by the ranking.
@@ -141,10 +141,7 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
                          "share": DECIDING_SHARE,
                          "weights": None if weighed is None else weighed.weights,
                          "upper": None if weighed is None else weighed.upper,
-                         "screened": [] if weighed is None else
-                         [m for m in weighed.screened() if m not in unsure
-                          or weighed.upper.get(m, weighed.weights[m])
-                          < DECIDING_SHARE * math.exp(-SCREEN_UNSURE_NATS)]}
+                         "screened": [] if weighed is None else screened_members(weighed, unsure)}
             record.set_screening = screening
             _write(out, record)  # a resumed run screens the same members
         screened = set(screening["screened"])
@@ -227,6 +224,18 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     record.set_posterior = combined
     _record_cost(record, t0, cost)
     return record
+
+
+def screened_members(weighed, unsure=()) -> list:
+    """The members the screening stops: under the deciding share even at their allowance
+    (:meth:`tvcid.discovery.members.set_weights.SetWeights.screened`), those in ``unsure`` (an
+    importance run with Pareto ``k`` of :data:`SCREEN_MAX_K` or more) only
+    :data:`SCREEN_UNSURE_NATS` under it."""
+    from tvcid.discovery.members.set_weights import DECIDING_SHARE
+
+    floor = DECIDING_SHARE * math.exp(-SCREEN_UNSURE_NATS)
+    return [m for m in weighed.screened(DECIDING_SHARE)
+            if m not in unsure or weighed.upper.get(m, weighed.weights[m]) < floor]
 
 
 def _record_cost(record, t0, cost):
