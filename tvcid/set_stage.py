@@ -33,9 +33,9 @@ SCREENING = {"polish_restarts": 0, "importance_rounds": 2, "importance_only": Tr
 #: Pareto ``k`` of a screening's importance run at or over which its evidence (PSIS's threshold
 #: of a reliable estimate) screens the member only with a margin: ...
 SCREEN_MAX_K = 0.7
-#: ... its weight, even at its allowance, under the deciding share by this many nats. Such an
-#: estimate of the log evidence errs low by an amount its standard error does not bound; a
-#: member this far under the share would need that error to be larger than any seen.
+#: ... its weight, even at its allowance, under the deciding share by this many nats (a factor of
+#: 5e8). Such an estimate of the log evidence errs low by an amount its standard error does not
+#: bound: the margin is a choice, not a bound; the set-coverage benchmark judges it.
 SCREEN_UNSURE_NATS = 20.0
 
 
