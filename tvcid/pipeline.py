@@ -149,7 +149,8 @@ def _earlier_run(out, fixed):
             pass  # a key this version does not write: refused as another layout
     if record is None:
         raise ValueError(f"--add: {path} was written by another version of tvcid discover (layout "
-                         f"{found!r}, this one adds to {DISCOVERY_FORMAT}); run the discovery again")
+                         f"{found!r}, this one adds to {DISCOVERY_FORMAT}); run the discovery "
+                         "again")
     earlier = record
     given = {k: getattr(v, "value", v) for k, v in (fixed or {}).items()}
     if given and given != earlier.fixed:
@@ -182,7 +183,8 @@ def add_recordings(new_files, out, fixed=None, quick=False, max_steps=None, mcmc
     added = earlier.added or []
     new = validate_recordings(new_files)
     new_paths = [str(r.path) for r in new]
-    if added and new_paths == added[-len(new_paths):] and all(p in earlier.recordings for p in new_paths):
+    if added and new_paths == added[-len(new_paths):] \
+            and all(p in earlier.recordings for p in new_paths):
         # the same --add, interrupted after its ranking: resume it
         return discover(earlier.recordings, out, fixed=earlier.fixed, seed=earlier.seed,
                         quick=quick, max_steps=max_steps, mcmc=mcmc, progress=progress,

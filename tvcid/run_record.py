@@ -143,7 +143,8 @@ class RunRecord:
 
     def member_weights(self) -> dict:
         """Each calibrated member's weight in the set's posterior (empty before the set stage)."""
-        return {m["structure"]: m["weight"] for m in (self.set_posterior or {}).get("members") or ()}
+        members = (self.set_posterior or {}).get("members") or ()
+        return {m["structure"]: m["weight"] for m in members}
 
     def to_dict(self) -> dict:
         """``discovery.json``'s content: every field under its name, the cost's ledgers under

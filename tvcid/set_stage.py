@@ -51,17 +51,18 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     (:func:`tvcid.discovery.members.set_weights.evidence_weights`); a member whose weight stays
     under :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE` even at its
     estimate's allowance (by :data:`SCREEN_UNSURE_NATS` more where its importance run's Pareto
-    ``k`` is :data:`SCREEN_MAX_K` or over) is *screened*: its sampling stops there and gives its ranges (the
-    report says so). Then the others continue to convergence or the cap. The screening is written to ``discovery.json``
-    (``set_screening``), so a resumed run screens the same members. Each member's step error is
+    ``k`` is :data:`SCREEN_MAX_K` or over) is *screened*: its sampling stops there and gives its
+    ranges (the report says so). Then the others continue to convergence or the cap. The
+    screening is written to ``discovery.json`` (``set_screening``), so a resumed run screens the
+    same members. Each member's step error is
     measured (:func:`tvcid.discovery.calibration.step_error.measure_step_error`) and its evidence
     estimated again from its final chain; the members are combined by those weights
     (:func:`tvcid.discovery.members.set_posterior.combine`), and the members beyond the cap named
     with their share of the weight by the ranking. A member whose chain cannot start (no point
     about its fit where every recording's likelihood is finite) is left out and named in
-    ``set_posterior.failed``. Sets the record's ``posterior`` (the first calibrated member's, the winner's
-    where it calibrates) and ``set_posterior`` (the members', their weights and the combined
-    one). Each member's own work is a task of ``executor``
+    ``set_posterior.failed``. Sets the record's ``posterior`` (the first calibrated member's, the
+    winner's where it calibrates) and ``set_posterior`` (the members', their weights and the
+    combined one). Each member's own work is a task of ``executor``
     (:func:`tvcid.members.calibrate_member_task`; default: one after the other in this
     process), combined here in the members' order; each member's row of
     ``set_posterior.members`` gets what its tasks cost (``simulated_steps``,

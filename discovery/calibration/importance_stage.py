@@ -4,9 +4,10 @@ approximation before any chain, checkpointed round by round.
 A part of :class:`tvcid.discovery.calibration.calibration.Calibration` (as
 :class:`.start.StartSearch` and :class:`.moves.LaplaceAdaptation` are): it reads ``importance``
 (points per round; 0 switches the stage off), ``importance_rounds`` (at most), ``laplace_``,
-``log_posterior_``, ``terms_``, ``seed``, ``n_walkers`` and ``backend``, and sets ``importance_``. Where the run's ratios are
-reliable (:meth:`.importance.ImportanceRun.reliable`) it is the posterior; elsewhere the chain
-starts from its points (:meth:`_walkers_from_importance`) instead of a ball about the maximum.
+``log_posterior_``, ``terms_``, ``seed``, ``n_walkers`` and ``backend``, and sets
+``importance_``. Where the run's ratios are reliable
+(:meth:`.importance.ImportanceRun.reliable`) it is the posterior; elsewhere the chain starts from
+its points (:meth:`_walkers_from_importance`) instead of a ball about the maximum.
 """
 from __future__ import annotations
 

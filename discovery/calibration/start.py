@@ -36,8 +36,8 @@ __all__ = ["StartSearch", "START_OPTIMIZERS", "POLISH_RESTARTS"]
 #: The local searches of the maximum a posteriori (``Calibration(start_optimizer=...)``).
 START_OPTIMIZERS = ("nelder-mead", "quasi-newton")
 
-#: Restarts of the local search while its optimum leaves a discrepancy (:meth:`StartSearch._polish`),
-#: the default of ``Calibration(polish_restarts=...)`` ...
+#: Restarts of the local search while its optimum leaves a discrepancy
+#: (:meth:`StartSearch._polish`), the default of ``Calibration(polish_restarts=...)`` ...
 POLISH_RESTARTS = 3
 #: ... each kept only if it gains more than this (nats).
 POLISH_GAIN = 0.1

@@ -103,9 +103,10 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     (``MEMBER_IMPORTANCE_ROUND`` points each); where their ratios are reliable they are the
     posterior, else the chain starts from their points. ``polish_restarts``,
     ``importance_rounds`` and ``importance_only`` limit the start's restarts, the rounds and the
-    chain after them (:class:`tvcid.discovery.calibration.Calibration`'s). Returns ``(posterior, priors, simulated
-    seconds)``: the last a dict, ``start`` (the set-up and the start's searches) and
-    ``sampling`` (this call's steps; a resumed chain's earlier steps are not counted again)."""
+    chain after them (:class:`tvcid.discovery.calibration.Calibration`'s). Returns
+    ``(posterior, priors, simulated seconds)``: the last a dict, ``start`` (the set-up and the
+    start's searches) and ``sampling`` (this call's steps; a resumed chain's earlier steps are not
+    counted again)."""
     import warnings
 
     from tvcid.discovery.calibration import Calibration

@@ -277,7 +277,8 @@ def race_summary(rows) -> dict:
     ``wrong``, the draws where a dropped structure is the truth's or in the reported set;
     ``worst_shortfall``, the largest amount by which a searched top's open-loop share falls
     under its bound (where the open-loop stage found the class's open-loop optimum, at most
-    the stage's own agreement, 0.1 per recording; more where it stopped in a worse one); ``least_margin``, the smallest gap between the screen and the best cost."""
+    the stage's own agreement, 0.1 per recording; more where it stopped in a worse one);
+    ``least_margin``, the smallest gap between the screen and the best cost."""
     out = {"draws": len(rows), "dropping": 0, "dropped": 0, "wrong": 0,
            "worst_shortfall": 0.0, "least_margin": math.inf}
     for r in rows:
