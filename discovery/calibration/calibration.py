@@ -29,6 +29,8 @@ from ..threads import one_blas_thread
 from .backend import H5_GROUP, CheckpointBackend
 from .importance import ImportanceReport
 from .importance_stage import IMPORTANCE_ROUNDS, IMPORTANCE_TARGET_ESS, ImportanceStage
+from .nested import NestedReport
+from .nested_stage import NESTED_TARGET_ESS, NestedStage
 from .likelihood.features import DEFAULT_FEATURES, FeatureTerm
 from .likelihood.registry import LIKELIHOODS, make_term
 from .likelihood.waveform import (
@@ -85,7 +87,7 @@ SETTLING_LOAD_LIMIT = 2.0
 FALLBACK_TRANSIENT = 20.0
 
 
-class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
+class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage):
     """Posterior over chosen parameters of a hypothesis, given one or more recordings.
 
     Parameters
@@ -212,6 +214,15 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         Where the importance stage runs, its run is the posterior even if its ratios are not yet
         reliable (``report_.converged`` False): no chain follows. A screening's choice, which a
         later fit on the same checkpoint without it continues.
+    nested : int
+        Live points of the nested-sampling stage (:mod:`.nested_stage`); 0 (default) switches
+        it off. When on, where the importance stage's ratios are not reliable (or there is no
+        importance stage), nested sampling over the importance run's fitted t, or the start's
+        Laplace approximation, widened (:mod:`.nested`) comes before any chain; where the run
+        is reliable (finished, Pareto ``k`` < 0.7, ``NESTED_TARGET_ESS`` effective points) it is
+        the posterior (``posterior_.importance`` the run, ``report_`` a
+        :class:`.nested.NestedReport` with the evidence), else the chain starts from its
+        points. Learned attribute ``nested_`` (the run, or None).
     check_every : int
         Steps between convergence checks (``N > tau_factor * tau``; an autocorrelation estimate
         costs far less than a step's simulations, so the chain stops within 10 steps of where
@@ -228,7 +239,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
                  stop_when_converged=True, spread="axes", discrepancy=True, laplace_move=True,
                  global_search=True, importance=0, start_optimizer="nelder-mead",
                  polish_restarts=POLISH_RESTARTS, importance_rounds=IMPORTANCE_ROUNDS,
-                 importance_only=False):
+                 importance_only=False, nested=0):
         self.hypothesis = hypothesis
         self.params = params
         self.priors = priors
@@ -263,6 +274,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         self.polish_restarts = polish_restarts
         self.importance_rounds = importance_rounds
         self.importance_only = importance_only
+        self.nested = nested
 
     # -- set-up ---------------------------------------------------------------------------------
     def _default_dt(self, base, names, priors, start):
@@ -307,6 +319,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
             # only when on, so that a checkpoint without the option resumes
             **({"continuation": True} if self.continuation else {}),
             **({"importance": int(self.importance)} if self.importance else {}),
+            **({"nested": int(self.nested)} if self.nested else {}),
             **({"choose_transient": True} if self._chooses_transient() else {}),
             # only when a record fell back, so that a checkpoint without fallbacks resumes
             **({"fallbacks": sorted(self.fallbacks_)} if getattr(self, "fallbacks_", None) else {}),
@@ -606,8 +619,9 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
         initial = self._initial
         self.laplace_ = None
         self.importance_ = None
+        self.nested_ = None
         chain_steps = _iteration(backend) if backend is not None else 0
-        if chain_steps > 0 or self._has_importance():  # resuming: the start's proposal
+        if chain_steps > 0 or self._has_importance() or self._has_nested():  # resuming
             with backend.open("r") as f:
                 stored = f[H5_GROUP].attrs.get("laplace") if H5_GROUP in f else None
             self.laplace_ = json.loads(stored) if stored else None
@@ -627,8 +641,24 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage):
                 self.posterior_ = Posterior.from_importance(self, self.importance_, report,
                                                             seed=self.seed)
                 return self
-            walkers = self._walkers_from_importance(np.random.default_rng([int(self.seed), 17]))
+            # the nested stage, when on, starts from the start's proposal, not the run's
+            walkers = (None if self._nested_usable() else
+                       self._walkers_from_importance(np.random.default_rng([int(self.seed), 17])))
             if walkers is not None:  # the chain starts from the run's points
+                initial = walkers
+                self._store_laplace(backend)
+        if chain_steps == 0 and self._nested_usable():
+            t0 = time.perf_counter()
+            new = self._run_nested()
+            report = NestedReport.of(self.nested_, NESTED_TARGET_ESS, new,
+                                     time.perf_counter() - t0)
+            if report.converged:
+                self.sampler_, self.report_ = None, report
+                self.posterior_ = Posterior.from_importance(self, self.nested_, report,
+                                                            seed=self.seed)
+                return self
+            walkers = self._walkers_from_nested(np.random.default_rng([int(self.seed), 23]))
+            if walkers is not None:
                 initial = walkers
                 self._store_laplace(backend)
         self.sampler_, self.report_ = run_ensemble(

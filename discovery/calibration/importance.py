@@ -29,7 +29,7 @@ from scipy.special import gammaln, logsumexp
 from .runner import ConvergenceReport
 
 __all__ = ["GOOD_K", "StudentT", "ImportanceRun", "ImportanceReport", "adaptive_importance",
-           "pareto_k", "weighted_quantiles", "START_SCALE"]
+           "pareto_k", "weighted_quantiles", "weighted_interval_drift", "START_SCALE"]
 
 #: Pareto ``k`` of the importance ratios below which the estimate is reliable (PSIS).
 GOOD_K = 0.7
@@ -334,19 +334,22 @@ class ImportanceRun:
         index, each weighted on its own), over the whole run's width, the largest over the
         coordinates (sampling coordinates): the chain's :meth:`.posterior.Posterior.
         interval_drift` for independent points."""
-        z = self.points
-        lw = self.log_weights
-        out = []
-        for j in range(z.shape[1]):
-            q = []
-            for part in (slice(0, None, 2), slice(1, None, 2), slice(None)):
-                lwp = lw[part]
-                w = np.exp(lwp - np.max(lwp)) if np.any(np.isfinite(lwp)) else np.ones(lwp.size)
-                q.append(weighted_quantiles(z[part, j], w, (0.05, 0.95)))
-            width = q[2][1] - q[2][0]
-            out.append(float(np.abs(q[0] - q[1]).sum() / width) if width > 0 else 0.0)
-        j = int(np.argmax(out))
-        return {"largest": out[j], "index": j}
+        return weighted_interval_drift(self.points, self.log_weights)
+
+
+def weighted_interval_drift(z, lw) -> dict:
+    """:meth:`ImportanceRun.interval_drift` of any weighted points ``z`` (log weights ``lw``)."""
+    out = []
+    for j in range(z.shape[1]):
+        q = []
+        for part in (slice(0, None, 2), slice(1, None, 2), slice(None)):
+            lwp = lw[part]
+            w = np.exp(lwp - np.max(lwp)) if np.any(np.isfinite(lwp)) else np.ones(lwp.size)
+            q.append(weighted_quantiles(z[part, j], w, (0.05, 0.95)))
+        width = q[2][1] - q[2][0]
+        out.append(float(np.abs(q[0] - q[1]).sum() / width) if width > 0 else 0.0)
+    j = int(np.argmax(out))
+    return {"largest": out[j], "index": j}
 
 
 @dataclass(frozen=True)

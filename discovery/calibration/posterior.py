@@ -36,9 +36,9 @@ class Posterior:
     truths : dict name -> float or None
     report : ConvergenceReport or ImportanceReport
     burn, thin : int
-    importance : ImportanceRun or None
-        The weighted points behind ``samples`` when they were drawn by importance sampling
-        (:meth:`from_importance`); ``chain`` is then the resampled draws as one walker.
+    importance : ImportanceRun, NestedRun or None
+        The weighted points behind ``samples`` when they were drawn by importance or nested
+        sampling (:meth:`from_importance`); ``chain`` is then the resampled draws as one walker.
     """
 
     names: tuple
@@ -156,8 +156,12 @@ class Posterior:
             }
         rep = self.report
         corr = self.correlation
+        method = getattr(rep, "method", "")
         extra = ({"sampler": "importance", "pareto_k": rep.pareto_k, "rounds": rep.rounds}
-                 if getattr(rep, "method", "") == "importance" else {"sampler": "ensemble"})
+                 if method == "importance" else
+                 {"sampler": "nested", "pareto_k": rep.pareto_k, "log_z": rep.log_z,
+                  "log_z_se": rep.log_z_se, "likelihood_calls": rep.n_like}
+                 if method == "nested" else {"sampler": "ensemble"})
         return {
             **extra,
             "parameters": params,

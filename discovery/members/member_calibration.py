@@ -89,7 +89,8 @@ MEMBER_IMPORTANCE_ROUND = 400
 
 def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_steps=2000,
                      backend=None, progress=False, polish_restarts=POLISH_RESTARTS,
-                     importance_rounds=IMPORTANCE_ROUNDS, importance_only=False):
+                     importance_rounds=IMPORTANCE_ROUNDS, importance_only=False, nested=0,
+                     stop_when_converged=True):
     """MCMC of one member of the set on ``recordings`` (features likelihood, 10 s windows):
     every parameter of ``structure`` but the ``fixed`` ones, the linear block included, within
     :func:`member_priors`; starts at ``params`` (the member's fit, with the cycle's initial
@@ -103,7 +104,9 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
     (``MEMBER_IMPORTANCE_ROUND`` points each); where their ratios are reliable they are the
     posterior, else the chain starts from their points. ``polish_restarts``,
     ``importance_rounds`` and ``importance_only`` limit the start's restarts, the rounds and the
-    chain after them (:class:`tvcid.discovery.calibration.Calibration`'s). Returns
+    chain after them; ``nested`` (live points) puts nested sampling between the rounds and the
+    chain; ``stop_when_converged=False`` runs the chain to ``max_steps`` (a long reference)
+    (:class:`tvcid.discovery.calibration.Calibration`'s). Returns
     ``(posterior, priors, simulated seconds)``: the last a dict, ``start`` (the set-up and the
     start's searches) and ``sampling`` (this call's steps; a resumed chain's earlier steps are not
     counted again)."""
@@ -127,7 +130,8 @@ def calibrate_member(params, structure, recordings, fixed=None, seed=0, max_step
                           global_search=False, importance=MEMBER_IMPORTANCE_ROUND,
                           start_optimizer="quasi-newton", polish_restarts=polish_restarts,
                           importance_rounds=importance_rounds,
-                          importance_only=importance_only).fit(recordings)
+                          importance_only=importance_only, nested=nested,
+                          stop_when_converged=stop_when_converged).fit(recordings)
     start = cal.start_simulated_seconds_
     return cal.posterior_, priors, {"start": start,
                                     "sampling": cal.log_posterior_.simulated_seconds - start,

@@ -1,0 +1,42 @@
+"""The cycles-alone posterior benchmark's pieces: the draws it picks, how it measures an
+interval against the reference, and what its table counts."""
+import numpy as np
+
+from tvcid.studies.benchmarks.cycles_posterior import (
+    GOAL_SHARE,
+    cycles_only_seeds,
+    interval_moves,
+    summarise,
+)
+from tvcid.studies.benchmarks.scenarios import draw_design
+
+
+def test_the_draws_hold_limit_cycles_alone_and_skip_the_others():
+    seeds = cycles_only_seeds(9000, 4)
+    assert len(seeds) == 4 and seeds == sorted(seeds) and seeds[0] >= 9000
+    for seed in range(seeds[0], seeds[-1] + 1):
+        recs, _ = draw_design(np.random.default_rng(seed), "wide")
+        assert (seed in seeds) == all(r.kind == "closed" for r in recs)
+
+
+def test_an_interval_moves_by_its_larger_end_over_the_reference_width():
+    moves = interval_moves({"a": [1.0, 3.0], "b": [0.0, 1.0]}, {"a": [1.5, 3.0], "b": [0.0, 0.5]})
+    assert moves == {"a": 0.5 / 1.5, "b": 0.5 / 0.5}
+
+
+def _method(within, converged, rate):
+    return {"within_goal": within, "converged": converged, "sampler": "nested",
+            "effective_points_per_billion_steps": rate, "cpu_seconds": 10.0}
+
+
+def test_the_table_counts_a_miss_the_diagnostic_did_not_flag():
+    rows = [{"methods": {"default": _method(False, True, 1.0), "nested": _method(True, True, 3.0),
+                         "reference": {"interval_drift": {"largest": 0.05}}}},
+            {"methods": {"default": _method(False, False, 2.0),
+                         "nested": _method(False, False, 5.0),
+                         "reference": {"interval_drift": {"largest": 0.12}}}}]
+    table = summarise(rows)
+    assert table["goal_share"] == GOAL_SHARE and table["draws"] == 2
+    assert table["default"]["missed_and_unflagged"] == 1 and table["nested"]["within_goal"] == 1
+    assert table["nested"]["median_effective_points_per_billion_steps"] == 4.0
+    assert table["reference_largest_drift"] == 0.12
