@@ -63,9 +63,10 @@ def _weighted_quantile(x, w, q):
     # the Laplace approximation at the banana's mode: too narrow along its arms
     (_banana, _banana_draws, AxisReference.from_laplace(
         np.r_[0.0, -1.2, np.zeros(D - 2)], np.diag(np.r_[4.0, 1.0, np.ones(D - 2)]))),
-    # the Laplace approximation at one point of the ring: about it, not over it
+    # the ring's own covariance about its centre, where the density is lowest: a hole in the
+    # middle (a reference about one point of the ring would leave its far side in the tails)
     (_ring, _ring_draws, AxisReference.from_laplace(
-        np.r_[3.0, 0.0, np.zeros(D - 2)], np.diag(np.r_[0.09, 9.0, np.ones(D - 2)]), scale=2.0)),
+        np.zeros(D), np.diag(np.r_[4.6, 4.6, np.ones(D - 2)]), scale=1.5)),
 ], ids=["banana", "ring"])
 def test_nested_sampling_over_a_reference_gives_the_target_quantiles(target, draws, reference):
     run, calls = nested_sample(_log_prior, target, [1.0, 1.0], reference, n_live=1000,

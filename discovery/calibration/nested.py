@@ -239,7 +239,11 @@ def nested_sample(log_prior, log_lik, temperature, reference, n_live, target_ess
     (NestedRun, int)
         The run and the likelihood calls this call made.
     """
-    import nautilus
+    try:
+        import nautilus
+    except ImportError:
+        raise ImportError("nested sampling needs nautilus-sampler: pip install 'tvcid[nested]'") \
+            from None
 
     temperature = np.asarray(temperature, dtype=float)
     r = temperature.size
