@@ -117,3 +117,15 @@ def test_a_stopped_run_resumes_from_its_checkpoint(tmp_path):
     assert not first.finished and calls <= 300 + 96
     second, more = nested_sample(_log_prior, _banana, [1.0, 1.0], ref, **small)
     assert second.finished and second.n_like == calls + more and more > 0
+
+
+def test_a_run_that_found_no_posterior_point_is_unreliable_not_an_error(tmp_path):
+    """Every reference point outside the prior: no weighted point, reported as such."""
+    from tvcid.discovery.calibration.nested import NestedReport
+
+    ref = AxisReference.from_laplace(np.full(D, 100.0), np.eye(D) * 1e-4)
+    run, calls = nested_sample(_log_prior, _banana, [1.0, 1.0], ref, n_live=50, target_ess=100,
+                               seed=1, max_calls=200, n_networks=1)
+    report = NestedReport.of(run, 100, calls)
+    assert run.n == 0 and run.ess == 0.0 and not run.reliable(100)
+    assert not report.converged and report.n_over_tau == 0.0

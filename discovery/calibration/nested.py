@@ -140,14 +140,17 @@ class NestedRun:
 
     @property
     def weights(self) -> np.ndarray:
+        """Normalised weights (none where the run found no point of the posterior)."""
+        if self.n == 0:
+            return np.zeros(0)
         w = np.exp(self.log_w - np.max(self.log_w))
         return w / w.sum()
 
     @property
     def ess(self) -> float:
-        """Kish's effective sample size of the weights."""
+        """Kish's effective sample size of the weights (0 without points)."""
         w = self.weights
-        return float(1.0 / np.sum(w * w))
+        return float(1.0 / np.sum(w * w)) if w.size else 0.0
 
     @property
     def pareto_k(self) -> float:
@@ -199,9 +202,11 @@ class NestedReport(ImportanceReport):
     @classmethod
     def of(cls, run: NestedRun, target_ess, new_points=0, wall_time=0.0):
         ess, k = run.ess, run.pareto_k
-        return cls(iterations=run.n, tau=(float(run.n / ess),) * run.points.shape[1],
+        return cls(iterations=run.n,
+                   tau=(float(run.n / ess) if ess > 0 else math.inf,) * run.points.shape[1],
                    n_over_tau=float(ess), tau_factor=float(target_ess),
-                   converged=run.reliable(target_ess), acceptance=float(ess / run.n),
+                   converged=run.reliable(target_ess),
+                   acceptance=float(ess / run.n) if run.n else 0.0,
                    new_steps=int(new_points), wall_time=float(wall_time),
                    pareto_k=float(k) if math.isfinite(k) else 1e9, rounds=1,
                    log_z=float(run.log_z), log_z_se=float(run.log_z_se), n_like=int(run.n_like))
