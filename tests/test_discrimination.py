@@ -232,7 +232,7 @@ def test_report_says_which_members_chains_did_not_converge():
             "by up to 42 % of their width (`delay`))") in _convergence_line([drifting])
 
 
-def test_an_importance_sampled_member_is_named_with_its_diagnostic():
+def test_an_importance_or_nested_sampled_member_is_named_with_its_diagnostic():
     from tvcid.report import _chain_cell
 
     drawn = {"structure": "a", "converged": True, "posterior": {
@@ -241,6 +241,10 @@ def test_an_importance_sampled_member_is_named_with_its_diagnostic():
     assert _chain_cell(drawn) == ("importance sampled: 1200 points in 3 rounds, 394 effective, "
                                   "Pareto k -0.11")
     assert _chain_cell({**drawn, "posterior": {"iterations": 400}}) == "converged"
+    nested = {**drawn, "posterior": {"sampler": "nested", "iterations": 5120, "n_over_tau": 640.4,
+                                     "pareto_k": 0.31, "log_z": -12.345, "log_z_se": 0.021}}
+    assert _chain_cell(nested) == ("nested sampled: 5120 points, 640 effective, Pareto k 0.31, "
+                                   "log evidence -12.35 ± 0.02")
 
 
 def test_a_screened_member_says_what_its_short_run_was():

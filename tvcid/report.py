@@ -36,7 +36,7 @@ def _convergence_line(members) -> str:
 
         rule = ("converged (a chain more than 50 autocorrelation times long, or importance "
                 f"sampling with at least {IMPORTANCE_TARGET_ESS} effective points and Pareto k "
-                f"under {GOOD_K})")
+                f"under {GOOD_K}, or a finished nested run with as many)")
         return (f"Every calibrated structure's posterior {rule}." if not screened else
                 f"Every other calibrated structure's posterior {rule}." + tail)
     def alone(m):
@@ -65,8 +65,8 @@ def _chain_cell(m) -> str:
         return _sampled_by(post)
     screened = post.get("screened")
     if screened:
-        run = (f"{post.get('iterations', '?')} importance points" if post.get("sampler") ==
-               "importance" else f"{screened['steps']} steps")
+        run = (f"{post.get('iterations', '?')} {post['sampler']} points"
+               if post.get("sampler") in ("importance", "nested") else f"{screened['steps']} steps")
         return (f"screened: under {100 * screened['share']:.0f} % of the weight after {run} (at "
                 f"most {100 * screened['upper_weight']:.1f} % allowing for its estimate's error), "
                 "so not run further; its ranges are its short run's")
@@ -78,8 +78,12 @@ def _chain_cell(m) -> str:
 
 
 def _sampled_by(post) -> str:
-    """How a converged member was sampled: its chain, or importance sampling with its
+    """How a converged member was sampled: its chain, or importance or nested sampling with its
     diagnostic."""
+    if post.get("sampler") == "nested":
+        return (f"nested sampled: {post['iterations']} points, {post['n_over_tau']:.0f} effective, "
+                f"Pareto k {post['pareto_k']:.2f}, log evidence {post['log_z']:.2f} ± "
+                f"{post['log_z_se']:.2f}")
     if post.get("sampler") != "importance":
         return "converged"
     return (f"importance sampled: {post['iterations']} points in {post.get('rounds', '?')} "
@@ -493,8 +497,8 @@ def discovery_report(summary) -> str:
     post = summary.get("posterior")
     if post:
         lines += ["## MCMC calibration of the best structure", "",
-                  (f"Sampled by importance sampling ({_sampled_by(post).split(': ', 1)[1]})."
-                   if post.get("sampler") == "importance" else
+                  (f"Sampled by {post['sampler']} sampling ({_sampled_by(post).split(': ', 1)[1]})."
+                   if post.get("sampler") in ("importance", "nested") else
                    f"Converged: {post['converged']} ({post['iterations']} steps, acceptance "
                    f"{post['acceptance']:.2f}).") + " Sampled: every parameter of the winner's structure "
                   "but the fixed ones, the linear block included; the sensor noise sd stays at the "
