@@ -29,8 +29,6 @@ from ..threads import one_blas_thread
 from .backend import H5_GROUP, CheckpointBackend
 from .importance import ImportanceReport
 from .importance_stage import IMPORTANCE_ROUNDS, IMPORTANCE_TARGET_ESS, ImportanceStage
-from .nested import NestedReport
-from .nested_stage import NESTED_TARGET_ESS, NestedStage
 from .likelihood.features import DEFAULT_FEATURES, FeatureTerm
 from .likelihood.registry import LIKELIHOODS, make_term
 from .likelihood.waveform import (
@@ -40,8 +38,11 @@ from .likelihood.waveform import (
 )
 from .log_posterior import LogPosterior, check_parameter_names
 from .moves import LaplaceAdaptation
+from .nested import NestedReport
+from .nested_stage import NESTED_TARGET_ESS, NestedStage
 from .posterior import Posterior
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates, step_under_delay
+from .resume import StartRestore
 from .runner import run_ensemble
 from .start import POLISH_RESTARTS, START_OPTIMIZERS, StartSearch
 
@@ -87,7 +88,7 @@ SETTLING_LOAD_LIMIT = 2.0
 FALLBACK_TRANSIENT = 20.0
 
 
-class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage):
+class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, StartRestore):
     """Posterior over chosen parameters of a hypothesis, given one or more recordings.
 
     Parameters
@@ -567,50 +568,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage):
             config = json.dumps(self._config(), sort_keys=True)
             backend = CheckpointBackend(str(path), name="mcmc")
             if path.exists():
-                with backend.open("r") as f:
-                    old = f[H5_GROUP].attrs.get("config") if H5_GROUP in f else None
-                    stored = f[H5_GROUP].attrs.get("inflation") if H5_GROUP in f else None
-                    transient = ({k: v[()] for k, v in f[H5_GROUP]["transient_var"].items()}
-                                 if H5_GROUP in f and "transient_var" in f[H5_GROUP] else None)
-                    step_check = f[H5_GROUP].attrs.get("step_check_at") if H5_GROUP in f else None
-                    solver = ({k: v[()] for k, v in f[H5_GROUP]["solver_correction"].items()}
-                              if H5_GROUP in f and "solver_correction" in f[H5_GROUP] else None)
-                    solver_points = (f[H5_GROUP].attrs.get("solver_check_points")
-                                     if H5_GROUP in f else None)
-                    chosen = f[H5_GROUP].attrs.get("transients") if H5_GROUP in f else None
-                    fallbacks = f[H5_GROUP].attrs.get("fallbacks") if H5_GROUP in f else None
-                if fallbacks is not None and old == config:  # resuming: the records that fell back
-                    names = [t.name for t in self.terms_]
-                    for name, reason in json.loads(fallbacks).items():
-                        if name not in self.fallbacks_:
-                            self._fall_back(names.index(name), reason)
-                if step_check is not None and old == config:  # resuming: the steps of the start
-                    self._refine_steps_at(json.loads(step_check), save=False)
-                if solver is not None and old == config:  # resuming: the start's solver corrections
-                    for term in self.terms_:
-                        if term.name in solver and hasattr(term, "set_solver_correction"):
-                            term.set_solver_correction(*solver[term.name])
-                    self.solver_check_points_ = json.loads(solver_points) if solver_points else None
-                if chosen is not None and old == config:  # resuming: the transients chosen
-                    self.transients_ = json.loads(chosen)
-                    for term in self.terms_:
-                        if term.name in self.transients_:
-                            term.set_transient(self.transients_[term.name])
-                if transient is not None and old == config:  # resuming: the start's imprint
-                    for term in self.terms_:
-                        if term.name in transient:
-                            term.set_transient_variance(transient[term.name])
-                if stored is not None and old == config:  # resuming: the factors of the start
-                    self.inflation_ = [float(v) for v in json.loads(stored)]
-                    for term, value in zip(self.terms_, self.inflation_):
-                        term.inflation = value
-                if old is not None and old != config:
-                    was, now = json.loads(old), json.loads(config)
-                    changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))
-                    diff = "; ".join(f"{k}: {was.get(k)!r} -> {now.get(k)!r}" for k in changed)
-                    raise ValueError(
-                        f"{path} holds a run with a different set-up ({diff}); it is kept: choose "
-                        "another output directory, or delete it to start again")
+                self._restore_start(backend, path, config)
             with backend.open("a") as f:
                 g = f.require_group(H5_GROUP)
                 g.attrs["config"] = config
