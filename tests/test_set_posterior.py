@@ -421,3 +421,25 @@ def test_a_component_the_shared_choices_rule_out_is_said_to_be_decided_by_the_st
     velocity = decided("dz_velocity+delay_output+friction",
                        {"dead_zone_position": "velocity", "friction": True, "backlash": False})
     assert "friction offset on" in velocity and "not by the data" not in velocity
+
+
+def test_each_calibrated_structure_says_why_it_is_calibrated():
+    """Beyond the cap, a member is calibrated for its held-out score or for a component the set
+    leaves open that no better member has; the report names both."""
+    from tvcid.discovery.members.set_posterior import calibration_reasons
+    from tvcid.report import _members_lines
+
+    base = "dz_velocity+delay_output"
+    distinct = [{"structure": base}, {"structure": "dz_error+delay_output"},
+                {"structure": "dz_velocity+delay_before_integrator"}]
+    richer = [{"structure": base + "+backlash", "merged_into": base}]
+    why = calibration_reasons(distinct, richer, 2)
+    assert list(why) == [base, "dz_error+delay_output", base + "+backlash"]
+    assert why[base] == "held-out score 1 of the set's 3 distinct members"
+    assert why[base + "+backlash"] == ("the best-scored structure with backlash, which the set "
+                                       f"leaves open (merged into `{base}`)")
+    text = "\n".join(_members_lines({
+        "members": [], "not_calibrated": ["dz_velocity+delay_before_integrator"],
+        "not_calibrated_share": 0.04, "calibrated_because": why, "distinct_members": 3}))
+    assert "The recordings leave 3 distinct structures open; 3 are calibrated: " in text
+    assert "about 4 % of the weight" in text

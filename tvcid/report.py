@@ -197,6 +197,11 @@ def _members_lines(sp) -> list:
     dropped = sp.get("not_calibrated") or []
     if dropped:
         share = sp.get("not_calibrated_share")
+        why = sp.get("calibrated_because") or {}
+        if why and sp.get("distinct_members"):
+            lines += ["", f"The recordings leave {sp['distinct_members']} distinct structures "
+                      f"open; {len(why)} are calibrated: " + "; ".join(
+                          f"`{n}` ({reason})" for n, reason in why.items()) + "."]
         lines += ["", "Not calibrated (more structures than the cap): " + ", ".join(
             f"`{n}`" for n in dropped) + (f", about {100 * share:.0f} % of the weight by their "
                                           "held-out scores (the table's intervals leave them out)."

@@ -73,6 +73,7 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     from tvcid.discovery.members.ranking_shares import uncalibrated_share
     from tvcid.discovery.members.set_posterior import (
         MemberPosterior,
+        calibration_reasons,
         combine,
         left_open_quantities,
         richer_members,
@@ -88,7 +89,9 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     t0, c0 = time.perf_counter(), cpu_seconds()
     rows = record.set_rows()
     best_score = rows[0]["score"]
-    calibrated = rows[:MAX_MEMBERS] + richer_members(record.structures, record.decided)
+    richer = richer_members(record.structures, record.decided)
+    calibrated = rows[:MAX_MEMBERS] + richer
+    reasons = calibration_reasons(rows, richer, MAX_MEMBERS)
     executor = executor if executor is not None else LocalProcesses(1)
     here = isinstance(executor, LocalProcesses) and executor.jobs == 1
     n = len(calibrated)
@@ -218,6 +221,8 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     dropped = uncalibrated_share(rows + [r for r in calibrated if r not in rows], names, seed=seed)
     combined["not_calibrated"] = dropped.names
     combined["not_calibrated_share"] = dropped.share if dropped.names else None
+    combined["calibrated_because"] = {n: reasons[n] for n in names}
+    combined["distinct_members"] = len(rows)
     combined["failed"] = failed
     combined["screened"] = sorted(screened & set(names))
     for row in combined["members"]:  # what each member's own work cost, both rounds

@@ -50,7 +50,7 @@ from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member
 from ..structure.indistinguishable import DECIDING_SHARE
 
 __all__ = ["MemberPosterior", "SetPosterior", "combine", "not_pinned", "prior_quantities",
-           "richer_members", "decided_absent"]
+           "richer_members", "calibration_reasons", "decided_absent"]
 
 #: A quantity depends on the structure when the members' medians spread by more than this
 #: fraction of the median width of their 90 % intervals.
@@ -92,6 +92,24 @@ def richer_members(rows, decided) -> list:
         if richer:
             out.append(richer[0])
             have |= set(Structure.parse(richer[0]["structure"]).components)
+    return out
+
+
+def calibration_reasons(distinct, richer, max_members) -> dict:
+    """Structure -> why the set stage calibrates it: one of the ``max_members`` best held-out
+    scores among the set's ``distinct`` members (rows, best first), or, of the ``richer`` rows
+    (:func:`richer_members`), the best-scored structure with a component the set leaves open
+    that no distinct member calibrated has."""
+    from tvcid.models.structures import Structure
+
+    out = {r["structure"]: f"held-out score {i + 1} of the set's {len(distinct)} distinct members"
+           for i, r in enumerate(distinct[:max_members])}
+    have = {c for r in distinct[:max_members] for c in Structure.parse(r["structure"]).components}
+    for r in richer:
+        own = [c for c in Structure.parse(r["structure"]).components if c not in have]
+        out[r["structure"]] = (f"the best-scored structure with {' and '.join(own)}, which the set "
+                               f"leaves open (merged into `{r['merged_into']}`)")
+        have |= set(own)
     return out
 
 
