@@ -29,7 +29,7 @@ from scipy.special import gammaln, logsumexp
 from .runner import ConvergenceReport
 
 __all__ = ["GOOD_K", "StudentT", "ImportanceRun", "ImportanceReport", "adaptive_importance",
-           "pareto_k", "weighted_quantiles", "weighted_interval_drift", "START_SCALE"]
+           "pareto_k", "weighted_quantiles", "WeightedPoints", "START_SCALE"]
 
 #: Pareto ``k`` of the importance ratios below which the estimate is reliable (PSIS).
 GOOD_K = 0.7
@@ -236,8 +236,80 @@ class StudentT:
                    float(d.get("dof", PROPOSAL_DOF)))
 
 
+class WeightedPoints:
+    """What weighted points of a posterior give, whatever drew them: a class with ``points``
+    ``(n, d)``, ``log_prior`` ``(n,)``, ``log_lik`` ``(n, r)`` (untempered, per recording),
+    ``temperature`` ``(r,)`` and a ``log_weights`` property (:class:`ImportanceRun`,
+    :class:`.nested.NestedRun`)."""
+
+    @property
+    def n(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def log_posterior(self) -> np.ndarray:
+        """Unnormalised log posterior at every point (``-inf`` where a run failed)."""
+        with np.errstate(invalid="ignore"):
+            lp = self.log_prior + np.sum(self.log_lik / self.temperature[None, :], axis=1)
+        return np.where(np.isnan(lp), -np.inf, lp)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Normalised weights (zeros where none is finite)."""
+        lw = self.log_weights
+        if not np.any(np.isfinite(lw)):
+            return np.zeros(self.n)
+        w = np.exp(lw - np.max(lw))
+        return w / w.sum()
+
+    @property
+    def ess(self) -> float:
+        """Effective sample size ``1 / sum w^2`` of the normalised weights (0 if none is
+        finite)."""
+        w = self.weights
+        return float(1.0 / np.sum(w * w)) if w.sum() > 0 else 0.0
+
+    @property
+    def pareto_k(self) -> float:
+        return pareto_k(self.log_weights)
+
+    def resample(self, rng, n) -> np.ndarray:
+        """Indices of ``n`` points drawn by their weights (systematic resampling, in a random
+        order)."""
+        w = self.weights
+        u = (rng.uniform() + np.arange(n)) / n
+        idx = np.minimum(np.searchsorted(np.cumsum(w), u), self.n - 1)
+        return rng.permutation(idx)
+
+    def distinct(self, rng, n):
+        """Indices of ``n`` distinct points drawn by their weights without replacement (the
+        walkers of a chain started from the run), or None when fewer carry weight."""
+        w = self.weights
+        if np.count_nonzero(w > 0) < n:
+            return None
+        return rng.choice(self.n, size=n, replace=False, p=w)
+
+    def interval_drift(self, logs=None) -> dict:
+        """How far the 90 % intervals move between the run's two halves (points of even and odd
+        index, each weighted on its own), over the whole run's width, the largest over the
+        coordinates (sampling coordinates): the chain's :meth:`.posterior.Posterior.
+        interval_drift` for independent points."""
+        z, lw = self.points, self.log_weights
+        out = []
+        for j in range(z.shape[1]):
+            q = []
+            for part in (slice(0, None, 2), slice(1, None, 2), slice(None)):
+                lwp = lw[part]
+                w = np.exp(lwp - np.max(lwp)) if np.any(np.isfinite(lwp)) else np.ones(lwp.size)
+                q.append(weighted_quantiles(z[part, j], w, (0.05, 0.95)))
+            width = q[2][1] - q[2][0]
+            out.append(float(np.abs(q[0] - q[1]).sum() / width) if width > 0 else 0.0)
+        j = int(np.argmax(out))
+        return {"largest": out[j], "index": j}
+
+
 @dataclass(frozen=True)
-class ImportanceRun:
+class ImportanceRun(WeightedPoints):
     """The points of an adaptive importance sampling run and what weighs them.
 
     Attributes
@@ -266,10 +338,6 @@ class ImportanceRun:
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
-    def n(self) -> int:
-        return int(self.points.shape[0])
-
-    @property
     def log_proposal(self) -> np.ndarray:
         """Log density of the rounds' mixture, ``sum_j n_j q_j / sum_j n_j``, at every point."""
         if "log_q" not in self._cache:
@@ -279,77 +347,12 @@ class ImportanceRun:
         return self._cache["log_q"]
 
     @property
-    def log_posterior(self) -> np.ndarray:
-        """Unnormalised log posterior at every point (``-inf`` where a run failed)."""
-        with np.errstate(invalid="ignore"):
-            lp = self.log_prior + np.sum(self.log_lik / self.temperature[None, :], axis=1)
-        return np.where(np.isnan(lp), -np.inf, lp)
-
-    @property
     def log_weights(self) -> np.ndarray:
         return self.log_posterior - self.log_proposal
-
-    @property
-    def weights(self) -> np.ndarray:
-        """Normalised importance weights."""
-        lw = self.log_weights
-        if not np.any(np.isfinite(lw)):
-            return np.zeros(self.n)
-        w = np.exp(lw - np.max(lw))
-        return w / w.sum()
-
-    @property
-    def ess(self) -> float:
-        """Effective sample size ``1 / sum w^2`` of the normalised weights (0 if none is
-        finite)."""
-        w = self.weights
-        return float(1.0 / np.sum(w * w)) if w.sum() > 0 else 0.0
-
-    @property
-    def pareto_k(self) -> float:
-        return pareto_k(self.log_weights)
 
     def reliable(self, target_ess) -> bool:
         """``k < GOOD_K`` and at least ``target_ess`` effective points."""
         return bool(self.pareto_k < GOOD_K and self.ess >= target_ess)
-
-    def resample(self, rng, n) -> np.ndarray:
-        """Indices of ``n`` points drawn by their weights (systematic resampling, in a random
-        order)."""
-        w = self.weights
-        u = (rng.uniform() + np.arange(n)) / n
-        idx = np.minimum(np.searchsorted(np.cumsum(w), u), self.n - 1)
-        return rng.permutation(idx)
-
-    def distinct(self, rng, n):
-        """Indices of ``n`` distinct points drawn by their weights without replacement (the
-        walkers of a chain started from the run), or None when fewer carry weight."""
-        w = self.weights
-        if np.count_nonzero(w > 0) < n:
-            return None
-        return rng.choice(self.n, size=n, replace=False, p=w)
-
-    def interval_drift(self, logs=None) -> dict:
-        """How far the 90 % intervals move between the run's two halves (points of even and odd
-        index, each weighted on its own), over the whole run's width, the largest over the
-        coordinates (sampling coordinates): the chain's :meth:`.posterior.Posterior.
-        interval_drift` for independent points."""
-        return weighted_interval_drift(self.points, self.log_weights)
-
-
-def weighted_interval_drift(z, lw) -> dict:
-    """:meth:`ImportanceRun.interval_drift` of any weighted points ``z`` (log weights ``lw``)."""
-    out = []
-    for j in range(z.shape[1]):
-        q = []
-        for part in (slice(0, None, 2), slice(1, None, 2), slice(None)):
-            lwp = lw[part]
-            w = np.exp(lwp - np.max(lwp)) if np.any(np.isfinite(lwp)) else np.ones(lwp.size)
-            q.append(weighted_quantiles(z[part, j], w, (0.05, 0.95)))
-        width = q[2][1] - q[2][0]
-        out.append(float(np.abs(q[0] - q[1]).sum() / width) if width > 0 else 0.0)
-    j = int(np.argmax(out))
-    return {"largest": out[j], "index": j}
 
 
 @dataclass(frozen=True)

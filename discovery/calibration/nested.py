@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special, stats
 
-from .importance import GOOD_K, ImportanceReport, pareto_k, weighted_interval_drift
+from .importance import GOOD_K, ImportanceReport, WeightedPoints
 
 __all__ = ["AxisReference", "NestedRun", "NestedReport", "nested_sample", "REFERENCE_DOF", "REFERENCE_SCALE"]
 
@@ -80,7 +80,7 @@ class AxisReference:
 
 
 @dataclass(frozen=True)
-class NestedRun:
+class NestedRun(WeightedPoints):
     """A nested-sampling run's weighted points of the posterior.
 
     Attributes
@@ -114,17 +114,6 @@ class NestedRun:
     finished: bool
 
     @property
-    def n(self) -> int:
-        return int(self.points.shape[0])
-
-    @property
-    def log_posterior(self) -> np.ndarray:
-        """Unnormalised log posterior at every point."""
-        with np.errstate(invalid="ignore"):
-            lp = self.log_prior + np.sum(self.log_lik / self.temperature[None, :], axis=1)
-        return np.where(np.isnan(lp), -np.inf, lp)
-
-    @property
     def log_proposal(self) -> np.ndarray:
         """The density each point was drawn from, as an importance sampler's proposal: within a
         shell, the reference's density over the shell's share of it, times the shell's share of
@@ -138,24 +127,6 @@ class NestedRun:
     def log_weights(self) -> np.ndarray:
         return self.log_w
 
-    @property
-    def weights(self) -> np.ndarray:
-        """Normalised weights (none where the run found no point of the posterior)."""
-        if self.n == 0:
-            return np.zeros(0)
-        w = np.exp(self.log_w - np.max(self.log_w))
-        return w / w.sum()
-
-    @property
-    def ess(self) -> float:
-        """Kish's effective sample size of the weights (0 without points)."""
-        w = self.weights
-        return float(1.0 / np.sum(w * w)) if w.size else 0.0
-
-    @property
-    def pareto_k(self) -> float:
-        return pareto_k(self.log_w)
-
     def reliable(self, target_ess) -> bool:
         """Finished, ``k < GOOD_K`` and at least ``target_ess`` effective points."""
         return bool(self.finished and self.pareto_k < GOOD_K and self.ess >= target_ess)
@@ -164,19 +135,6 @@ class NestedRun:
     def counts(self) -> tuple:
         """Points of the run, as one round (the traces' plot marks no round edges)."""
         return (self.n,)
-
-    def interval_drift(self, logs=None) -> dict:
-        """How far the 90 % intervals move between the points of even and odd index
-        (:func:`.importance.weighted_interval_drift`)."""
-        return weighted_interval_drift(self.points, self.log_w)
-
-    def resample(self, rng, n) -> np.ndarray:
-        """Indices of ``n`` points drawn by their weights (systematic resampling, in a random
-        order)."""
-        w = self.weights
-        u = (rng.uniform() + np.arange(n)) / n
-        idx = np.minimum(np.searchsorted(np.cumsum(w), u), self.n - 1)
-        return rng.permutation(idx)
 
 
 @dataclass(frozen=True)

@@ -71,10 +71,10 @@ class NestedStage:
         """``n_walkers`` distinct points of the run drawn by their weights (None when fewer
         carry weight), and the Laplace move's proposal refitted to the run."""
         run = self.nested_
-        w = run.weights
-        if np.count_nonzero(w > 0) < self.n_walkers:
+        idx = run.distinct(rng, self.n_walkers)
+        if idx is None:
             return None
-        idx = rng.choice(run.n, size=self.n_walkers, replace=False, p=w)
+        w = run.weights
         mean = w @ run.points
         diff = run.points - mean
         cov = (diff * w[:, None]).T @ diff
