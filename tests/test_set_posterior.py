@@ -157,6 +157,15 @@ def test_every_quantity_is_judged_pinned_against_its_own_prior_implied_spread():
     assert verdict["backlash"].startswith("not pinned by the recordings; they allow")
     assert verdict["threshold"] == verdict["dc_gain"] == "decided regardless of the structure"
     assert verdict["friction_offset"].startswith("not pinned")
+    # chains stopped at their cap holding the weight: their agreement is not called decided
+    capped = {**combined, "members": [
+        {**m, "converged": False, "posterior": {**m["posterior"], "iterations": 2000,
+                                                "n_over_tau": 9.5}}
+        for m in combined["members"]]}
+    verdict = {k: v[2] for k, v in _verdicts(capped).items()}
+    assert verdict["threshold"] == ("the members agree, but their chains stopped at the cap: not "
+                                    "yet decided")
+    assert verdict["delay"] == "depends on the structure"
 
 
 def test_weights_mix_the_members_by_the_data():
@@ -441,5 +450,6 @@ def test_each_calibrated_structure_says_why_it_is_calibrated():
     text = "\n".join(_members_lines({
         "members": [], "not_calibrated": ["dz_velocity+delay_before_integrator"],
         "not_calibrated_share": 0.04, "calibrated_because": why, "distinct_members": 3}))
-    assert "The recordings leave 3 distinct structures open; 3 are calibrated: " in text
+    assert ("The recordings leave 3 distinct structures open, more than the cap calibrates; "
+            f"calibrated: `{base}` (held-out score 1 of the set's 3 distinct members); ") in text
     assert "about 4 % of the weight" in text

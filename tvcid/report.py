@@ -12,6 +12,7 @@ import math
 
 from tvcid.discovery.members.set_posterior import (decided_absent, partly_present,
                                                printed_present_or_absent)
+from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS
 from tvcid.models.hypotheses import parameter_unit
 from tvcid.models.structures import Structure, prune_reason
@@ -115,8 +116,10 @@ def _allowed_text(q) -> str:
     return f"they allow {low} to {high}"
 
 
-def _verdict(q) -> str:
-    """What a combined quantity's row says beside its interval."""
+def _verdict(q, capped=False) -> str:
+    """What a combined quantity's row says beside its interval; ``capped``: members holding
+    weight stopped at their step cap, so a quantity they agree on is not called decided (their
+    intervals are lower bounds on the width, and the agreement may be the chains')."""
     if q["q05"] == q["q95"] and not q.get("widened"):
         return "fixed"
     parts = []
@@ -126,7 +129,8 @@ def _verdict(q) -> str:
         parts.append("not pinned by the recordings")
     elif (q["members"] > 1 and not q["depends_on_structure"] and q.get("pinned")
           and not printed_present_or_absent(q) and not decided_absent(q)):
-        parts.append("decided regardless of the structure")
+        parts.append("the members agree, but their chains stopped at the cap: not yet decided"
+                     if capped else "decided regardless of the structure")
     # a component left open always shows the range its richer members allow
     if q.get("allowed") and (q.get("pinned") is False or printed_present_or_absent(q)):
         parts.append(_allowed_text(q))
@@ -151,22 +155,23 @@ def _weighting(sp) -> str:
     return sp["criterion"]
 
 
-def _quantity_row(name, q) -> str:
+def _quantity_row(name, q, capped=False) -> str:
     """One row of the summary's table; a component the weights leave open reads "present or
-    absent" with its interval if present, one they decide absent reads "absent"."""
+    absent" with its interval if present, one they decide absent reads "absent" (``capped``:
+    :func:`_verdict`'s)."""
     interval = f"[{_num(q['q05'])}, {_num(q['q95'])}]"
     if partly_present(q):
         return (f"| {name} | present or absent ({100 * q['present']:.0f} % of the weight present) | "
-                f"if present, {interval} | {q['unit']} | {_verdict(q)} |")
+                f"if present, {interval} | {q['unit']} | {_verdict(q, capped)} |")
     if q.get("left_open"):  # the members without it could not be calibrated
         return (f"| {name} | present or absent (the set leaves it open; only members with it "
-                f"calibrated) | if present, {interval} | {q['unit']} | {_verdict(q)} |")
+                f"calibrated) | if present, {interval} | {q['unit']} | {_verdict(q, capped)} |")
     if decided_absent(q):
         return (f"| {name} | absent (the members with it hold {100 * q['present']:.1f} % of the "
-                f"weight) | if present, {interval} | {q['unit']} | {_verdict(q)} |")
+                f"weight) | if present, {interval} | {q['unit']} | {_verdict(q, capped)} |")
     present = ("" if q.get("present", 1.0) >= 1.0 - 1e-9 else
                f"present ({100 * q['present']:.0f} % of the weight); ")
-    return f"| {name} | {_num(q['q50'])} | {interval} | {q['unit']} | {present}{_verdict(q)} |"
+    return f"| {name} | {_num(q['q50'])} | {interval} | {q['unit']} | {present}{_verdict(q, capped)} |"
 
 
 #: An equal-weight interval is printed beside the weighted one when an end moves by more than
@@ -200,7 +205,7 @@ def _members_lines(sp) -> list:
         why = sp.get("calibrated_because") or {}
         if why and sp.get("distinct_members"):
             lines += ["", f"The recordings leave {sp['distinct_members']} distinct structures "
-                      f"open; {len(why)} are calibrated: " + "; ".join(
+                      "open, more than the cap calibrates; calibrated: " + "; ".join(
                           f"`{n}` ({reason})" for n, reason in why.items()) + "."]
         lines += ["", "Not calibrated (more structures than the cap): " + ", ".join(
             f"`{n}`" for n in dropped) + (f", about {100 * share:.0f} % of the weight by their "
@@ -270,7 +275,10 @@ def summary_lines(summary) -> list:
         lines += ["", (f"Over the set's {n} calibrated structures, {_weighting(sp)}:"
                        if n > 1 else "The calibrated structure's posterior:"), "",
                   "| quantity | median | 90 % interval | unit | |", "|---|---|---|---|---|"]
-        lines += [_quantity_row(name, q) for name, q in combined.items()]
+        # weight on chains stopped at their cap (a member screened by its weight holds little)
+        capped = sum(m.get("weight", 1.0 / n) for m in sp["members"]
+                     if not m["converged"] and not m["posterior"].get("screened")) > DECIDING_SHARE
+        lines += [_quantity_row(name, q, capped) for name, q in combined.items()]
         lines += [f"| {name} | present or absent (the set leaves it open; no member with it "
                   f"calibrated) | | {QUANTITY_UNITS.get(name, '')} | |"
                   for name in sp.get("left_open_uncalibrated") or ()]
