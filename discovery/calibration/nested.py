@@ -8,7 +8,7 @@ hundreds of autocorrelation times. Written as
     p(z) = pi(z) L(z) / Z = q(z) [pi(z) L(z) / q(z)] / Z,
 
 the same posterior is the one nested sampling gives over a reference density ``q`` (here a
-product of Student t's along the principal axes of the start's Laplace approximation, widened:
+product of Student t's along the Cholesky axes of the start's Laplace covariance, widened:
 :class:`AxisReference`) with the likelihood ``pi L / q``: the target and its evidence ``Z``
 (the member's marginal likelihood) stay exact, and the compression starts at the Laplace
 approximation's scale. The sampler is nautilus (Lange 2023, "nautilus: boosting Bayesian
