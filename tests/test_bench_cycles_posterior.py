@@ -40,3 +40,33 @@ def test_the_table_counts_a_miss_the_diagnostic_did_not_flag():
     assert table["default"]["missed_and_unflagged"] == 1 and table["nested"]["within_goal"] == 1
     assert table["nested"]["median_effective_points_per_billion_steps"] == 4.0
     assert table["reference_largest_drift"] == 0.12
+
+
+def test_a_methods_row_keeps_what_the_nested_stage_gave_though_a_chain_followed():
+    """The chain's row also holds the nested run's calls, finish and evidence, and its
+    effective points per billion kernel steps come from its kept steps and walkers."""
+    from types import SimpleNamespace
+
+    from tvcid.discovery.calibration.nested import NestedRun
+    from tvcid.discovery.calibration.runner import ConvergenceReport
+    from tvcid.studies.benchmarks.cycles_posterior import _method_row
+
+    rng = np.random.default_rng(0)
+    z = rng.standard_normal((200, 2))
+    run = NestedRun(points=z, log_prior=np.zeros(200), log_lik=np.zeros((200, 1)),
+                    temperature=np.ones(1), log_w=np.full(200, -np.log(200)), log_z=-3.0,
+                    log_z_se=0.1, n_like=5000, finished=False)
+    rep = ConvergenceReport(iterations=1000, tau=(50.0, 100.0), n_over_tau=10.0, tau_factor=50.0,
+                            converged=False, acceptance=0.2)
+    cal = SimpleNamespace(n_walkers=20, importance_=None, nested_=run,
+                          log_posterior_=SimpleNamespace(simulated_steps=3e9))
+    post = SimpleNamespace(calibration=cal, report=rep, internal=z, names=("a", "b"), burn=200,
+                           interval_drift=lambda: {"largest": 0.3, "parameter": "a"})
+    row = _method_row(post, 1e9, 12.0, 7.0)
+    assert row["sampler"] == "ensemble" and not row["converged"]
+    assert row["effective_points"] == 800 * 20 / 100.0
+    assert row["effective_points_per_billion_steps"] == row["effective_points"] / 2.0
+    nested = row["stages"]["nested"]
+    assert nested["likelihood_calls"] == 5000 and nested["finished"] is False
+    assert nested["points"] == 200 and abs(nested["effective_points"] - 200) < 1e-9
+    assert "importance" not in row["stages"]

@@ -18,7 +18,9 @@ started at the truth, calibrated as ``tvcid discover``'s set stage calibrates a 
 * ``reference``: the chain run to ``R`` steps whatever its convergence test says.
 
 Per method the row holds what the member's report would print (the 90 % intervals in the
-sampling coordinates, log for log-uniform priors), what the sampler's own diagnostic says
+sampling coordinates, log for log-uniform priors), what each stage before the chain gave (the
+importance rounds' and the nested run's points, effective points, Pareto ``k``; the nested run's
+likelihood calls, whether it finished, its evidence), what the sampler's own diagnostic says
 (converged; effective points: a chain's kept steps times its walkers over its largest
 autocorrelation time, an importance or nested run's Kish number), the kernel steps and CPU
 seconds of the sampling (the start's apart), and, against the reference, each interval's
@@ -90,12 +92,23 @@ def _method_row(post, start_steps, cpu, wall) -> dict:
         tau = float(np.max(rep.tau)) if np.all(np.isfinite(rep.tau)) else math.inf
         ess = float((rep.iterations - post.burn) * cal.n_walkers / tau) if tau > 0 else 0.0
     steps = float(cal.log_posterior_.simulated_steps) - float(start_steps)
+    stages = {}
+    for name, run in (("importance", getattr(cal, "importance_", None)),
+                      ("nested", getattr(cal, "nested_", None))):
+        if run is not None:  # what each stage before the chain gave, whatever followed it
+            k = run.pareto_k
+            stages[name] = {"points": run.n, "effective_points": run.ess,
+                            "pareto_k": k if math.isfinite(k) else None,
+                            **({"likelihood_calls": run.n_like, "finished": run.finished,
+                                "log_z": run.log_z, "log_z_se": run.log_z_se}
+                               if name == "nested" else {})}
     return {
         "sampler": method, "converged": bool(rep.converged), "report": rep.to_dict(),
         "intervals": {n: [float(a), float(b)] for n, a, b in zip(post.names, q05, q95)},
         "effective_points": ess, "sampling_steps": steps, "start_steps": float(start_steps),
         "effective_points_per_billion_steps": ess / steps * 1e9 if steps > 0 else None,
         "cpu_seconds": cpu, "wall_seconds": wall, "interval_drift": post.interval_drift(),
+        "stages": stages,
     }
 
 
