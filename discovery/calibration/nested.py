@@ -23,6 +23,7 @@ the spread of the likelihood within each shell.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -159,15 +160,13 @@ class NestedReport(ImportanceReport):
 
     @classmethod
     def of(cls, run: NestedRun, target_ess, new_points=0, wall_time=0.0):
-        ess, k = run.ess, run.pareto_k
-        return cls(iterations=run.n,
-                   tau=(float(run.n / ess) if ess > 0 else math.inf,) * run.points.shape[1],
-                   n_over_tau=float(ess), tau_factor=float(target_ess),
-                   converged=run.reliable(target_ess),
-                   acceptance=float(ess / run.n) if run.n else 0.0,
-                   new_steps=int(new_points), wall_time=float(wall_time),
-                   pareto_k=float(k) if math.isfinite(k) else 1e9, rounds=1,
-                   log_z=float(run.log_z), log_z_se=float(run.log_z_se), n_like=int(run.n_like))
+        """:meth:`.importance.ImportanceReport.of`'s diagnostics, converged only where the run
+        also finished, with the evidence."""
+        base = ImportanceReport.of(run, target_ess, new_points, wall_time)
+        fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
+        return cls(**{**fields, "converged": run.reliable(target_ess), "method": "nested",
+                      "log_z": float(run.log_z), "log_z_se": float(run.log_z_se),
+                      "n_like": int(run.n_like)})
 
 
 def nested_sample(log_prior, log_lik, temperature, reference, n_live, target_ess, seed,
