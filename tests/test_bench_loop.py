@@ -126,3 +126,40 @@ def test_round_zero_is_taken_from_a_set_coverage_run_once(tmp_path):
     (run / "discovery.json").write_text('{"rounds": 1}')
     assert not reuse_round_zero(tmp_path / "setcov", 1000, draw, run)
     assert (run / "discovery.json").read_text() == '{"rounds": 1}'
+
+
+def _round(k, truth_in=True, closed=False, can=True, ratio=None, resumed=False):
+    row = {"round": k, "truth_in_set": truth_in, "closed": closed, "set_size": 1 if closed else 3,
+           "ceiling_size": 2, "menu_can_decide": can, "resumed": resumed}
+    if k:
+        ratios = {key: (None if resumed else ratio)
+                  for key in ("kernel_steps", "cpu_seconds", "wall_seconds")}
+        row["fresh"] = {"add_over_fresh": ratios}
+    return row
+
+
+def test_the_loops_goals_count_every_round_the_decidable_menus_and_the_adds_in_one_piece():
+    """Ten draws: the truth kept at every round in 9 (one lost at round 1); the menu can decide in
+    8, of which 7 close; the --add ratios of the rounds run in one piece (a resumed one left out)
+    give the median and the largest. Each goal is judged on its own count; under ten draws none
+    is judged."""
+    from tvcid.studies.benchmarks.loop import loop_goals, summarise
+
+    rows = []
+    for i in range(10):
+        can = i < 8
+        closed = can and i != 0
+        rounds = [_round(0, can=can), _round(1, truth_in=(i != 9), ratio=0.2 + 0.01 * i),
+                  _round(2, closed=closed, ratio=0.25, resumed=(i == 3))]
+        rows.append({"seed": i, "rounds": rounds})
+    table = summarise(rows + [{"seed": 10, "error": "boom"}])
+    assert table["truth_in_set_every_round"] == 9
+    assert (table["menu_can_decide"], table["closed_where_menu_can_decide"]) == (8, 7)
+    steps = table["add_over_fresh"]["kernel_steps"]
+    assert steps["adds"] == 19 and steps["max"] == pytest.approx(0.29)
+    assert steps["median"] == pytest.approx(0.25)
+    goals = {g.what.split(" (")[0].split(",")[0]: g for g in loop_goals(table, 10)}
+    assert not goals["truth in the set at every round"].met
+    assert goals["set closed after at most 2 rounds"].met  # 7 of 8 >= 80 %
+    assert goals["an --add's kernel steps over a fresh run's on the same recordings"].met
+    assert not any(g.met for g in loop_goals(summarise(rows[:9]), 9))

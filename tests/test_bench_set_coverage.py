@@ -37,13 +37,15 @@ def _summary(quantities, converged=(True,), in_set=()):
             "set_posterior": {"quantities": quantities, "members": members}}
 
 
-def _printed(truth, hit=True):
-    """Every quantity of ``truth`` printed pinned, its interval +-10 % around the truth (``hit``)
-    or 20-40 % above it; the components it lacks printed absent (``hit``) or present."""
+def _printed(truth, hit=True, at=0.0):
+    """Every quantity of ``truth`` printed pinned, its interval 20 % of the truth wide with the
+    truth ``at`` half-widths above its median (``hit``) or 20-40 % above the truth; the
+    components it lacks printed absent (``hit``) or present."""
     out = {}
     for name, v in truth_quantities(truth).items():
         a = abs(v)
-        out[name] = _q(v - 0.1 * a, v + 0.1 * a, mid=v, step=1e-3 * a) if hit else \
+        mid = v - at * 0.1 * a
+        out[name] = _q(mid - 0.1 * a, mid + 0.1 * a, mid=mid, step=1e-3 * a) if hit else \
             _q(v + 0.2 * a, v + 0.4 * a, mid=v + 0.3 * a, step=1e-3 * a)
     if not hit:
         for name in ("backlash", "friction_offset", "bandpass_gain"):
@@ -355,16 +357,17 @@ def _mixed_rows(misses_per_truth):
     for i in range(30):
         truth = M000() if i % 2 else M002()
         hit = i // 2 >= misses_per_truth
-        rows.append(_row(truth, _printed(truth, hit=hit), seed=1000 + i,
+        rows.append(_row(truth, _printed(truth, hit=hit, at=0.4), seed=1000 + i,
                          converged=(True,) if i % 3 else (True, False)))
     return rows
 
 
 def test_over_thirty_draws_every_printed_quantity_meets_its_band_and_full_coverage_does_not():
     """2 misses in each truth's 15 draws: 13 of 15 for each dead-zone place and the threshold,
-    26 of 30 for the shared quantities, no narrower interval: every goal met. With no miss, 100 %
-    is above the band: coverage bought by width fails. The same shares over 29 draws judge
-    nothing."""
+    26 of 30 for the shared quantities, the covered truths 0.4 half-widths from their medians, no
+    narrower interval: every goal met. With no miss, 100 % is above the band: coverage bought by
+    width fails; with every truth at its median, so does the position's goal. The same shares
+    over 29 draws judge nothing."""
     rows = _mixed_rows(2)
     table = summarise(rows)
     assert table["draws"] == 30 and table["quantities"]["dead_zone[velocity]"]["draws"] == 15
@@ -375,10 +378,15 @@ def test_over_thirty_draws_every_printed_quantity_meets_its_band_and_full_covera
         "absent": {"covered": 13, "draws": 15, "cannot_fail": 0},
         "lacking": {"covered": 0, "draws": 0, "cannot_fail": 0}}
     goals = coverage_goals(table)
-    assert len(goals) == len(GOAL_QUANTITIES) + 1 and all(g.met for g in goals)
+    assert len(goals) == len(GOAL_QUANTITIES) + 2 and all(g.met for g in goals)
+    assert table["position"]["median_abs"] == pytest.approx(0.4)
     assert not any(g.met for g in coverage_goals(summarise(rows[:-1])))
     goals = coverage_goals(summarise(_mixed_rows(0)))
-    assert not any(g.met for g in goals[:-1]) and goals[-1].met
+    assert not any(g.met for g in goals[:len(GOAL_QUANTITIES)]) and all(g.met for g in goals[-2:])
+    at_median = [_row(r_truth, _printed(r_truth), seed=s)
+                 for s, r_truth in enumerate([M000(), M002()] * 15)]
+    position_goal = coverage_goals(summarise(at_median))[-2]
+    assert position_goal.what.startswith("the truths' median distance") and not position_goal.met
 
 
 def test_the_table_counts_chains_stopped_at_the_cap_apart_and_old_or_failed_rows_apart():
@@ -417,6 +425,9 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     rows = [{**_row(truth, printed, seed=s, converged=(True, True), in_set=["x"]), "commit": "aaa"}
             for s in (1000, 1001)]
     rows[1]["judged_commit"] = "bbb"
+    rows[0]["cost"] = {"kernel_steps": 4e9, "cpu_seconds": 900.0, "wall_seconds": 600.0}
+    rows[1].update(cost={"kernel_steps": 9e9, "cpu_seconds": 2000.0, "wall_seconds": 1300.0},
+                   chains_carried_over=True)
     old = {"seed": 1003, "structure": "s", "truth_in_set": True, "members": ["s"],
            "converged": True, "quantities": {"delay": {"truth": 1.0, "inside": True}}}
     text = set_coverage({"bench_set_coverage": {
@@ -430,7 +441,10 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     assert ("judgements that cannot fail, apart from the goals: 0 (a truth of 0 against \"present "
             "or absent\" 0, a truth inside the prior against a range open at both ends 0); misses "
             "whose truth lies beyond the prior's bound an open end stands for: none") in text
-    assert text.count("NOT met") == len(GOAL_QUANTITIES) + 1
+    assert text.count("NOT met") == len(GOAL_QUANTITIES) + 2
+    # a draw resumed from an earlier run's directory counts only its last run: left out
+    assert ("cost of a draw run in one piece (1 draws), median [largest]: 4e+09 [4e+09] kernel "
+            "steps, 900 [900] CPU s, 600 [600] wall s") in text
     assert "draws whose every chain converged: 2 (dead_zone[error] 2 of 2 covered" in text
     assert "draws with a chain stopped at its cap: 0;" in text
     assert "truth inside the range the recordings allow: backlash 2 of 2" in text

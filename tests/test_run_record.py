@@ -36,6 +36,20 @@ def test_a_record_survives_its_json_round_trip_and_a_next_test_of_none_stays_nam
     assert not RunRecord.from_dict({"structures": [ROW]}).next_test_named
 
 
+def test_a_runs_totals_count_each_stage_once():
+    """The whole run's cost is the search (its ``discovery`` entry where the ledger has one, else
+    its stages' sum), the set's calibration and the next test; a stage's parts are left out."""
+    cost = RunCost(wall={"sindy": 1.0, "global": 5.0, "global_open_loop_stage": 2.0,
+                         "ranking": 1.5, "discovery": 8.0, "total": 8.0, "mcmc": 20.0,
+                         "next_test": 3.0},
+                   simulated_steps={"global": 1e9, "nested": 2e8, "ranking": 1e8, "mcmc": 3e9,
+                                    "mcmc_start": 5e8, "mcmc_evidence": 1e8, "next_test": 4e8})
+    totals = cost.totals()
+    assert totals["wall_seconds"] == 8.0 + 20.0 + 3.0
+    assert totals["kernel_steps"] == 1e9 + 2e8 + 1e8 + 3e9 + 4e8
+    assert totals["cpu_seconds"] == 0.0 and totals["simulated_seconds"] == 0.0
+
+
 @pytest.mark.parametrize("content, message", [
     ([], r"^not a discovery\.json \(no 'structures'\)$"),
     ({"format": 2}, r"^not a discovery\.json \(no 'structures'\)$"),

@@ -18,6 +18,10 @@ DISCOVERY_FORMAT = 2
 #: The JSON key of each of :class:`RunCost`'s ledgers.
 _COST_KEYS = {"wall": "timings", "cpu": "cpu_seconds", "simulated_seconds": "simulated_seconds",
               "simulated_steps": "simulated_steps"}
+#: The structure search's stages, summed by the ledgers' ``discovery`` entry where it has one.
+_SEARCH_STAGES = ("sindy", "global", "nested", "ranking")
+#: The stages after the search: the set's calibration and the next test.
+_AFTER_SEARCH = ("mcmc", "next_test")
 
 
 @dataclass
@@ -47,6 +51,20 @@ class RunCost:
                             ("simulated_steps", simulated_steps)):
             if value is not None:
                 getattr(self, name)[stage] = float(value)
+
+    def totals(self) -> dict:
+        """The whole run's ``wall_seconds``, ``cpu_seconds``, ``simulated_seconds`` and
+        ``kernel_steps``: the search (its ``discovery`` entry, else the sum of its stages) plus
+        the set's calibration and the next test; parts of a stage (``mcmc_start``,
+        ``global_open_loop_stage``) are not counted twice."""
+        out = {}
+        for name, key in (("wall", "wall_seconds"), ("cpu", "cpu_seconds"),
+                          ("simulated_seconds", "simulated_seconds"),
+                          ("simulated_steps", "kernel_steps")):
+            ledger = getattr(self, name)
+            search = ledger.get("discovery", sum(ledger.get(k, 0.0) for k in _SEARCH_STAGES))
+            out[key] = float(search + sum(ledger.get(k, 0.0) for k in _AFTER_SEARCH))
+        return out
 
     def to_dict(self) -> dict:
         """The ledgers under their ``discovery.json`` keys."""

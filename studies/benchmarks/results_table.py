@@ -306,6 +306,13 @@ def set_coverage(records):
         split += (f"; truth's median distance from the median in half-widths of its interval "
                   f"{p['median_abs']:.2f} over {p['intervals']} intervals "
                   f"({p['gaussian_median_abs']:.2f} for calibrated Gaussian intervals)")
+    cost = table["cost"]
+    if cost["draws"]:
+        split += (f"; cost of a draw run in one piece ({cost['draws']} draws), median [largest]: "
+                  f"{cost['kernel_steps']['median']:.3g} [{cost['kernel_steps']['max']:.3g}] "
+                  f"kernel steps, {cost['cpu_seconds']['median']:.0f} "
+                  f"[{cost['cpu_seconds']['max']:.0f}] CPU s, {cost['wall_seconds']['median']:.0f} "
+                  f"[{cost['wall_seconds']['max']:.0f}] wall s")
     old = (f", {table['old_layout']} of an earlier layout, not counted"
            if table["old_layout"] else "")
     commits = "; ".join(f"rows {how} at " + ", ".join(f"`{c}` ({n})" for c, n in counts.items())

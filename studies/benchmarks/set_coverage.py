@@ -36,9 +36,11 @@ two, while the median distance of every truth from its median, against the 0.41 
 Gaussian intervals, says at any count whether the intervals are too wide or too narrow.
 
 Goals, over at least 30 finished draws: for each printed quantity, the truth covered in 80-97 %
-of the draws whose judgement of it can fail; no printed interval narrower than twice its step
-error. The chains' convergence is reported, not a goal: the draws with a chain stopped at its cap are counted apart
-(``by_chains``), not left out. Rows are written to ``DIR/bench.json`` as each draw ends (a rerun
+of the draws whose judgement of it can fail; the truths' median distance from their interval's
+median 0.3-0.5 half-widths (coverage not bought by width); no printed interval narrower than
+twice its step error. The chains' convergence is reported, not a goal: the draws with a chain
+stopped at its cap are counted apart (``by_chains``), not left out. Each row records what its
+run cost (kernel steps, CPU and wall seconds, ``cost``). Rows are written to ``DIR/bench.json`` as each draw ends (a rerun
 resumes; rows of an earlier layout, judged on the interval alone, are run again, and rows judged
 without ``can_fail`` are judged again from the row); each names the commit that sampled its
 chains (``commit``) and, where different, the one that judged it (``judged_commit``).
@@ -64,6 +66,7 @@ import numpy as np
 
 from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
 from tvcid.models.strict_json import write_json
+from tvcid.run_record import RunCost
 
 from ..common import code_commit
 from .draws import add_draw_options, run_benchmark
@@ -82,6 +85,9 @@ GOAL_BAND = (0.80, 0.97)
 GOAL_QUANTITIES = tuple(QUANTITY_UNITS)
 #: Draws at least, for the goals to be judged.
 MIN_DRAWS = 30
+#: The band the truths' median position in their intervals must fall in (calibrated Gaussian
+#: intervals give :data:`GAUSSIAN_MEDIAN_POSITION`, 0.41): coverage not bought by width.
+POSITION_BAND = (0.3, 0.5)
 
 
 def truth_quantities(truth) -> dict:
@@ -134,6 +140,7 @@ def run_draw(seed, out_dir, quick, ranges="wide") -> dict:
     row = coverage_row(seed, scenario.truth, scenario.structure, summary)
     row.update(design=scenario.to_dict(), chains_carried_over=carried, seconds_data=t_data,
                seconds_discover=time.perf_counter() - t0,
+               cost=RunCost.from_dict(summary).totals(),
                seconds_by_stage={k: round(float(v), 1) for k, v in summary["timings"].items()
                                  if isinstance(v, (int, float))})
     return row
@@ -259,8 +266,11 @@ def summarise(rows) -> dict:
         ``intervals`` judged on the interval rule, the ``median_abs`` of
         :func:`truth_position` and the share ``within_half`` (``|position| < 0.5``), beside
         ``gaussian_median_abs`` (:data:`GAUSSIAN_MEDIAN_POSITION`; the quantities of one draw
-        share its fit, so the intervals are not independent); ``converged``, ``truth_in_set``,
-        ``cycles_only`` (``draws`` and their ``converged``).
+        share its fit, so the intervals are not independent); ``cost``: over the ``draws`` run
+        in one piece (a draw resumed from an earlier run's directory counts only what its last
+        run did), the ``median``, ``max`` and ``sum`` of the whole run's ``kernel_steps``,
+        ``cpu_seconds`` and ``wall_seconds`` (:meth:`tvcid.run_record.RunCost.totals`);
+        ``converged``, ``truth_in_set``, ``cycles_only`` (``draws`` and their ``converged``).
     """
     finished = [r for r in rows if "error" not in r]
     done = [r for r in finished if of_this_layout(r) and judged_by_these_rules(r)]
@@ -306,12 +316,18 @@ def summarise(rows) -> dict:
                 "within_half": float(np.mean(positions < 0.5)) if positions.size else None,
                 "gaussian_median_abs": GAUSSIAN_MEDIAN_POSITION}
     only = [r for r in done if cycles_only(r)]
+    fresh = [r["cost"] for r in done if r.get("cost") and not r.get("chains_carried_over")]
+    cost = {"draws": len(fresh), **{
+        key: {"median": float(np.median(v)), "max": float(np.max(v)), "sum": float(np.sum(v))}
+        for key in ("kernel_steps", "cpu_seconds", "wall_seconds")
+        for v in [[c[key] for c in fresh]] if v}}
     commits = {"sampled": _count(r.get("commit") for r in done),
                "judged": _count(r.get("judged_commit", r.get("commit")) for r in done)}
     return {"draws": len(done), "failed": len(rows) - len(finished),
             "old_layout": len(finished) - len(done), "commits": commits, "quantities": quantities,
             "cannot_fail": cannot_fail, "beyond_prior": beyond,
             "by_chains": by_chains, "allowed": allowed, "step": step, "position": position,
+            "cost": cost,
             "converged": sum(r["converged"] for r in done),
             "truth_in_set": sum(r["truth_in_set"] for r in done),
             "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)}}
@@ -334,6 +350,14 @@ def coverage_goals(table) -> list:
                           shown=f"{k} of {m}" + (f" = {share:.0%}" if share is not None else "")
                           + (f" ({apart} apart)" if apart else ""),
                           target=f"{lo:.0%} to {hi:.0%} over >= {MIN_DRAWS} draws"))
+    p = table["position"]
+    lo, hi = POSITION_BAND
+    goals.append(Goal("the truths' median distance from their interval's median, in half-widths",
+                      p["median_abs"] if enough else None, low=lo, high=hi, fmt="{:.2f}",
+                      shown=f"{p['median_abs']:.2f} over {p['intervals']} intervals"
+                      if p["median_abs"] is not None else "no interval",
+                      target=f"{lo} to {hi} over >= {MIN_DRAWS} draws "
+                             f"({GAUSSIAN_MEDIAN_POSITION:.2f} for calibrated intervals)"))
     s = table["step"]
     goals.append(Goal("printed intervals narrower than twice their step error",
                       s["narrower"] if enough else None, high=0, fmt="{:d}",
@@ -397,6 +421,12 @@ def print_table(table) -> None:
         print(f"  truth's position in its interval (|truth - median| over the half-width on its "
               f"side): median {p['median_abs']:.2f} over {p['intervals']} intervals "
               f"({p['gaussian_median_abs']:.2f} for calibrated Gaussian intervals)")
+    c = table["cost"]
+    if c["draws"]:
+        print(f"  cost of a draw run in one piece ({c['draws']} draws), median [max]: "
+              f"{c['kernel_steps']['median']:.3g} [{c['kernel_steps']['max']:.3g}] kernel steps, "
+              f"{c['cpu_seconds']['median']:.0f} [{c['cpu_seconds']['max']:.0f}] CPU s, "
+              f"{c['wall_seconds']['median']:.0f} [{c['wall_seconds']['max']:.0f}] wall s")
     s = table["step"]
     print(f"  printed intervals narrower than twice the step error: {s['narrower']} of "
           f"{s['intervals']} ({s['widened']} widened, {s['without_step_error']} without a step error)")
