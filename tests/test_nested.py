@@ -129,3 +129,27 @@ def test_a_run_that_found_no_posterior_point_is_unreliable_not_an_error(tmp_path
     report = NestedReport.of(run, 100, calls)
     assert run.n == 0 and run.ess == 0.0 and not run.reliable(100)
     assert not report.converged and report.n_over_tau == 0.0
+
+
+def test_the_stage_samples_over_the_starts_laplace_else_its_bounded_curvature_else_its_ball():
+    """The reference is the Laplace approximation where the chain's move took it; where the
+    move refused it, the curvature held to the walkers' starting ball (``importance_cov``);
+    where the Hessian was not finite (no ``importance_cov``), the ball itself. Each is widened
+    by the reference's scale; a stage switched off is not usable."""
+    from tvcid.discovery.calibration.nested import REFERENCE_SCALE
+    from tvcid.discovery.calibration.nested_stage import NestedStage
+
+    laplace, bounded, ball = np.diag([1.0, 4.0]), np.diag([9.0, 16.0]), np.diag([25.0, 36.0])
+    stage = NestedStage()
+    stage.nested, stage.laplace_ = 50, {"mean": [0.0, 1.0], "cov": laplace.tolist()}
+    cases = [({}, laplace), ({"share": 0.0, "importance_cov": bounded.tolist(),
+                              "cov": ball.tolist()}, bounded),
+             ({"share": 0.0, "cov": ball.tolist()}, ball)]
+    for update, expected in cases:
+        stage.laplace_ = {"mean": [0.0, 1.0], "cov": laplace.tolist(), **update}
+        assert stage._nested_usable()
+        ref = stage._nested_reference()
+        assert np.allclose(ref.chol @ ref.chol.T, expected * REFERENCE_SCALE**2)
+        assert np.allclose(ref.mean, [0.0, 1.0])
+    stage.nested = 0
+    assert not stage._nested_usable()

@@ -218,8 +218,9 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, 
     nested : int
         Live points of the nested-sampling stage (:mod:`.nested_stage`); 0 (default) switches
         it off. When on, where the importance stage's ratios are not reliable (or there is no
-        importance stage), nested sampling over the start's Laplace approximation, widened
-        (:mod:`.nested`), comes before any chain; where the run
+        importance stage), nested sampling over the start's proposal, widened (its Laplace
+        approximation, else the curvature held to the walkers' starting ball, else the ball;
+        :mod:`.nested_stage`), comes before any chain; where the run
         is reliable (finished, Pareto ``k`` < 0.7, ``NESTED_TARGET_ESS`` effective points) it is
         the posterior (``posterior_.importance`` the run, ``report_`` a
         :class:`.nested.NestedReport` with the evidence), else the chain starts from its

@@ -5,7 +5,8 @@ A part of :class:`tvcid.discovery.calibration.calibration.Calibration` (as
 :class:`.importance_stage.ImportanceStage` is): it reads ``nested`` (live points; 0 switches the
 stage off), ``laplace_``, ``log_posterior_``, ``terms_``, ``seed`` and ``backend``, and sets
 ``nested_``. The reference is the start's Laplace approximation, widened by
-:data:`.nested.REFERENCE_SCALE`. Where the run is reliable (:meth:`.nested.NestedRun.reliable`)
+:data:`.nested.REFERENCE_SCALE`; where the start has none, the curvature held to the walkers'
+starting ball (the importance stage's first proposal), else that ball itself. Where the run is reliable (:meth:`.nested.NestedRun.reliable`)
 it is the posterior; elsewhere the chain starts from its points.
 """
 from __future__ import annotations
@@ -30,18 +31,20 @@ class NestedStage:
     """Nested sampling of a calibration's posterior (:mod:`.nested`)."""
 
     def _nested_usable(self) -> bool:
-        """The stage is on and the start has a Laplace approximation to sample over (as
-        :meth:`.importance_stage.ImportanceStage._importance_usable` asks)."""
-        info = getattr(self, "laplace_", None)
-        return bool(getattr(self, "nested", 0)) and bool(info) \
-            and (float(info.get("share", 1.0)) > 0.0 or "importance_cov" in info)
+        """The stage is on and the start has set its proposal (``laplace_``)."""
+        return bool(getattr(self, "nested", 0)) and bool(getattr(self, "laplace_", None))
 
     def _nested_reference(self) -> AxisReference:
-        """The start's Laplace approximation, widened by :data:`.nested.REFERENCE_SCALE` (the
-        stage runs where the importance rounds failed, whose fitted t rests on a few heavy
-        points)."""
+        """The start's proposal widened by :data:`.nested.REFERENCE_SCALE` (the stage runs
+        where the importance rounds failed, whose fitted t rests on a few heavy points): its
+        Laplace approximation; where the chain's move refused one, the curvature held to the
+        walkers' starting ball (``importance_cov``); where the Hessian was not finite, the
+        ball itself (the move's idle ``cov``)."""
         info = self.laplace_
-        cov = info["cov"] if float(info.get("share", 1.0)) > 0.0 else info["importance_cov"]
+        if float(info.get("share", 1.0)) > 0.0 or "importance_cov" not in info:
+            cov = info["cov"]
+        else:
+            cov = info["importance_cov"]
         return AxisReference.from_laplace(info["mean"], cov, REFERENCE_SCALE)
 
     def _nested_path(self):

@@ -13,8 +13,8 @@ started at the truth, calibrated as ``tvcid discover``'s set stage calibrates a 
 
 * ``default``: the importance rounds, then the chain to its 2,000-step cap;
 * ``nested``: the importance rounds, then nested sampling with ``L`` live points over the
-  start's widened Laplace approximation (:mod:`tvcid.discovery.calibration.nested`), then the
-  chain where its diagnostics fail;
+  start's widened proposal (:mod:`tvcid.discovery.calibration.nested_stage`), then the chain
+  where its diagnostics fail;
 * ``reference``: the chain run to ``R`` steps whatever its convergence test says.
 
 Per method the row holds what the member's report would print (the 90 % intervals in the
