@@ -70,3 +70,36 @@ def test_a_methods_row_keeps_what_the_nested_stage_gave_though_a_chain_followed(
     assert nested["likelihood_calls"] == 5000 and nested["finished"] is False
     assert nested["points"] == 200 and abs(nested["effective_points"] - 200) < 1e-9
     assert "importance" not in row["stages"]
+
+
+def test_the_claim_names_each_methods_cost_and_move():
+    """docs/results.md's row: per draw each method's sampler, diagnostic, effective points, CPU
+    seconds and largest move; a method that ran nested sampling before its chain says so; a
+    draw over 600 CPU s misses its goal, as does a resumed one, whose cost is not whole; a miss
+    its diagnostic passed fails the second goal."""
+    from tvcid.studies.benchmarks.results_table import cycles_posterior
+
+    def method(cpu, move, converged, nested=None):
+        return {"sampler": "ensemble", "converged": converged, "effective_points": 40.0,
+                "cpu_seconds": cpu, "largest_move": move, "within_goal": move <= GOAL_SHARE,
+                "effective_points_per_billion_steps": 5.0,
+                "stages": {"nested": nested} if nested else {}}
+
+    nested = {"likelihood_calls": 40000, "finished": False, "effective_points": 3.2}
+    row = {"seed": 9003, "structure": "s", "reference_steps": 10000, "methods": {
+        "default": method(1500.0, 0.1, False), "nested": method(500.0, 0.3, True, nested),
+        "reference": {"cpu_seconds": 7000.0, "interval_drift": {"largest": 0.08}}}}
+    text = cycles_posterior({"bench_cycles_posterior": {"rows": [row]}})
+    assert text.startswith("1 draws; goal default: 90 % intervals within 0.2 of the reference's "
+                           "width in <= 600 CPU s: 0 of 1")
+    assert ("draw 9003 (s): default ensemble, not converged, 40 effective points, 1500 CPU s, "
+            "largest move 0.10; nested ensemble after nested sampling of 40000 calls "
+            "(unfinished, 3 effective points), converged") in text
+    assert "reference 10000 steps (7000 CPU s), its halves' largest drift 0.08" in text
+    assert "nested: draws off the reference that its diagnostic passed: 1" in text
+    assert text.count("NOT met") == 3
+    # a run resumed from its checkpoint counts only its last call: not judged in time
+    row["methods"]["default"] = {**method(300.0, 0.1, True), "resumed": True}
+    text = cycles_posterior({"bench_cycles_posterior": {"rows": [row]}})
+    assert "default ensemble, converged, 40 effective points, resumed, its cost not whole" in text
+    assert "width in <= 600 CPU s: 0 of 1" in text

@@ -22,10 +22,17 @@ sampling coordinates, log for log-uniform priors), what each stage before the ch
 importance rounds' and the nested run's points, effective points, Pareto ``k``; the nested run's
 likelihood calls, whether it finished, its evidence), what the sampler's own diagnostic says
 (converged; effective points: a chain's kept steps times its walkers over its largest
-autocorrelation time, an importance or nested run's Kish number), the kernel steps and CPU
-seconds of the sampling (the start's apart), and, against the reference, each interval's
-largest end move over the reference's width (the issue's goal: at most 0.2). The reference's
-own halves say how far it is itself from converged (``interval_drift``).
+autocorrelation time, an importance or nested run's Kish number), the kernel steps of the
+sampling (the start's apart), the CPU seconds of the member's whole calibration (its start
+included; where a method resumed from its checkpoint, ``resumed`` and only its last call's
+cost), and, against the reference, each interval's
+largest end move over the reference's width. The reference's own halves say how far it is
+itself from converged (``interval_drift``).
+
+Goals, per method: in every draw, each interval end within 0.2 of the reference's width in at
+most 600 CPU seconds of the member's calibration (5 minutes of 2 cores; a resumed method is
+not judged in time); no draw off the reference while the method's own diagnostic says
+converged. The calibrations run with one BLAS thread, as ``tvcid discover``'s members do.
 
 ``DIR/bench.json`` (default ``results/bench_cycles_posterior``) holds the rows, resumed by seed,
 each with the commit of the code; each method's checkpoint lives under ``DIR/drawS/``, so a
@@ -44,6 +51,8 @@ from tvcid.models.strict_json import write_json
 
 from ..common import code_commit
 from .draws import finished_rows
+from .goals import Goal
+from .goals import report as goal_report
 from .scenarios import draw_design, draw_scenario, write_recordings
 
 OUT = Path("results/bench_cycles_posterior")
@@ -52,8 +61,10 @@ FIRST_SEED = 9000
 NESTED_LIVE = 1000
 #: Steps of the reference chain: five times the members' cap.
 REFERENCE_STEPS = 10_000
-#: The issue's goal: each end of a 90 % interval within this share of the reference's width.
+#: The goal: each end of a 90 % interval within this share of the reference's width...
 GOAL_SHARE = 0.2
+#: ... in at most this many CPU seconds of the member's calibration (5 minutes of 2 cores).
+GOAL_CPU_SECONDS = 600.0
 
 
 def cycles_only_seeds(first, n, ranges="wide"):
@@ -113,15 +124,21 @@ def _method_row(post, start_steps, cpu, wall) -> dict:
 
 
 def calibrate(scenario, recordings, backend, **options) -> dict:
-    """One method's row: the member of the truth's structure calibrated with ``options``."""
+    """One method's row: the member of the truth's structure calibrated with ``options``, with
+    one BLAS thread as ``tvcid discover`` calibrates a member; ``resumed`` where a checkpoint
+    of it was there (its kernel steps and CPU seconds are then only this call's)."""
     from tvcid.discovery.members.member_calibration import calibrate_member
+    from tvcid.discovery.threads import one_blas_thread
 
+    backend = Path(backend)
+    resumed = backend.exists() or backend.with_name(backend.stem + "-nested.h5").exists()
     structure = scenario.structure
     c0, w0 = time.process_time(), time.perf_counter()
-    post, _, simulated = calibrate_member(scenario.truth, structure, recordings,
-                                          seed=scenario.seed, backend=backend, **options)
-    return _method_row(post, simulated["start_steps"], time.process_time() - c0,
-                       time.perf_counter() - w0)
+    with one_blas_thread():
+        post, _, simulated = calibrate_member(scenario.truth, structure, recordings,
+                                              seed=scenario.seed, backend=backend, **options)
+    return {**_method_row(post, simulated["start_steps"], time.process_time() - c0,
+                          time.perf_counter() - w0), "resumed": resumed}
 
 
 def measure_draw(seed, out_dir, nested=NESTED_LIVE, reference_steps=REFERENCE_STEPS) -> dict:
@@ -164,10 +181,30 @@ def summarise(rows) -> dict:
             "samplers": sorted({m["sampler"] for m in ms}),
             "median_effective_points_per_billion_steps": float(np.median(rate)) if rate else None,
             "median_cpu_seconds": float(np.median([m["cpu_seconds"] for m in ms])) if ms else None,
+            # a resumed run's cost is only its last call's: not judged in time
+            "within_goal_in_time": sum(m["within_goal"] and not m.get("resumed")
+                                       and m["cpu_seconds"] <= GOAL_CPU_SECONDS for m in ms),
+            "resumed": sum(bool(m.get("resumed")) for m in ms),
         }
     drift = [r["methods"]["reference"]["interval_drift"] for r in rows]
     out["reference_largest_drift"] = max((d["largest"] for d in drift if d), default=None)
     return out
+
+
+def cycles_goals(table) -> list:
+    """Per method: every draw's intervals within :data:`GOAL_SHARE` of the reference's width in
+    at most :data:`GOAL_CPU_SECONDS` of the member's calibration; no draw missing the goal
+    while its own diagnostic says converged."""
+    n = table["draws"]
+    goals = []
+    for name in ("default", "nested"):
+        m = table[name]
+        goals.append(Goal.count(
+            f"{name}: 90 % intervals within {GOAL_SHARE} of the reference's width in <= "
+            f"{GOAL_CPU_SECONDS:.0f} CPU s", m["within_goal_in_time"], n))
+        goals.append(Goal.at_most(f"{name}: draws off the reference that its diagnostic passed",
+                                  m["missed_and_unflagged"] if n else None, 0, fmt="{:d}"))
+    return goals
 
 
 def main(argv=None) -> int:
@@ -205,7 +242,7 @@ def main(argv=None) -> int:
     write_json(path, {"quick": False, "rows": rows, "table": table})
     for k, v in table.items():
         print(f"{k}: {v}")
-    return 0
+    return goal_report(cycles_goals(table))
 
 
 if __name__ == "__main__":

@@ -330,6 +330,41 @@ def set_coverage(records):
 _STEP_STAGES = ("global", "nested", "refit", "ranking", "mcmc", "next_test")
 
 
+def cycles_posterior(records):
+    """A member's posterior on limit cycles alone, per method against the reference chain: its
+    goals (:func:`.cycles_posterior.cycles_goals`), then per draw what each method gave, its
+    diagnostic, its cost and its largest move against the reference."""
+    from .cycles_posterior import cycles_goals, summarise
+
+    rows = records["bench_cycles_posterior"]["rows"]
+    table = summarise(rows)
+    draws = []
+    for r in rows:
+        parts = []
+        for name in ("default", "nested"):
+            m = r["methods"][name]
+            nested = m["stages"].get("nested")
+            ran = (f" after nested sampling of {nested['likelihood_calls']} calls "
+                   f"({'finished' if nested['finished'] else 'unfinished'}, "
+                   f"{nested['effective_points']:.0f} effective points)"
+                   if nested and m["sampler"] != "nested" else "")
+            cost = ("resumed, its cost not whole" if m.get("resumed") else
+                    f"{m['cpu_seconds']:.0f} CPU s")
+            parts.append(f"{name} {m['sampler']}{ran}, "
+                         f"{'converged' if m['converged'] else 'not converged'}, "
+                         f"{m['effective_points']:.0f} effective points, {cost}, "
+                         f"largest move {m['largest_move']:.2f}")
+        ref = r["methods"]["reference"]
+        drift = (ref.get("interval_drift") or {}).get("largest")
+        cost = ("resumed, its cost not whole" if ref.get("resumed") else
+                f"{ref['cpu_seconds']:.0f} CPU s")
+        parts.append(f"reference {r['reference_steps']} steps ({cost})"
+                     + (f", its halves' largest drift {drift:.2f}" if drift is not None else ""))
+        draws.append(f"draw {r['seed']} ({r['structure']}): " + "; ".join(parts))
+    return (f"{table['draws']} draws; " + _goals_text(cycles_goals(table)) + "; "
+            + "; ".join(draws))
+
+
 def discover_speed(records):
     """The whole ``tvcid discover`` on the speed benchmark's four recordings: its goal, judged in
     kernel-reference seconds measured in the same run, and where the time went; a run its idle
@@ -488,13 +523,23 @@ CLAIMS = (
     Claim("coverage of what `tvcid discover` prints (the combined 90 % interval where pinned, "
           "the range the recordings allow where not, present or absent), structure and linear "
           "block unknown, truths and designs drawn over the generator's ranges (goal 80-97 % for "
-          "every printed quantity over >= 30 draws, no printed interval narrower than twice its "
+          "every printed quantity over >= 30 draws, the truths' median distance from their "
+          "interval's median 0.3-0.5 half-widths, no printed interval narrower than twice its "
           "step error)",
           set_coverage, lambda r: r["bench_set_coverage"]["rows"],
           "python -m tvcid.studies.benchmarks.set_coverage --seed 3000 --draws 10 --jobs 2",
           "bench_set_coverage",
           "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
           "_under_thirty"),
+    Claim("a member's posterior on limit cycles alone (the truth's structure on drawn designs "
+          "without open-loop tests, data from the reference path read back as measured), the "
+          "default calibration and nested sampling against a reference chain five times the "
+          "cap (goal: every 90 % interval end within 0.2 of the reference's width in <= 600 CPU "
+          "s, no miss the method's own diagnostic passes)",
+          cycles_posterior, lambda r: r["bench_cycles_posterior"]["rows"],
+          "python -m tvcid.studies.benchmarks.cycles_posterior --draws 10",
+          "bench_cycles_posterior",
+          "tests/test_bench_cycles_posterior.py::test_the_claim_names_each_methods_cost_and_move"),
     Claim("`tvcid discover` on four M000 recordings (two 40 s limit cycles, two 10 s open-loop "
           "tests), the set's calibration included (goal 600 s on 2 cores)",
           discover_speed, lambda r: [r["bench_discover_speed"]],
