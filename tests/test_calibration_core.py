@@ -697,8 +697,9 @@ def test_laplace_move_waits_idle_on_a_ridge_the_prior_cuts():
 def test_importance_stage_gives_the_chains_posterior_and_resumes(tmp_path, short_record):
     """With the importance stage on, M002's two thresholds on a short cycle are sampled by
     adaptive importance sampling from the start's Laplace approximation: its diagnostic says
-    reliable, each 90 % interval's ends lie within 0.2 of its width of a converged chain's, and
-    reopening the checkpoint simulates nothing new. Measured: 400 points (two rounds, Pareto k
+    reliable, each 90 % interval's ends lie within 0.2 of its width of a converged chain's,
+    reopening the checkpoint simulates nothing new, and draws read back from the checkpoint
+    hold the run's intervals. Measured: 400 points (two rounds, Pareto k
     under 0), against a chain of 80 steps of 8 walkers; the ends within 0.07-0.10 of the
     width."""
     import warnings
@@ -718,6 +719,15 @@ def test_importance_stage_gives_the_chains_posterior_and_resumes(tmp_path, short
     again = _small(backend=tmp_path / "is.h5", max_steps=3000, importance=200).fit([short_record])
     assert again.report_.new_steps == 0
     np.testing.assert_array_equal(again.posterior_.samples, drawn.posterior_.samples)
+    # what reads a member's file (tvcid predict, the set's closure) draws from the adopted run
+    from tvcid.discovery.prediction.draws import load_chain_draws
+
+    read = load_chain_draws(tmp_path / "is.h5", n_draws=400, seed=5)
+    assert read.names == tuple(drawn.names_) and read.samples.shape == (400, len(read.names))
+    for j, name in enumerate(read.names):
+        lo, hi = drawn.posterior_.interval(name)
+        a, b = np.quantile(read.samples[:, j], (0.05, 0.95))
+        assert abs(a - lo) + abs(b - hi) < 0.2 * (hi - lo), (name, (a, b), (lo, hi))
 
 
 def test_interrupted_importance_stage_resumes_to_the_same_run(tmp_path, short_record,

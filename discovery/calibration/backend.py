@@ -10,13 +10,17 @@ from __future__ import annotations
 import errno
 import time
 
+import numpy as np
 from emcee.backends import HDFBackend
 
-__all__ = ["CheckpointBackend", "H5_GROUP"]
+__all__ = ["CheckpointBackend", "H5_GROUP", "read_weighted_posterior", "store_weighted_posterior"]
 
 #: The HDF5 group of a calibration's checkpoint that holds its own attributes beside emcee's chain
 #: (set-up, discrepancy factors, chosen transients, the Laplace proposal, ...).
 H5_GROUP = "tvcid"
+#: Its subgroup holding a posterior of weighted points (an importance or nested run adopted
+#: without a chain): ``points`` (sampling coordinates) and ``weights``.
+WEIGHTED_GROUP = "weighted_posterior"
 
 
 class CheckpointBackend(HDFBackend):
@@ -48,3 +52,26 @@ class CheckpointBackend(HDFBackend):
                     raise
                 time.sleep(delay)
                 delay = min(2 * delay, 0.2)
+
+
+def store_weighted_posterior(backend, points, weights) -> None:
+    """Keep an adopted run's weighted ``points`` (sampling coordinates) in the checkpoint of
+    ``backend`` (a :class:`CheckpointBackend`), where a chain would be: what reads a member's
+    posterior from its file (:func:`tvcid.discovery.prediction.draws.load_chain_draws`) needs
+    it when no chain follows."""
+    with backend.open("a") as f:
+        g = f.require_group(H5_GROUP)
+        if WEIGHTED_GROUP in g:
+            del g[WEIGHTED_GROUP]
+        w = g.create_group(WEIGHTED_GROUP)
+        w.create_dataset("points", data=np.asarray(points, dtype=float))
+        w.create_dataset("weights", data=np.asarray(weights, dtype=float))
+
+
+def read_weighted_posterior(f):
+    """``(points, weights)`` of an open checkpoint ``f`` (:func:`store_weighted_posterior`), or
+    ``None`` where it holds none."""
+    if H5_GROUP not in f or WEIGHTED_GROUP not in f[H5_GROUP]:
+        return None
+    g = f[H5_GROUP][WEIGHTED_GROUP]
+    return g["points"][()], g["weights"][()]

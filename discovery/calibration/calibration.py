@@ -26,7 +26,7 @@ from tvcid.models.hypotheses import hypothesis as get_hypothesis
 from tvcid.models.recording import load_recordings
 
 from ..threads import one_blas_thread
-from .backend import H5_GROUP, CheckpointBackend
+from .backend import H5_GROUP, CheckpointBackend, store_weighted_posterior
 from .importance import ImportanceReport
 from .importance_stage import IMPORTANCE_ROUNDS, IMPORTANCE_TARGET_ESS, ImportanceStage
 from .likelihood.features import DEFAULT_FEATURES, FeatureTerm
@@ -550,6 +550,15 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, 
             with backend.open("a") as f:
                 f.require_group(H5_GROUP).attrs["laplace"] = json.dumps(self.laplace_)
 
+    def _adopt(self, run, report, backend):
+        """A run of weighted points (importance or nested) as the posterior, no chain after it;
+        its points kept in the checkpoint where a chain would be. Returns ``self``."""
+        self.sampler_, self.report_ = None, report
+        self.posterior_ = Posterior.from_importance(self, run, report, seed=self.seed)
+        if backend is not None:
+            store_weighted_posterior(backend, run.points, run.weights)
+        return self
+
     def fit(self, recordings):
         """Sample (or resume) the posterior; returns ``self``.
 
@@ -596,10 +605,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, 
             report = ImportanceReport.of(self.importance_, IMPORTANCE_TARGET_ESS, new,
                                          time.perf_counter() - t0)
             if report.converged or self.importance_only:  # reliable, or all that is asked
-                self.sampler_, self.report_ = None, report
-                self.posterior_ = Posterior.from_importance(self, self.importance_, report,
-                                                            seed=self.seed)
-                return self
+                return self._adopt(self.importance_, report, backend)
             # the nested stage, when on, starts from the start's proposal, not the run's
             walkers = (None if self._nested_usable() else
                        self._walkers_from_importance(np.random.default_rng([int(self.seed), 17])))
@@ -612,10 +618,7 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, 
             report = NestedReport.of(self.nested_, NESTED_TARGET_ESS, new,
                                      time.perf_counter() - t0)
             if report.converged:
-                self.sampler_, self.report_ = None, report
-                self.posterior_ = Posterior.from_importance(self, self.nested_, report,
-                                                            seed=self.seed)
-                return self
+                return self._adopt(self.nested_, report, backend)
             walkers = self._walkers_from_nested(np.random.default_rng([int(self.seed), 23]))
             if walkers is not None:
                 initial = walkers

@@ -236,6 +236,14 @@ class StudentT:
                    float(d.get("dof", PROPOSAL_DOF)))
 
 
+def systematic_resample(weights, rng, n) -> np.ndarray:
+    """Indices of ``n`` points drawn by their normalised ``weights`` (systematic resampling, in
+    a random order)."""
+    u = (rng.uniform() + np.arange(n)) / n
+    idx = np.minimum(np.searchsorted(np.cumsum(weights), u), len(weights) - 1)
+    return rng.permutation(idx)
+
+
 class WeightedPoints:
     """What weighted points of a posterior give, whatever drew them: a class with ``points``
     ``(n, d)``, ``log_prior`` ``(n,)``, ``log_lik`` ``(n, r)`` (untempered, per recording),
@@ -274,12 +282,8 @@ class WeightedPoints:
         return pareto_k(self.log_weights)
 
     def resample(self, rng, n) -> np.ndarray:
-        """Indices of ``n`` points drawn by their weights (systematic resampling, in a random
-        order)."""
-        w = self.weights
-        u = (rng.uniform() + np.arange(n)) / n
-        idx = np.minimum(np.searchsorted(np.cumsum(w), u), self.n - 1)
-        return rng.permutation(idx)
+        """Indices of ``n`` points drawn by their weights (:func:`systematic_resample`)."""
+        return systematic_resample(self.weights, rng, n)
 
     def distinct(self, rng, n):
         """Indices of ``n`` distinct points drawn by their weights without replacement (the

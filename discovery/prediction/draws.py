@@ -148,8 +148,10 @@ def load_posterior_draws(directory, n_draws=200, seed=0) -> PosteriorDraws:
 
 def load_chain_draws(path, n_draws=200, seed=0) -> PosteriorDraws:
     """:func:`load_posterior_draws` from one chain file (a discover directory holds one per
-    member of its set)."""
-    from ..calibration.backend import CheckpointBackend
+    member of its set); where the calibration adopted an importance or nested run and ran no
+    chain, ``n_draws`` of its points resampled by their weights."""
+    from ..calibration.backend import CheckpointBackend, read_weighted_posterior
+    from ..calibration.importance import systematic_resample
 
     path = Path(path)
     if not path.is_file():
@@ -163,13 +165,19 @@ def load_chain_draws(path, n_draws=200, seed=0) -> PosteriorDraws:
                 raise NoPosteriorError(f"{path} is not a tvcid chain (no set-up stored in it)")
             config = json.loads(f["tvcid"].attrs["config"])
             fixed_sigma = f["tvcid"].attrs.get("sigma")
-        iterations = backend.iteration
+            weighted = read_weighted_posterior(f)
+            iterations = int(f["mcmc"].attrs["iteration"]) if "mcmc" in f else 0
     except OSError as exc:
         raise NoPosteriorError(f"{path} cannot be read as a chain ({exc})") from None
-    if iterations < 2:
+    rng = np.random.default_rng(seed)
+    if iterations >= 2:  # a chain (only ever run after any run adopted without one)
+        z = backend.get_chain(discard=_burn_in(backend, iterations), flat=True)
+        z = z[rng.choice(z.shape[0], size=n_draws, replace=z.shape[0] < n_draws)]
+    elif weighted is not None:  # an importance or nested run adopted as the posterior
+        points, weights = weighted
+        z = points[systematic_resample(weights, rng, n_draws)]
+    else:
         raise NoPosteriorError(f"{path} holds {iterations} steps: no posterior to draw from yet")
-    burn = _burn_in(backend, iterations)
-    z = backend.get_chain(discard=burn, flat=True)
     names = tuple(config["params"])
     priors = {}
     for n in names:
@@ -177,9 +185,6 @@ def load_chain_draws(path, n_draws=200, seed=0) -> PosteriorDraws:
         priors[n] = _PRIOR_KINDS[d["kind"]](d["low"], d["high"])
         if d.get("coordinate") == "linear":
             priors[n] = priors[n].in_linear_coordinate()
-    rng = np.random.default_rng(seed)
-    idx = rng.choice(z.shape[0], size=n_draws, replace=z.shape[0] < n_draws)
-    z = z[idx]
     x = np.column_stack([priors[n].to_natural(z[:, j]) for j, n in enumerate(names)])
     base_dict = dict(config["base"])
     base = params_from_dict(config["hypothesis"], base_dict)
