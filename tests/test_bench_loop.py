@@ -42,8 +42,9 @@ def test_quick_loop_on_one_cycle_adds_the_suggested_test_from_the_truth(tmp_path
     draw cut to its first limit cycle (its recording bundled), the search cut short and the dead
     zone's place and the friction given: one cycle leaves a set of several structures that parts
     on the menu, so a test is suggested; it is recorded from the truth by the reference path as
-    a measured recording and added to the run, which then holds both recordings. Every round's
-    closure verdict agrees with its parting list; the table is the rows' own; the goals are not
+    a measured recording and added to the run, which then holds both recordings, and a fresh
+    run on both gives the --add's cost ratio. Every round's closure verdict agrees with its
+    parting list; the table is the rows' own; the goals are not
     judged on one draw (exit status 1)."""
     import tvcid.discovery.structure.structure_search as structure_search
     import tvcid.studies.benchmarks.loop as loop
@@ -77,8 +78,15 @@ def test_quick_loop_on_one_cycle_adds_the_suggested_test_from_the_truth(tmp_path
     run = json.loads((tmp_path / "draw1000_loop" / "discovery.json").read_text())
     assert second["recordings"] == 2 and run["added"] == [str(new)]
     for r in row["rounds"]:
-        assert r["closed"] == (r["set_size"] == 1 or not r["parting"])
+        # closed: one calibrated member (the set's, and a richer one where calibrated), or
+        # members that part nowhere
+        assert r["closed"] == (len(r["calibrated"]) == 1 or not r["parting"])
         assert r["truth_in_set"] == (r["truth_member"] is not None)
+    # the --add beside a fresh run on the same recordings, both run in one piece
+    assert first["cost"]["kernel_steps"] > 0 and not second["resumed"]
+    fresh = second["fresh"]
+    assert fresh["cost"]["kernel_steps"] > 0 and fresh["add_over_fresh"]["kernel_steps"] > 0
+    assert fresh["truth_in_set"] in (True, False) and fresh["set"]
     table = bench["table"]["rounds"]
     assert [t["set_sizes"] for t in table] == [[first["set_size"]], [second["set_size"]]]
     assert table[1]["closed"] == int(second["closed"])
