@@ -60,7 +60,7 @@ def test_a_record_that_may_still_settle_enters_through_its_features(tmp_path):
     posteriori, with a warning that says why; a resumed chain uses the features again (from the
     checkpoint) and ends where an uninterrupted one does; with ``features_fallback=False`` it
     stays a waveform record. M002's record stays a waveform record without a warning."""
-    from tvcid.discovery.calibration.calibration import SETTLING_LOAD_LIMIT
+    from tvcid.discovery.calibration.record_choices import SETTLING_LOAD_LIMIT
 
     truth, rec = _settling_case(tmp_path)
     term = WaveformTerm(rec, 10.0, 6.0, 5e-4, name="draw22").setup(truth)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tvcid.discovery.calibration import Calibration
-from tvcid.discovery.calibration import calibration as calibration_module
+from tvcid.discovery.calibration import record_choices as calibration_module
 from tvcid.models import CONTROLLER_A, M002
 from tvcid.models.synthetic import synthetic_recording
 

@@ -29,19 +29,16 @@ from ..threads import one_blas_thread
 from .backend import H5_GROUP, CheckpointBackend, store_weighted_posterior
 from .importance import ImportanceReport
 from .importance_stage import IMPORTANCE_ROUNDS, IMPORTANCE_TARGET_ESS, ImportanceStage
-from .likelihood.features import DEFAULT_FEATURES, FeatureTerm
+from .likelihood.features import DEFAULT_FEATURES
 from .likelihood.registry import LIKELIHOODS, make_term
-from .likelihood.waveform import (
-    SETTLING_PERTURBATION,
-    IllPosedLikelihoodWarning,
-    WaveformTerm,
-)
+from .likelihood.waveform import IllPosedLikelihoodWarning, WaveformTerm
 from .log_posterior import LogPosterior, check_parameter_names
 from .moves import LaplaceAdaptation
 from .nested import NestedReport
 from .nested_stage import NESTED_TARGET_ESS, NestedStage
 from .posterior import Posterior
 from .priors import SIGMA, Prior, default_prior, ridge_coordinates, step_under_delay
+from .record_choices import RecordChoices, record_likelihoods
 from .resume import StartRestore
 from .runner import run_ensemble
 from .start import POLISH_RESTARTS, START_OPTIMIZERS, StartSearch
@@ -71,24 +68,10 @@ def truths_from_recordings(recordings, names, hypothesis_name):
 #: one (:meth:`.likelihood.solver._WaveformSolverError._refine_step`). The features' first-order
 #: error is corrected instead.
 DEFAULT_DT = {"waveform": 5e-4, "features": 5e-4}
-#: Transients (s) tried below the given one, the reference they are checked against (at least
-#: twice the given one) and the largest log-likelihood error (nats) a chosen one may make
-#: (:meth:`Calibration._choose_transients`).
-TRANSIENT_CANDIDATES = (2.0, 3.0, 4.0)
-TRANSIENT_REFERENCE = 12.0
-TRANSIENT_TOLERANCE = 0.5
-#: Nats (at the noise) a waveform record's simulated cycle, started larger than the record's,
-#: may still move between transients of ``max(TRANSIENT_REFERENCE, 2 transient)`` and twice that
-#: at the maximum a posteriori before the record enters through its features
-#: (:meth:`Calibration._fall_back_slow`).
-SETTLING_LOAD_LIMIT = 2.0
-#: Transient (s) of a record that fell back to its features (at least the given one): the
-#: coverage benchmark's, whose calibration the features' table measures; a slowly attracting
-#: cycle needs it.
-FALLBACK_TRANSIENT = 20.0
 
 
-class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, StartRestore):
+class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, StartRestore,
+                  RecordChoices):
     """Posterior over chosen parameters of a hypothesis, given one or more recordings.
 
     Parameters
@@ -131,8 +114,8 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, 
         shortest of ``TRANSIENT_CANDIDATES`` below ``transient`` whose log-likelihood stays within
         ``TRANSIENT_TOLERANCE`` nats of a ``TRANSIENT_REFERENCE`` one at the walkers and at as many
         points twice as far out; ``transient`` itself if none does; the reference if not even
-        ``transient`` does (:meth:`_choose_transients`). Learned attributes ``transients_``
-        (record -> seconds) and ``transient_errors_`` (record -> {seconds: largest error}).
+        ``transient`` does (:meth:`_choose_transients`, :mod:`.record_choices`). Learned
+        attributes ``transients_`` (record -> seconds) and ``transient_errors_`` (record -> {seconds: largest error}).
     continuation : bool
         Start each closed-loop run from the end state of the stored run nearest its parameters
         (within ``CONTINUATION_RADIUS``;
@@ -422,126 +405,9 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, 
             if self.continuation and hasattr(term, "continue_runs"):
                 term.continue_runs()
         self.inflation_ = [t.inflation for t in self.terms_]
-        self.likelihoods_ = _likelihoods(self.terms_)
+        self.likelihoods_ = record_likelihoods(self.terms_)
         self.truths_ = truths_from_recordings(self.recordings_, names, base.name)
         return self
-
-    def _fall_back(self, i, reason, save=False):
-        """Record ``i`` enters through its limit-cycle features from now on (its waveform is
-        ill-posed: ``reason``), said in an
-        :class:`.likelihood.waveform.IllPosedLikelihoodWarning`; kept in the checkpoint when
-        ``save``."""
-        old = self.terms_[i]
-        warnings.warn(IllPosedLikelihoodWarning(
-            f"{reason}; this record enters through its limit-cycle features"), stacklevel=3)
-        start = self.base_.replace(**{n: v for n, v in self.start_.items() if n != SIGMA})
-        term = FeatureTerm(old.recording, self.window,
-                           max(float(self.transient), FALLBACK_TRANSIENT), self.dt_,
-                           name=old.name, features=self.features,
-                           rng=np.random.default_rng([int(self.seed), i]))
-        term.noise_from_sigma = False  # the record's own noise estimate, not the sampled sd
-        term.setup(start, warm_start=self.warm_start)
-        term.inflation = old.inflation
-        self.terms_[i] = term
-        self.log_posterior_.terms[i] = term
-        self.fallbacks_[term.name] = reason
-        self.likelihoods_ = _likelihoods(self.terms_)
-        if save and self.backend is not None:
-            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
-                f.require_group(H5_GROUP).attrs["fallbacks"] = json.dumps(self.fallbacks_)
-
-    def _fall_back_slow(self, lp, z0) -> bool:
-        """Waveform records whose cycle attracts slowly at ``z0`` (the maximum a posteriori) fall
-        back to their features; True if any did.
-
-        Slowly: a run of ``z0`` started ``SETTLING_PERTURBATION`` larger than the record's cycle
-        still moves by over ``SETTLING_LOAD_LIMIT`` nats between transients of
-        ``max(TRANSIENT_REFERENCE, 2 transient)`` s and twice that
-        (:meth:`.likelihood.waveform.WaveformTerm.settling_load`). Measured at the maximum, whose
-        own cycle has the record's size, so that a start far off does not count its own distance.
-        """
-        params = lp.params_for(lp.natural(z0)[0])
-        if params is None:
-            return False
-        short = max(TRANSIENT_REFERENCE, 2.0 * float(self.transient))
-        fell = False
-        for i, term in enumerate(self.terms_):
-            if not isinstance(term, WaveformTerm):
-                continue
-            load = term.settling_load(params, short, 2.0 * short)
-            lp.account_seconds(term.settling_seconds(2.0 * short), term.simulator.dt)
-            if load > SETTLING_LOAD_LIMIT:
-                self._fall_back(i, (
-                    f"{term.name}: its simulated cycle attracts slowly (at the maximum a posteriori, "
-                    f"started {SETTLING_PERTURBATION:.0%} larger, it still moves by {load:.3g} "
-                    f"nats at the noise between transients of {short:g} and {2 * short:g} s), so "
-                    "the recording may still be settling and runs carry their start, both of "
-                    "which a waveform comparison would read as parameters"), save=True)
-                fell = True
-        return fell
-
-    def _refine_steps_at(self, point, save=True):
-        """Each output-error term's simulation step checked again at ``point`` (natural
-        coordinates; the maximum a posteriori), never coarser than set up
-        (:meth:`.likelihood.solver._WaveformSolverError.refine_at`); ``point`` is kept in the
-        checkpoint so that a resumed run rebuilds the same likelihood."""
-        params = self.log_posterior_.params_for(np.array([point[n] for n in self.names_]))
-        if params is None:
-            return
-        for term in self.terms_:
-            if hasattr(term, "refine_at"):
-                term.refine_at(params)
-        if save and self.backend is not None:
-            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
-                f.require_group(H5_GROUP).attrs["step_check_at"] = json.dumps(point)
-
-    def _transient_terms(self):
-        """The closed-loop waveform terms (open-loop records have no transient)."""
-        return [t for t in getattr(self, "terms_", [])
-                if getattr(t, "kind", "") == "waveform" and hasattr(t, "set_transient")]
-
-    def _chooses_transient(self) -> bool:
-        return bool(self.choose_transient) and bool(self._transient_terms())
-
-    def _choose_transients(self, lp, z0, axes, walkers, rng):
-        """Each waveform record's transient, chosen by the accuracy it gives.
-
-        Check points: the walkers and as many points ``z0 + 2 axes N(0, 1)`` (where a chain
-        goes). The log-likelihood at each candidate transient is compared with the reference's
-        (``max(TRANSIENT_REFERENCE, 2 * transient)``); the shortest candidate whose largest error
-        is within ``TRANSIENT_TOLERANCE`` nats is kept. Kept in the checkpoint.
-        """
-        wide = z0 + 2.0 * rng.standard_normal((len(walkers), len(z0))) @ axes.T
-        points = np.vstack([walkers, wide])
-        _, x, sets = lp._prepare(points)
-        keep = [i for i, p in enumerate(sets) if p is not None]
-        sets = [sets[i] for i in keep]
-        sigma = lp.sigmas(x[keep])
-        given = float(self.transient)
-        reference = max(TRANSIENT_REFERENCE, 2.0 * given)
-        self.transients_, self.transient_errors_ = {}, {}
-        for term in self._transient_terms() if sets else []:
-            term.set_transient(reference)
-            ref = term.loglike(sets, sigma)
-            lp.account(len(sets), [term])  # the check's runs count in the cost
-            errors, chosen = {}, reference
-            for t in sorted({c for c in TRANSIENT_CANDIDATES if c < given} | {given}):
-                term.set_transient(t)
-                ll = term.loglike(sets, sigma)
-                lp.account(len(sets), [term])
-                # a run that fails at both lengths agrees; one that fails at one only does not
-                both_failed = ~np.isfinite(ll) & ~np.isfinite(ref)
-                d = np.where(both_failed, 0.0, np.abs(ll - ref))
-                errors[t] = float(np.max(np.where(np.isfinite(d), d, np.inf)))
-                if errors[t] <= TRANSIENT_TOLERANCE:
-                    chosen = t
-                    break
-            term.set_transient(chosen)
-            self.transients_[term.name] = chosen
-            self.transient_errors_[term.name] = errors
-        if self.backend is not None:
-            with CheckpointBackend(str(self.backend), name="mcmc").open("a") as f:
-                f.require_group(H5_GROUP).attrs["transients"] = json.dumps(self.transients_)
 
     # -- fit ------------------------------------------------------------------------------------
     def _store_laplace(self, backend):
@@ -634,12 +500,6 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, 
             self, self.sampler_, self.report_,
             min_burn=int((self.laplace_ or {}).get("adapted_at") or 0))
         return self
-
-
-def _likelihoods(terms) -> dict:
-    """Record -> how it enters: ``"waveform"`` or ``"features"`` (closed loop), ``"open"``."""
-    return {t.name: "open" if t.recording.kind == "open" else t.kind for t in terms}
-
 
 
 def _iteration(backend) -> int:
