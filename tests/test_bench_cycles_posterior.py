@@ -77,7 +77,7 @@ def test_the_claim_names_each_methods_cost_and_move():
     seconds and largest move; a method that ran nested sampling before its chain says so; a
     draw over 600 CPU s misses its goal, as does a resumed one, whose cost is not whole; a miss
     its diagnostic passed fails the second goal."""
-    from tvcid.studies.benchmarks.results_table import cycles_posterior
+    from tvcid.studies.benchmarks.claim_values import cycles_posterior
 
     def method(cpu, move, converged, nested=None):
         return {"sampler": "ensemble", "converged": converged, "effective_points": 40.0,

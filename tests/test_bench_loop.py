@@ -171,3 +171,19 @@ def test_the_loops_goals_count_every_round_the_decidable_menus_and_the_adds_in_o
     assert goals["set closed after at most 2 rounds"].met  # 7 of 8 >= 80 %
     assert goals["an --add's kernel steps over a fresh run's on the same recordings"].met
     assert not any(g.met for g in loop_goals(summarise(rows[:9]), 9))
+
+
+def test_the_loops_claim_states_each_goal_round_and_cost_ratio():
+    """docs/results.md's row for the loop: the draws finished, every goal with its count, each
+    round's counts and set sizes, the draws whose menu can decide and the --add's cost ratios."""
+    from tvcid.studies.benchmarks.claim_values import loop
+
+    rows = [{"seed": i, "rounds": [_round(0), _round(1, closed=True, ratio=0.3)]}
+            for i in range(3)]
+    text = loop({"bench_loop": {"rows": rows}})
+    assert text.startswith("3 of 10 draws finished (0 failed); goal truth in the set at every "
+                           "round: 3 of 3")
+    assert "round 1: truth in the set 3 of 3, closed 3, set sizes [1, 1, 1]" in text
+    assert "the menu can decide in 3 draws, of which closed 3" in text
+    assert "an --add over a fresh run, median [largest]: kernel steps 0.30 [0.30]" in text
+    assert text.count("NOT met") == 5  # under ten draws nothing is judged

@@ -416,7 +416,7 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     """docs/results.md's row for the set coverage: the finished draws, the rows of an earlier
     layout counted apart, each printed quantity's count, the chains' split, the allowed ranges'
     counts and the widths; under 30 draws no goal is met, whatever the share."""
-    from tvcid.studies.benchmarks.results_table import set_coverage
+    from tvcid.studies.benchmarks.claim_values import set_coverage
 
     truth = M002()
     printed = _printed(truth)

@@ -132,7 +132,8 @@ def test_the_stored_race_measurement_is_its_rows_summary():
     from pathlib import Path
 
     from tvcid.studies.benchmarks.discovery import race_summary
-    from tvcid.studies.benchmarks.results_table import discovery_race, load_records
+    from tvcid.studies.benchmarks.claim_values import discovery_race
+    from tvcid.studies.benchmarks.results_table import load_records
 
     path = Path(__file__).parents[1] / "studies/benchmarks/records/bench_discovery_race.json"
     rows = [r for r in json.loads(path.read_text())["rows"] if r.get("race")]

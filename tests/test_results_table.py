@@ -145,7 +145,7 @@ def test_speed_claim_judges_the_stored_run_in_reference_seconds():
     seconds of the same run (met at half the budget, NOT met at twice it; a run its idle check
     flagged is shown as flagged, its goal not judged), with the search's and the chains' seconds,
     simulated seconds and kernel steps."""
-    from tvcid.studies.benchmarks.results_table import discover_speed
+    from tvcid.studies.benchmarks.claim_values import discover_speed
 
     record = json.loads((RECORDS / "bench_discover_speed.json").read_text())
     text = discover_speed({"bench_discover_speed": record})

@@ -85,7 +85,7 @@ def test_a_members_task_runs_blas_on_one_thread_and_reports_its_cpu(monkeypatch,
 def test_a_flagged_speed_run_is_shown_flagged_and_not_judged():
     """The stored speed run with a failed idle check: the results table says it is flagged and
     why, and does not judge its goal; with a passed one it judges it (met or NOT met)."""
-    from tvcid.studies.benchmarks.results_table import discover_speed
+    from tvcid.studies.benchmarks.claim_values import discover_speed
 
     record = json.loads((RECORDS / "bench_discover_speed.json").read_text())
     flag = idle_check(1.08, 1.0e-7, 1.0e-7)
