@@ -462,7 +462,7 @@ def test_delay_moved_into_the_block_keeps_the_cycle():
     at controllers A and B agree within 0.3 % in amplitude and 0.05 % in frequency (measured
     0.12 % and 0.011 %; moving the delay alone changes the amplitude 3.6 % at A); this is why the
     ranking may leave the two positions undecided."""
-    from tvcid.discovery.structure.structure_search import delay_moved
+    from tvcid.discovery.structure.transfer import delay_moved
     from tvcid.models import ClosedLoop, hypothesis, simulate
     from tvcid.models.hypotheses import DelayPosition
 
@@ -487,10 +487,10 @@ def test_delay_moved_matches_the_frequency_response_of_drawn_blocks():
     is within 1 % in gain and 0.01 rad in phase (measured <= 0.75 %), where the first-order match
     alone misses by over 5 % in some (it did on benchmark draw 1019: 29 %, and its refit stopped
     at cost 133 against the truth's 0.72)."""
-    from tvcid.discovery.structure.structure_search import (
+    from tvcid.discovery.structure.transfer import (
         MATCHED_BAND,
-        _first_order_moved,
         delay_moved,
+        first_order_moved,
     )
     from tvcid.models.hypotheses import DelayPosition
     from tvcid.models.linear import second_order_response
@@ -506,7 +506,7 @@ def test_delay_moved_matches_the_frequency_response_of_drawn_blocks():
         omega = np.geomspace(*MATCHED_BAND, 48) * math.sqrt(p.stiffness)
         given = second_order_response(p.gain, p.damping, p.stiffness, p.delay, inside, omega)
         errors = []
-        for move in (delay_moved, _first_order_moved):
+        for move in (delay_moved, first_order_moved):
             q = move(p, to)
             ratio = second_order_response(q.gain, q.damping, q.stiffness, q.delay, not inside,
                                           omega) / given
@@ -525,7 +525,7 @@ def test_transferred_start_is_valid_for_every_structure_and_keeps_the_threshold(
     valid parameter object of the target structure for every pair of the space; the threshold
     keeps its size in rad of error across dead-zone positions (z_error = (z - off) / g0) and a
     round trip velocity -> error -> velocity keeps the moving threshold z - off."""
-    from tvcid.discovery.structure.structure_search import transferred
+    from tvcid.discovery.structure.transfer import transferred
     from tvcid.models import hypothesis
     from tvcid.models.hypotheses import DeadZonePosition
     from tvcid.models.structures import Structure, structure_space

@@ -15,7 +15,8 @@ import pytest
 from tvcid.discovery.structure.coordinates import SearchSpace
 from tvcid.discovery.structure.ranking import RANK_OPEN_LOOP_REFINEMENT
 from tvcid.discovery.structure.search import Objective, refine
-from tvcid.discovery.structure.structure_search import TEMPLATE, transferred
+from tvcid.discovery.structure.structure_search import TEMPLATE
+from tvcid.discovery.structure.transfer import transferred
 from tvcid.discovery.structure.targets import make_target
 from tvcid.models.hypotheses import ActuatorParams
 from tvcid.models.recording import load_recording

@@ -18,7 +18,7 @@ Pipeline (:meth:`StructureDiscovery.fit`):
    parent's optimum with the component removed. A structure that fits worse than one of its
    nested structures (a search failure: it can reproduce them) is refined again from that
    optimum; last, every structure is refined from the best optimum of all, carried over
-   (:func:`.structure_search.transferred`).
+   (:func:`.transfer.transferred`).
 4. **Rank** (:func:`.ranking.rank`) -- by two-fold out-of-sample error: each structure within
    :func:`.ranking.in_sample_screen` of the best in-sample cost is refitted (locally, from its
    optimum) on one half of every recording and scored on the other half, both ways round.

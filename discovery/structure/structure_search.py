@@ -6,23 +6,19 @@
   delay position, band-pass loop) class, cross-seeded between delay positions; every nested
   structure refined from its parent's optimum; the repairs (a superset refitted from a nested
   structure that fits better; every structure refitted from the best optimum of all);
-* the starts carried from one structure to another: :func:`delay_moved` (the delay moved with
-  the linear block matched in frequency), :func:`transferred` (any structure's optimum as a start
-  for another), and the seeds a structure can take (:func:`_valid`).
+* the seeds a structure can take (:func:`_valid`); the starts carried from one structure to
+  another are :mod:`.transfer`'s.
 
 One structure's global search is :mod:`.global_fit`'s, its refinement :mod:`.search`'s; the
 ranking of the fits is :mod:`.ranking`'s.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq, least_squares
 
 from tvcid.models.hypotheses import KICK_X0, DeadZonePosition, DelayPosition
-from tvcid.models.linear import second_order_response
 from tvcid.models.structures import Structure
 
 from .global_fit import GlobalFit
@@ -30,9 +26,9 @@ from .indistinguishable import TOL_ABS, _contains
 from .ranking import SCREEN_ABS, StructureFit
 from .search import concurrent_map, progress_bar, refine
 from .tasks import fit_tops
+from .transfer import delay_moved, reduced_values, transferred, widened_values
 
-__all__ = ["StructureSearch", "SearchSizes", "SEARCHES", "TEMPLATE",
-           "delay_moved", "transferred"]
+__all__ = ["StructureSearch", "SearchSizes", "SEARCHES", "TEMPLATE"]
 
 #: Template of the fields a search does not set (paper 001's linear block, only a placeholder; the
 #: papers' kick x0 so that a reported model, simulated in closed loop, leaves the equilibrium).
@@ -43,12 +39,6 @@ TEMPLATE = dict(gain=305500.0, damping=202.1, stiffness=14520.0, dead_zone=1e-3,
 RACE_MODES = ("off", "measure", "on")
 #: Tops searched on all recordings before the race drops any: those of lowest open-loop bound.
 RACE_LEADERS = 2
-#: Band over which :func:`delay_moved` matches the moved block's frequency response, in units of
-#: the block's natural frequency ``sqrt(K3)``: the limit cycles (2-10 Hz) and the open-loop tests'
-#: edges ring below it (M000: 19 Hz).
-MATCHED_BAND = (0.05, 1.5)
-#: Factor within which each coefficient of the moved block stays of the given one's.
-MATCHED_RANGE = 10.0
 
 
 @dataclass(frozen=True)
@@ -263,7 +253,7 @@ class StructureSearch:
 
             def from_parent(s):
                 parent = parents[s]
-                start = s.to_params(parent.params, **_reduced_values(parent.params, s))
+                start = s.to_params(parent.params, **reduced_values(parent.params, s))
                 fr = refine(self.spaces[s], self.objective, self.spaces[s].coordinates(start),
                             max_nfev=self.sizes.nfev)
                 bar.update()
@@ -364,7 +354,7 @@ class StructureSearch:
                               key=lambda f: f.cost)[:n_sources]
             for other in siblings:
                 moved = delay_moved(other.params, s.delay_position)
-                start = s.to_params(moved, **_widen(moved, s))
+                start = s.to_params(moved, **widened_values(moved, s))
                 self.keep_better(fits, s, start,
                                  f"least squares from the optimum of {other.structure.name}")
 
@@ -401,7 +391,7 @@ class StructureSearch:
                 sub = fits.get(s.without(comp))
                 if sub is None or fits[s].cost <= sub.cost * (1 + 1e-3):
                     continue
-                start = s.to_params(sub.params, **_widen(sub.params, s))
+                start = s.to_params(sub.params, **widened_values(sub.params, s))
                 fixed |= self.keep_better(fits, s, start,
                                           f"least squares from {sub.structure.name} with {comp} added")
             return fixed
@@ -463,95 +453,6 @@ def _class_tops(structures):
     return tops
 
 
-def delay_moved(params, position):
-    """``params`` with the delay moved to ``position`` and the linear block changed to match.
-
-    Inside the second-order block's loop (``before_first_integrator``,
-    ``y'' = [K1 e - K2 y' - K3 y](t - Td)``) the block is ``K1 / (s^2 e^{s Td} + K2 s + K3)``;
-    after it, ``K1 e^{-s Td} / (s^2 + K2 s + K3)`` (:func:`tvcid.models.linear.second_order_response`).
-    The moved block is the one whose frequency response matches the given one over
-    ``MATCHED_BAND`` of the given block's natural frequency ``sqrt(K3)`` (log gain and phase, least
-    squares), started from the first-order match (:func:`_first_order_moved`), which alone fails
-    where ``K2 Td`` is not small. The two outer positions
-    (before the integrator, at the output) share the block.
-    """
-    inner = DelayPosition.BEFORE_FIRST_INTEGRATOR
-    if (params.delay_position is inner) == (position is inner):
-        return params.replace(delay_position=position)
-    start = _first_order_moved(params, position)
-    if not params.delay > 0:
-        return start
-    omega = np.geomspace(MATCHED_BAND[0], MATCHED_BAND[1], 48) * math.sqrt(params.stiffness)
-    target = second_order_response(params.gain, params.damping, params.stiffness, params.delay,
-                                   params.delay_position is inner, omega)
-
-    def mismatch(x):
-        k1, k2, k3, td = np.exp(x)
-        ratio = second_order_response(k1, k2, k3, td, position is inner, omega) / target
-        return np.concatenate([np.log(np.abs(ratio)), np.angle(ratio)])
-
-    # within MATCHED_RANGE of the given block: a resonant inner block (long delay) has no outer
-    # match, and the fit would drift off with every coefficient growing together
-    source = np.log([params.gain, params.damping, params.stiffness, params.delay])
-    lo, hi = source - math.log(MATCHED_RANGE), source + math.log(MATCHED_RANGE)
-    x0 = np.clip(np.log([start.gain, start.damping, start.stiffness, start.delay]), lo, hi)
-    fit = least_squares(mismatch, x0, bounds=(lo, hi), xtol=1e-10, ftol=1e-12)
-    if not (np.all(np.isfinite(fit.x)) and fit.cost < 0.5 * float(np.sum(mismatch(x0) ** 2))):
-        return start
-    k1, k2, k3, td = map(float, np.exp(fit.x))
-    return start.replace(gain=k1, damping=k2, stiffness=k3, delay=td)
-
-
-def _first_order_moved(params, position):
-    """:func:`delay_moved` to first order in ``s Td``.
-
-    With ``D = 1 + K2 Td`` of the outer form, ``K1, K3`` inside are the outer ones over ``D``,
-    ``K2`` inside is ``(K2 + K3 Td) / D`` and the delay inside is ``Td / D``.
-    """
-    inner = DelayPosition.BEFORE_FIRST_INTEGRATOR
-    k1, k2, k3, td = params.gain, params.damping, params.stiffness, params.delay
-    if position is inner:  # outer -> inner
-        d = 1.0 + k2 * td
-        return params.replace(gain=k1 / d, damping=(k2 + k3 * td) / d, stiffness=k3 / d,
-                              delay=td / d, delay_position=position)
-    # inner -> outer: the D whose outer block maps onto this inner one (K2 outer = (D - 1) / Td)
-    def mismatch(d):
-        return k2 * d - (d - 1.0) / (td * d) - k3 * td * d * d
-
-    if td <= 0 or mismatch(1.0) <= 0 or mismatch(20.0) >= 0:
-        return params.replace(delay_position=position)
-    d = brentq(mismatch, 1.0, 20.0)
-    return params.replace(gain=k1 * d, damping=(d - 1.0) / (td * d), stiffness=k3 * d,
-                          delay=td * d, delay_position=position)
-
-
-def transferred(params, structure):
-    """Another structure's ``params`` as a start for ``structure``.
-
-    The delay is moved with :func:`delay_moved`; a dead zone moved between the error and the
-    velocity signal keeps its threshold in rad of error (``z_error = (z - off) / g0``, ``g0 = K1/K3``
-    the second-order block's static gain, the search coordinate ``log_c_e``); a component removed
-    leaves the moving threshold as it was (:func:`_reduced_values`), one added starts small
-    (:func:`_widen`; the band-pass loop at gain 40 and a saturation of 5e-4 rad of error).
-    """
-    p = delay_moved(params, structure.delay_position)
-    g0 = p.gain / p.stiffness
-    values = _reduced_values(p, structure)
-    moving = values.get("dead_zone", p.dead_zone - p.friction_offset)
-    if p.dead_zone_position is not structure.dead_zone_position:
-        if structure.dead_zone_position is DeadZonePosition.VELOCITY:
-            values["dead_zone"] = moving * g0
-        else:
-            values["dead_zone"] = moving / g0
-        values["friction_offset"] = 0.0
-    elif not structure.friction:
-        values["friction_offset"] = 0.0
-    if structure.bandpass and p.bandpass_gain == 0.0:
-        values.update(bandpass_gain=40.0, bandpass_saturation=5e-4 * g0)
-    start = structure.to_params(p, **values)
-    return structure.to_params(start, **_widen(start, structure))
-
-
 def _fixed_for(structure, fixed):
     """Fixed values that apply to ``structure`` (a component's value only where it is present)."""
     out = dict(fixed)
@@ -565,24 +466,6 @@ def _fixed_for(structure, fixed):
 def _is_nested(s, parent):
     """``s`` is ``parent`` with components removed (same positions, same band-pass flag)."""
     return s.bandpass == parent.bandpass and _contains(parent, s)
-
-
-def _reduced_values(params, s):
-    """Start values for nested ``s`` from its parent's ``params``: the moving threshold kept."""
-    values = {}
-    if not s.friction and params.friction_offset != 0.0:
-        values["dead_zone"] = params.dead_zone - params.friction_offset
-    return values
-
-
-def _widen(p, s):
-    """A nested proposal as a start for a larger structure: small values for its absent parts."""
-    extra = {}
-    if s.backlash and p.backlash == 0.0:
-        extra["backlash"] = 1e-5
-    if s.friction and p.friction_offset == 0.0:
-        extra["friction_offset"] = -0.1 * p.dead_zone
-    return extra
 
 
 def _top_seeds(s, sindy, fits):
@@ -603,12 +486,12 @@ def _top_seeds(s, sindy, fits):
 
 
 def _valid(seeds, s):
-    """The seeds as starts of ``s`` (its absent parts widened, :func:`_widen`); a seed ``s`` cannot
+    """The seeds as starts of ``s`` (its absent parts widened, :func:`widened_values`); a seed ``s`` cannot
     take (a value its parameters refuse) is dropped, never raised."""
     out = []
     for p in seeds:
         try:
-            out.append(s.to_params(p, **_widen(p, s)))
+            out.append(s.to_params(p, **widened_values(p, s)))
         except ValueError:
             continue
     return out
