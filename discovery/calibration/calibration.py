@@ -115,7 +115,8 @@ class Calibration(StartSearch, LaplaceAdaptation, ImportanceStage, NestedStage, 
         ``TRANSIENT_TOLERANCE`` nats of a ``TRANSIENT_REFERENCE`` one at the walkers and at as many
         points twice as far out; ``transient`` itself if none does; the reference if not even
         ``transient`` does (:meth:`_choose_transients`, :mod:`.record_choices`). Learned
-        attributes ``transients_`` (record -> seconds) and ``transient_errors_`` (record -> {seconds: largest error}).
+        attributes ``transients_`` (record -> seconds) and ``transient_errors_`` (record ->
+        {seconds: largest error}).
     continuation : bool
         Start each closed-loop run from the end state of the stored run nearest its parameters
         (within ``CONTINUATION_RADIUS``;

@@ -6,8 +6,9 @@ A part of :class:`tvcid.discovery.calibration.calibration.Calibration` (as
 stage off), ``laplace_``, ``log_posterior_``, ``terms_``, ``seed`` and ``backend``, and sets
 ``nested_``. The reference is the start's Laplace approximation, widened by
 :data:`.nested.REFERENCE_SCALE`; where the start has none, the curvature held to the walkers'
-starting ball (the importance stage's first proposal), else that ball itself. Where the run is reliable (:meth:`.nested.NestedRun.reliable`)
-it is the posterior; elsewhere the chain starts from its points.
+starting ball (the importance stage's first proposal), else that ball itself. Where the run is
+reliable (:meth:`.nested.NestedRun.reliable`) it is the posterior; elsewhere the chain starts
+from its points.
 """
 from __future__ import annotations
 

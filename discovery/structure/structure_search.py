@@ -486,8 +486,8 @@ def _top_seeds(s, sindy, fits):
 
 
 def _valid(seeds, s):
-    """The seeds as starts of ``s`` (its absent parts widened, :func:`widened_values`); a seed ``s`` cannot
-    take (a value its parameters refuse) is dropped, never raised."""
+    """The seeds as starts of ``s`` (its absent parts widened, :func:`widened_values`); a seed
+    ``s`` cannot take (a value its parameters refuse) is dropped, never raised."""
     out = []
     for p in seeds:
         try:

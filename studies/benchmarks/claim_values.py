@@ -262,8 +262,8 @@ def loop(records):
                        for k, v in table["add_over_fresh"].items() if v["median"] is not None)
     return (f"{table['draws']} of {MIN_DRAWS} draws finished ({table['failed']} failed); "
             + _goals_text(loop_goals(table, len(rows))) + f"; {rounds}; the menu can decide in "
-            f"{table['menu_can_decide']} draws, of which closed {table['closed_where_menu_can_decide']}"
-            f"; an --add over a fresh run, median [largest]: {ratios or 'no --add run in one piece'}")
+            f"{table['menu_can_decide']} draws, of which closed "
+            f"{table['closed_where_menu_can_decide']}; an --add over a fresh run, median [largest]: {ratios or 'no --add run in one piece'}")
 
 
 def cycles_posterior(records):

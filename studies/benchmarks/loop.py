@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import json
 import math
 import shutil
 import time
@@ -238,8 +239,6 @@ def run_draw(seed, out_dir, quick, config=None, ranges="wide", reuse=None) -> di
 
 def _added(run_dir) -> list:
     """The recordings an earlier ``--add`` put into the run in ``run_dir`` (none before one)."""
-    import json
-
     path = Path(run_dir) / "discovery.json"
     return (json.loads(path.read_text()).get("added") or []) if path.exists() else []
 
