@@ -15,7 +15,7 @@ from tvcid.studies.benchmarks.set_coverage import (GAUSSIAN_MEDIAN_POSITION, GOA
                                              coverage_goals, coverage_row, drop_old_layout,
                                              narrower_than_step, quantity_entry, rejudge_rows,
                                              summarise, truth_position, truth_quantities)
-from tvcid.studies.benchmarks.set_judge import rejudge_row
+from tvcid.studies.benchmarks.set_judge import rejudge_entry, rejudge_row
 
 
 def _q(lo, hi, mid=None, pinned=True, present=1.0, allowed=None, allowed_open=None, step=None,
@@ -249,6 +249,27 @@ def test_a_component_the_truth_lacks_is_covered_only_where_it_is_not_printed_pre
     assert row["goals"]["friction_offset"] is True
     assert row["quantities"]["bandpass_gain"]["rule"] == "absent"
     assert row["goals"]["bandpass_gain"] is False
+    # members holding under the deciding share: the report prints the component absent
+    printed["bandpass_gain"] = _q(0.0, 80.0, present=0.03)
+    row = _row(truth, printed)
+    assert row["quantities"]["bandpass_gain"]["printed"] == "absent"
+    assert row["goals"]["bandpass_gain"] is True
+    # a stored row judged by the earlier rule ("present") is judged again as printed
+    stored = {**row["quantities"]["bandpass_gain"], "printed": "present", "covered": False}
+    again = rejudge_entry("bandpass_gain", stored)
+    assert (again["printed"], again["covered"]) == ("absent", True)
+
+
+def test_a_component_the_truth_has_and_the_report_prints_absent_is_a_miss():
+    """The truth has a backlash; the members with one hold 3 % of the weight, so the report
+    prints it absent (its interval only "if present"): not covered, whatever that interval."""
+    truth = M002()
+    printed = _printed(truth)
+    b = truth.backlash
+    printed["backlash"] = _q(0.5 * b, 2.0 * b, present=0.03)
+    e = _row(truth, printed)["quantities"]["backlash"]
+    assert (e["printed"], e["rule"], e["covered"], e["can_fail"]) == ("absent", "lacking", False,
+                                                                       True)
 
 
 def test_a_component_the_set_leaves_open_is_printed_present_or_absent_whichever_members_calibrated():

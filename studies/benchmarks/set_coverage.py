@@ -19,7 +19,7 @@ each by one rule of :mod:`tvcid.studies.benchmarks.set_judge`, named in the row:
 quantity on its printed 90 % interval), ``allowed`` (a not-pinned one on the range the
 recordings allow, an open end judged on the prior's bound on its side, stored per quantity as
 ``prior_bounds``), ``absent`` (a component the truth lacks: not printed present) and ``lacking``
-(the truth has it and nothing is printed). A judgement that cannot fail (a truth of 0 against
+(the truth has it and nothing is printed, or it is printed absent). A judgement that cannot fail (a truth of 0 against
 "present or absent"; a truth inside the prior against a range open at both ends) is counted
 apart (``can_fail`` false) and left out of the goals.
 

@@ -17,8 +17,11 @@ The rules (the row names each judgement's ``rule``):
   prior is a miss. A not-pinned quantity without an allowed range is judged on its interval and
   flagged ``allowed_missing``.
 * ``absent``: the truth lacks the component (backlash, friction offset, band-pass loop): covered
-  when the report prints it absent or "present or absent"; not when it prints it present.
-* ``lacking``: the truth has the quantity and the report prints no interval for it: not covered.
+  when the report prints it absent or "present or absent"; not when it prints it present. The
+  report prints absent a component whose members hold under the deciding share of the weight,
+  with their interval "if present" beside it.
+* ``lacking``: the truth has the quantity and the report prints no interval for it, or prints
+  its component absent: not covered.
 
 A judgement *cannot fail* (``can_fail`` false) when what is printed holds the truth whatever the
 posterior's numbers: a truth of 0 against "present or absent", and a truth inside the prior's
@@ -36,7 +39,7 @@ from __future__ import annotations
 
 import math
 
-from tvcid.discovery.members.set_posterior import printed_present_or_absent
+from tvcid.discovery.members.set_posterior import decided_absent, printed_present_or_absent
 from tvcid.discovery.structure.coordinates import BOUNDS
 from tvcid.models.quantities import COMPONENT_QUANTITIES
 
@@ -66,12 +69,13 @@ EDGE_TOLERANCE = 5e-3
 
 
 def printed_as(q, left_open=False) -> str:
-    """How the report prints combined quantity ``q`` (``None``: no calibrated member has it):
-    ``present or absent`` (``present`` under 1, or a component the set leaves open:
-    ``left_open``, or ``q``'s own ``left_open``), ``absent`` or ``present``."""
+    """How the report prints combined quantity ``q`` (``None``: no calibrated member has it), as
+    :mod:`tvcid.report` does: ``present or absent`` (the weights leave the component open, or
+    the set does: ``left_open``, or ``q``'s own ``left_open``), ``absent`` (no member has it, or
+    the members with it hold under the deciding share of the weight) or ``present``."""
     if left_open or (q is not None and printed_present_or_absent(q)):
         return "present or absent"
-    return "absent" if q is None else "present"
+    return "absent" if q is None or decided_absent(q) else "present"
 
 
 def inside_interval(value, q) -> bool:
@@ -151,7 +155,7 @@ def judge(name, value, q, printed, prior_bounds=None) -> dict:
             out.update(rule="absent", covered=printed != "present",
                        can_fail=printed != "present or absent")
         return out
-    if q is None:
+    if q is None or printed == "absent":  # nothing printed, or printed absent
         return {**out, "rule": "lacking", "covered": False, "can_fail": True}
     if q.get("pinned") is False and q.get("allowed") is not None:
         bounds, source, decided = judged_range(name, value, q["allowed"], q.get("allowed_open"),
@@ -233,11 +237,14 @@ def rejudge_entry(name, entry) -> dict:
     value = entry.get("truth")
     bounds = entry.get("prior_bounds")
     prior = (bounds, entry.get("prior_bounds_from")) if bounds is not None else None
-    verdict = judge(name, value, q, entry["printed"], prior)
+    printed = entry["printed"]
+    if printed == "present" and decided_absent({"present": entry.get("present", 1.0)}):
+        printed = "absent"  # as the report prints it (:func:`printed_as`)
+    verdict = judge(name, value, q, printed, prior)
     known = value is not None and math.isfinite(value)
     allowed = entry.get("allowed")
-    return {**entry, "prior_bounds": bounds, "prior_bounds_from": entry.get("prior_bounds_from"),
-            **verdict,
+    return {**entry, "printed": printed, "prior_bounds": bounds,
+            "prior_bounds_from": entry.get("prior_bounds_from"), **verdict,
             "inside_allowed": (_allowed_test(value, allowed, entry.get("allowed_open"), name, prior)
                                if known and allowed is not None else None)}
 
