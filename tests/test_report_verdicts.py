@@ -127,9 +127,17 @@ def test_pinned_combinations_are_printed_per_member_with_the_free_directions():
             {"terms": {"delay": 1.0}, "text": "delay = 0.005 (...)"}]}}},
         {"structure": "c", "posterior": {}},
     ]
-    (blank, line) = _pinned_lines(members)
-    assert blank == "" and line.startswith("Pinned together")
-    assert "`a`: dead_zone * backlash^0.62 = 1.0e-05" in line
-    assert "2 direction(s) free within the prior" in line
+    (blank, head, blank2, line) = _pinned_lines(members)
+    assert blank == blank2 == "" and head.startswith("Pinned together")
+    assert line.startswith("- `a`: dead_zone * backlash^0.62 = 1.0e-05")
+    assert line.endswith("2 direction(s) free within the prior")
     assert "`b`" not in line and "delay = " not in line  # one parameter alone: the table's row
     assert _pinned_lines(members[1:]) == []
+    # with weights: a member under the deciding share is named, its combinations left out
+    heavy = {**members[0], "weight": 0.97}
+    light = {**members[0], "structure": "d", "weight": 0.01}
+    lines = _pinned_lines([heavy, light])
+    assert lines[3].startswith("- `a` (97 % of the weight): dead_zone * backlash^0.62")
+    assert not any("- `d`" in li for li in lines)
+    assert lines[-1] == ("Under 5 % of the weight, their combinations in `discovery.json` "
+                         "(`set_posterior.members[].posterior.pinned`): `d`.")

@@ -236,24 +236,37 @@ def _members_lines(sp) -> list:
 
 
 def _pinned_lines(members) -> list:
-    """Per member, the combinations of parameters its draws pin beyond any one parameter, and
-    how many directions they leave free (:mod:`tvcid.discovery.calibration.pinned`)."""
-    rows, figures = [], []
+    """Per member holding at least the deciding share of the weight (every member where there
+    are no weights), the combinations of parameters its draws pin beyond any one parameter and
+    how many directions they leave free (:mod:`tvcid.discovery.calibration.pinned`), one line
+    each; the members under that share are named, their combinations left to
+    ``discovery.json``."""
+    rows, figures, light = [], [], []
     for m in members:
         pm = m["posterior"].get("pinned")
         if not pm:
             continue
         combos = [c["text"] for c in pm["pinned"] if len(c["terms"]) > 1]
+        weight = m.get("weight")
+        if combos and weight is not None and weight < DECIDING_SHARE:
+            light.append(f"`{m['structure']}`")
+            continue
         if combos:
-            rows.append(f"`{m['structure']}`: " + "; ".join(combos)
+            held = "" if weight is None else f" ({100 * weight:.0f} % of the weight)"
+            rows.append(f"- `{m['structure']}`{held}: " + "; ".join(combos)
                         + f"; {pm['free']} direction(s) free within the prior")
         if m["posterior"].get("pinned_figure"):
             figures.append(f"![pinned, {m['structure']}]({m['posterior']['pinned_figure']})")
-    if not rows:
+    if not rows and not light:
         return []
-    return ["", "Pinned together (directions of the draws that join several parameters and "
-            "spread under a tenth of the prior's sd, in the coordinates the prior is flat in): "
-            + " | ".join(rows) + "."] + (["", *figures] if figures else [])
+    lines = ["", "Pinned together (directions of the draws that join several parameters and "
+             "spread under a tenth of the prior's sd, in the coordinates the prior is flat in):",
+             "", *rows]
+    if light:
+        lines += ["", f"Under {100 * DECIDING_SHARE:.0f} % of the weight, their combinations in "
+                  "`discovery.json` (`set_posterior.members[].posterior.pinned`): "
+                  + ", ".join(light) + "."]
+    return lines + (["", *figures] if figures else [])
 
 
 def summary_lines(summary) -> list:
