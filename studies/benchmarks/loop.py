@@ -186,10 +186,9 @@ def fresh_comparison(add_summary, fresh_summary, truth_name, resumed) -> dict:
     a resumed run counts only its last process)."""
     add = RunCost.from_dict(add_summary).totals()
     fresh = RunCost.from_dict(fresh_summary).totals()
-    inside = {s["structure"] for s in fresh_summary["structures"]
-              if s["indistinguishable_from_best"]}
     ratios = {k: (add[k] / fresh[k] if fresh[k] > 0 and not resumed else None) for k in add}
-    return {"set": set_of(fresh_summary), "truth_in_set": truth_name in inside, "cost": fresh,
+    return {"set": set_of(fresh_summary),
+            "truth_in_set": truth_name in set(fresh_summary["indistinguishable"]), "cost": fresh,
             "add_over_fresh": ratios}
 
 
