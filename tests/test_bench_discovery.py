@@ -19,6 +19,7 @@ import pytest
 from tvcid.models.structures import Structure
 from tvcid.studies.benchmarks.discovery import main as bench_main
 from tvcid.studies.benchmarks.scenarios import draw_scenario, provenance, write_recordings
+from tvcid.studies.benchmarks.verdicts import choice_verdicts
 
 BUNDLED = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
 ROWS = Path(__file__).resolve().parent / "data" / "discovery_rows.json"
@@ -94,7 +95,7 @@ def test_a_draw_with_its_positions_fixed_decides_the_loop_and_keeps_the_truth(tm
     best = min(costs.values())
     assert all(c > 20 * best for n, c in costs.items() if not n.endswith("bandpass")), costs
     assert row["truth_in_set"] and all(n.endswith("bandpass") for n in row["set"]), row["set"]
-    verdicts = bench.choice_verdicts(row)
+    verdicts = choice_verdicts(row)
     assert verdicts["bandpass"] == "right" and "wrong" not in verdicts.values(), verdicts
     assert all(np.shape(r["fold_costs"]) == (2, 2) for r in row["ranking"])
     overall = bench_json["table"]["overall"]
@@ -121,7 +122,7 @@ def test_a_finished_row_is_rederived_from_its_stored_ranking():
     recording (0.35 in all), leaves the set, which keeps the three delay positions of the truth's
     dead-zone position; the old verdict stays under ``previous``. A row re-derived twice is the
     same."""
-    from tvcid.studies.benchmarks.discovery import rederived
+    from tvcid.studies.benchmarks.rederive import rederived
 
     row = stored_rows()[1017]
     row = {**row, **row.get("previous", {}), "set_size": 5, "right_or_in_small_set": False,
@@ -143,7 +144,7 @@ def test_floor_scan_weighs_the_set_rule_on_finished_rows():
     floor draw 1017's set grows past 3, and draws 1010, 1020 and 1025 (the three positions of the
     delay fitting within 0.003-0.015 of each other, the folds disagreeing as much) are missed at
     every scale. The truth is never lost by widening the margin."""
-    from tvcid.studies.benchmarks.discovery import FLOOR_SCALES, floor_scan
+    from tvcid.studies.benchmarks.rederive import FLOOR_SCALES, floor_scan
 
     seeds = (1003, 1010, 1017, 1020, 1025)
     rows = [r for seed, r in stored_rows().items() if seed in seeds]
@@ -167,7 +168,8 @@ def test_structures_fitting_as_well_as_the_truth_bound_the_set():
     sine) leaves the six positions of the dead zone and the delay, each minimal and each fitted at
     most at the truth's cost; a set of at most 3 cannot hold 1010's truth without excluding a
     structure the data favour as much. The summary counts the ceiling per class."""
-    from tvcid.studies.benchmarks.discovery import as_well_as_truth, summarise
+    from tvcid.studies.benchmarks.discovery import summarise
+    from tvcid.studies.benchmarks.verdicts import as_well_as_truth
 
     rows = stored_rows()
     assert as_well_as_truth(rows[1013]) == [rows[1013]["structure"]]

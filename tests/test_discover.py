@@ -551,7 +551,7 @@ def test_benchmark_counts_a_coordinate_moved_by_an_equally_good_fit_as_undecided
     """The discovery benchmark's identifiability rule: a coordinate sharp at the truth but moved
     by over 5 % in a fit of the truth's structure that costs no more than the truth is left open
     by the recordings (not a discovery error); the same miss with a worse fit is an error."""
-    from tvcid.studies.benchmarks.discovery import undecided_marked
+    from tvcid.studies.benchmarks.verdicts import undecided_marked
 
     def row(own_cost):
         return {"truth_structure_cost": own_cost, "cost_at_truth": 0.78,
@@ -569,7 +569,7 @@ def test_benchmark_scores_each_structural_choice_the_reported_set_decides():
     positions and disagrees on the backlash decides two choices right, leaves two open, and
     decides the friction offset (absent in every member, present in the truth) wrong; a failed
     draw decides nothing."""
-    from tvcid.studies.benchmarks.discovery import choice_verdicts
+    from tvcid.studies.benchmarks.verdicts import choice_verdicts
 
     row = {"structure": "dz_velocity+delay_output+friction+bandpass",
            "set": ["dz_velocity+delay_output+bandpass", "dz_velocity+delay_before_integrator+bandpass",

@@ -29,8 +29,8 @@ Printed per structure class and overall, and written to ``DIR/bench.json``:
 
 ``--rederive`` runs no search: it derives every finished row's set again from the row's stored
 ranking (every ranked structure's held-out fold costs) with the current set rule, so that a
-change of the rule alone reaches the finished rows (:func:`rederived`). ``--floor-scan`` weighs
-the rule's margin floors (:func:`floor_scan`): every finished row re-derived with the floors
+change of the rule alone reaches the finished rows (:func:`.rederive.rederived`). ``--floor-scan`` weighs
+the rule's margin floors (:func:`.rederive.floor_scan`): every finished row re-derived with the floors
 scaled from 0 to 3, the rates per scale and the draws no scale turns into a hit (a draw missed
 at every scale is held by its data, not by the margin), to ``DIR/floor_scan.json`` and
 ``DIR/floor_scan.png``.
@@ -56,7 +56,6 @@ import functools
 import math
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +64,6 @@ from tvcid.discovery.structure import StructureDiscovery
 from tvcid.discovery.structure.coordinates import SearchSpace
 from tvcid.discovery.structure.search import Objective, local_sd
 from tvcid.models.strict_json import write_json
-from tvcid.models.structures import CHOICES, Structure, shared_choices
 
 from ..common import code_commit
 from .draws import (
@@ -77,7 +75,9 @@ from .draws import (
 )
 from .goals import Goal
 from .goals import report as goal_report
+from .rederive import FLOOR_SCALES, draw_floors, floor_scan, rederived
 from .scenarios import draw_scenario, write_recordings
+from .verdicts import choice_verdicts, fit_ceiling, set_verdict, undecided_marked
 
 #: The commit of the code this process imported (a row's, not the checkout's when it ends).
 CODE_COMMIT = code_commit()
@@ -181,86 +181,6 @@ def race_verdict(race, verdict, truth):
     return {**race, "errors": wrong}
 
 
-def set_verdict(ranked, truth):
-    """How a ranking (winner first, its indistinguishable set marked:
-    :func:`tvcid.discovery.structure.indistinguishable.indistinguishable_set`) stands to the ``truth``
-    structure.
-
-    Returns ``winner``; ``right_winner``; ``set`` (every structure in the set, merged ones too);
-    ``members`` (the unmerged ones) and ``set_size`` (their number); ``truth_member`` (the member
-    the truth is or is merged into, ``None`` outside the set) and ``truth_in_set``; and
-    ``right_or_in_small_set``, the goal's verdict: the right winner, or the truth in a set of at
-    most 3 members.
-    """
-    inside = [f for f in ranked if f.indistinguishable_from_best]
-    members = [f.structure.name for f in inside if f.merged_into is None]
-    truth_member = next((f.merged_into or f.structure.name for f in inside if f.structure == truth),
-                        None)
-    right = ranked[0].structure == truth
-    return {"winner": ranked[0].structure.name, "right_winner": right,
-            "truth_in_set": truth_member is not None, "truth_member": truth_member,
-            "set_size": len(members), "set": [f.structure.name for f in inside], "members": members,
-            "right_or_in_small_set": right or (truth_member is not None and len(members) <= 3)}
-
-
-def as_well_as_truth(row, against="truth"):
-    """The structures no fit-based rule can tell from the truth on ``row``'s recordings, reduced
-    to the minimal ones (a structure containing another of them,
-    :func:`tvcid.discovery.structure.indistinguishable._contains`, is that one at its added components'
-    zero), the truth's own structure among them.
-
-    ``against="truth"``: every ranked structure whose fitted in-sample cost is at most the cost of
-    the true parameters themselves (``cost_at_truth``). The recordings are at least as likely
-    under each of them, at its fit, as under the truth; the truth's structure fits below the
-    truth by what the noise lets a fit gain, so a structure within that is within the noise.
-    ``against="fit"``: at most the truth's structure's own fit (or the truth's cost where that
-    search failed above it): an oracle that knows the true structure and ignores the noise.
-
-    A search that missed a structure's optimum leaves it out, so the count is a lower bound and
-    :func:`summarise`'s ``ceiling_set_le3`` and ``oracle_set_le3`` (at most 3 of them) upper
-    bounds on the draws whose truth a set of at most 3 can hold. Rows without a stored truth
-    cost give ``None``.
-    """
-    from tvcid.discovery.structure.indistinguishable import _contains
-
-    if against not in ("truth", "fit"):
-        raise ValueError(f"against must be 'truth' or 'fit', not {against!r}")
-    threshold = row.get("cost_at_truth")
-    if threshold is None or not row.get("ranking"):
-        return None
-    own = row.get("truth_structure_cost")
-    if against == "fit" and own is not None:
-        threshold = min(threshold, own)
-    names = {x["structure"] for x in row["ranking"] if x["cost"] <= threshold} | {row["structure"]}
-    fitting = [Structure.parse(n) for n in sorted(names)]
-    return [s.name for s in fitting if not any(_contains(s, o) for o in fitting)]
-
-
-def fit_ceiling(rows, against="truth"):
-    """Fraction of ``rows`` where at most 3 minimal structures fit as well as the truth
-    (:func:`as_well_as_truth` with ``against``); NaN where no row has a stored truth cost."""
-    counts = [len(m) for m in (as_well_as_truth(r, against) for r in rows) if m is not None]
-    return float(np.mean([c <= 3 for c in counts])) if counts else math.nan
-
-
-def undecided_marked(row):
-    """``row`` with the coordinates the recordings leave open marked, and its verdict.
-
-    When the truth's structure fitted at least as well as the truth itself, what that fit moves by
-    over 5 % the recordings do not pin, however sharp the optimum at the truth: such coordinates
-    are not counted as identifiable (idempotent; applied to resumed rows too).
-    """
-    own, at_truth = row.get("truth_structure_cost"), row.get("cost_at_truth")
-    if own is not None and at_truth is not None and own <= at_truth:
-        for v in row["coordinates"].values():
-            if v["identifiable"] and not v["within"]:
-                v["identifiable"] = False
-                v["undecided"] = "an optimum fitting at least as well as the truth differs"
-    row["identifiable_within"] = all(v["within"] for v in row["coordinates"].values()
-                                     if v["identifiable"])
-    return row
-
-
 def failed_draw(seed, exc, ranges="wide"):
     """The row of a draw whose discovery raised: wrong on every count."""
     scenario = draw_scenario(seed, ranges=ranges)
@@ -298,17 +218,6 @@ def guarded_draw(seed, out_dir, quick, ranges="wide", race=None):
         return run_draw(seed, out_dir, quick, ranges, race)
     except (ValueError, RuntimeError, ArithmeticError) as exc:
         return failed_draw(seed, exc, ranges)
-
-
-def choice_verdicts(row):
-    """Per structural choice: ``right`` or ``wrong`` where the reported set decides it (every
-    member shares one value, :func:`tvcid.models.structures.shared_choices`), ``open`` where it does not."""
-    if not row.get("set"):
-        return {c: "open" for c in CHOICES}
-    decided = shared_choices(row["set"])
-    truth = Structure.parse(row["structure"]).to_dict()
-    return {c: "open" if v is None else ("right" if v == truth[c] else "wrong")
-            for c, v in decided.items()}
 
 
 def structure_class(row):
@@ -349,151 +258,6 @@ def summarise(rows, key=structure_class):
             "failed": int(sum("error" in r for r in rs)),
         }
     return table
-
-
-def draw_floors(seed, out_dir, ranges="wide"):
-    """The margin floors (:func:`tvcid.discovery.structure.indistinguishable.margin_floors`) of draw
-    ``seed``'s recordings (drawn within ``ranges``), regenerated into ``out_dir/drawNNN`` unless
-    they are there."""
-    from tvcid.discovery.structure.estimator import validate_recordings
-    from tvcid.discovery.structure.indistinguishable import margin_floors
-    from tvcid.discovery.structure.targets import make_target
-
-    paths = write_recordings(draw_scenario(seed, ranges=ranges), Path(out_dir) / f"draw{seed:03d}",
-                             reuse=True)
-    dt = StructureDiscovery().dt
-    return margin_floors([make_target(r, dt) for r in validate_recordings(paths)])
-
-
-def rederived(row, floors, commit=CODE_COMMIT):
-    """``row`` with its indistinguishable set, winner and verdict derived again from its stored
-    ranking (every ranked structure's held-out fold costs) by the current set rule
-    (:func:`tvcid.discovery.structure.indistinguishable.indistinguishable_set`), with ``floors`` per
-    recording.
-
-    No search runs: the fits and scores are the row's own. Structures the row did not rank join
-    the set where they contain a member (as in the discovery). A changed verdict keeps the old one
-    under ``previous``; ``set_rule_check`` says which commit's rule and what changed.
-    """
-    from tvcid.discovery.structure.indistinguishable import indistinguishable_set
-    from tvcid.discovery.structure.ranking import StructureFit
-    from tvcid.models.structures import structure_space
-
-    def fit(structure, score, cost, folds=None):
-        return StructureFit(structure=structure, params=None, theta=np.zeros(1), cost=cost,
-                            cost_by_recording={}, origin=row.get("commit", ""), score=score,
-                            fold_costs=None if folds is None else np.asarray(folds, dtype=float))
-
-    fits = [fit(Structure.parse(x["structure"]), x["score"], x["cost"], x["fold_costs"])
-            for x in row["ranking"]]
-    named = {f.structure for f in fits}
-    fits += [fit(s, math.inf, math.inf) for s in structure_space({})[0] if s not in named]
-    fits.sort(key=lambda f: (f.score, f.cost))
-    ranked = indistinguishable_set(fits, len(floors), floors=np.asarray(floors, dtype=float))
-    verdict = set_verdict(ranked, Structure.parse(row["structure"]))
-    for key in ("members", "truth_member"):
-        del verdict[key]
-    keys = ("winner", "set_size", "truth_in_set", "right_or_in_small_set")
-    changed = [k for k in keys if verdict[k] != row[k]]
-    out = dict(row)
-    if changed:
-        out["previous"] = {k: row.get(k) for k in ("commit", "winner", "right_winner",
-                                                   "truth_in_set", "set_size",
-                                                   "right_or_in_small_set")}
-    out.update(verdict)
-    merged = {f.structure.name: f.merged_into for f in ranked}
-    out["ranking"] = [{**x, "merged_into": merged[x["structure"]]} for x in row["ranking"]]
-    floors_text = ", ".join(f"{v:.3g}" for v in floors)
-    out["set_rule_check"] = (
-        f"the indistinguishable set re-derived from this row's ranking with {commit}'s rule "
-        f"(floors {floors_text}): " + ("unchanged" if not changed else "; ".join(
-            f"{k} {row[k]} -> {verdict[k]}" for k in changed)))
-    return undecided_marked(out)
-
-
-#: Scales of the margin floors weighed by ``--floor-scan`` (1 is the rule in use).
-FLOOR_SCALES = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
-
-
-@dataclass(frozen=True)
-class FloorScan:
-    """The set rule's trade-off on finished rows: each scale of the margin floors against the
-    fraction of draws whose truth is the winner or in a set of at most 3, the fraction whose
-    set holds the truth, and the mean set size (:func:`floor_scan`).
-
-    Attributes
-    ----------
-    scales : tuple of float
-        Factors on every recording's floor
-        (:func:`tvcid.discovery.structure.indistinguishable.margin_floors`).
-    right_or_in_set_le3, truth_in_set, mean_set_size : tuple of float
-        Per scale, over the draws.
-    misses : tuple of tuple of int
-        Per scale, the seeds neither the winner nor in a set of at most 3.
-    ceiling : float
-        Fraction of the draws where at most 3 minimal structures fit the recordings as well as
-        the truth itself (:func:`as_well_as_truth`): what a set of at most 3 can reach without
-        excluding a structure the data favour as much as the truth.
-    """
-
-    scales: tuple
-    right_or_in_set_le3: tuple
-    truth_in_set: tuple
-    mean_set_size: tuple
-    misses: tuple
-    ceiling: float = math.nan
-
-    @property
-    def missed_at_every_scale(self) -> tuple:
-        """Seeds that no floor turns into a hit: the set rule is not what holds them."""
-        common = set(self.misses[0])
-        for m in self.misses[1:]:
-            common &= set(m)
-        return tuple(sorted(common))
-
-    def to_dict(self) -> dict:
-        return {"scales": list(self.scales), "right_or_in_set_le3": list(self.right_or_in_set_le3),
-                "truth_in_set": list(self.truth_in_set), "mean_set_size": list(self.mean_set_size),
-                "misses": [list(m) for m in self.misses], "ceiling": self.ceiling,
-                "missed_at_every_scale": list(self.missed_at_every_scale)}
-
-    def plot(self, ax=None):
-        """Both rates and the goal (90 %) against the floors' scale; the rule's scale 1 marked."""
-        if ax is None:
-            from tvcid.figures import pyplot
-
-            ax = pyplot().subplots(figsize=(6, 3.6))[1]
-        ax.plot(self.scales, self.right_or_in_set_le3, "o-", label="winner, or in a set of at most 3")
-        ax.plot(self.scales, self.truth_in_set, "s--", label="truth in the reported set")
-        ax.axhline(0.9, color="0.5", lw=0.8, ls=":", label="goal")
-        ax.axhline(self.ceiling, color="C3", lw=0.8, ls="-.",
-                   label="at most 3 structures fit as well as the truth")
-        ax.axvline(1.0, color="0.7", lw=0.8)
-        ax.set_xlabel("scale on every recording's margin floor (1: the rule in use)")
-        ax.set_ylabel("fraction of draws")
-        ax.set_ylim(0.0, 1.02)
-        ax.legend(loc="lower right", fontsize=8)
-        return ax
-
-
-def floor_scan(rows, floors, scales=FLOOR_SCALES):
-    """Re-derive every finished row's set (:func:`rederived`) with its margin floors scaled.
-
-    ``floors``: seed -> the draw's floors per recording (:func:`draw_floors`). No search runs. A
-    draw missed at every scale (:attr:`FloorScan.missed_at_every_scale`) is not held by the
-    margin's floor: its structures' held-out scores do not tell the truth from more than two
-    others, or, with no floor, exclude it.
-    """
-    rows = [r for r in rows if "error" not in r]
-    hits, truth_in, sizes, misses = [], [], [], []
-    for scale in scales:
-        again = [rederived(r, np.asarray(floors[r["seed"]], dtype=float) * scale) for r in rows]
-        hits.append(float(np.mean([r["right_or_in_small_set"] for r in again])))
-        truth_in.append(float(np.mean([r["truth_in_set"] for r in again])))
-        sizes.append(float(np.mean([r["set_size"] for r in again])))
-        misses.append(tuple(r["seed"] for r in again if not r["right_or_in_small_set"]))
-    return FloorScan(tuple(float(s) for s in scales), tuple(hits), tuple(truth_in), tuple(sizes),
-                     tuple(misses), fit_ceiling(rows))
 
 
 def main(argv=None) -> int:
@@ -574,7 +338,7 @@ def main(argv=None) -> int:
               f"{t['choices_decided_wrong']:5d}  {t['median_seconds']:8.0f}")
     print("set<=3: the truth in a reported set of at most 3; ceiling (oracle): draws where at most 3 "
           "minimal structures fit the recordings as well as the truth itself (as the truth's "
-          "structure's own fit): as_well_as_truth")
+          "structure's own fit): verdicts.as_well_as_truth")
     return goal_report(discovery_goals(table["overall"]))
 
 

@@ -12,7 +12,7 @@ sensor and read back as a measured recording, and added to the run
 
 * the set (its unmerged members), whether it holds the truth's structure;
 * the fit ceiling: the minimal structures that fit the recordings at least as well as the true
-  parameters themselves (:func:`tvcid.studies.benchmarks.discovery.as_well_as_truth`); no rule based on
+  parameters themselves (:func:`tvcid.studies.benchmarks.verdicts.as_well_as_truth`); no rule based on
   the fit can report a set smaller than that;
 * whether the set is *closed* (:func:`tvcid.discovery.prediction.closure.set_closure`): one structure,
   or members whose posterior responses to every test of the menu and whose predicted cycles at
@@ -50,7 +50,8 @@ from tvcid.models.strict_json import write_json
 from tvcid.run_record import RunCost
 
 from ..common import code_commit
-from .discovery import as_well_as_truth, cost_at_truth
+from .discovery import cost_at_truth
+from .verdicts import as_well_as_truth
 from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report

@@ -38,7 +38,7 @@ from tvcid.discovery.prediction.discrimination import default_candidates, discri
 from tvcid.models.strict_json import write_json
 
 from ..common import code_commit
-from .discovery import set_verdict
+from .verdicts import set_verdict
 from .goals import report as goal_report
 from .scenarios import design_of, draw_scenario, record_added_test, write_recordings
 
