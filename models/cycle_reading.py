@@ -1,9 +1,10 @@
-"""Reading a limit cycle off a sampled signal: its crossings, periods, harmonics, features,
-stationary tail and settling, and the white noise on it.
+"""Reading a limit cycle off a sampled signal: its crossings, periods, harmonics and features,
+and the white noise on it.
 
-Every measurement of a cycle in a sampled output, recorded or simulated, is one function here;
-the structure search's targets, the calibration's likelihood terms, the loop's state on a
-recorded cycle and the reports all read cycles through them.
+Every measurement of a cycle in a sampled output, recorded or simulated, is one function here or
+in :mod:`tvcid.models.cycle_settling` (where in a record the cycle is settled); the structure
+search's targets, the calibration's likelihood terms, the loop's state on a recorded cycle and
+the reports all read cycles through them.
 
 Amplitude is ``(max - min)/2`` and frequency comes from mean crossings, as
 ``docs/models.md#conventions`` defines them for its reference cycles (a Schmitt trigger whose
@@ -18,7 +19,7 @@ Measurements, by what they read:
 
 * noise and crossings -- :func:`white_noise_sd`, :func:`upward_mean_crossings`,
   :func:`crossing_hysteresis`, :func:`cycle_crossings`, :func:`fundamental_crossings`,
-  :func:`crossing_multiple`;
+  :func:`crossing_multiple`, :func:`peak_to_peak_sizes`;
 * harmonics -- :func:`fourier_harmonics` (phase at the first sample),
   :func:`phase_free_harmonics` (phases referred to the first harmonic's),
   :func:`crossing_harmonics` (phase at a crossing), :func:`whole_period_harmonics` (over an
@@ -26,9 +27,7 @@ Measurements, by what they read:
 * features -- :func:`limit_cycle_features` (a record's: raises without two whole periods),
   :func:`cycle_features` (named features of a noise-free simulated cycle, ``None`` without two
   whole periods), :func:`cycle_of` (frequency and phase-free harmonics of a simulated cycle,
-  measured as its record's was), :func:`robust_amplitude` (a noisy record's amplitude);
-* the stationary tail and settling -- :func:`stationary_tail`, :func:`period_sizes`,
-  :func:`settling_gain`, :func:`settles`.
+  measured as its record's was), :func:`robust_amplitude` (a noisy record's amplitude).
 """
 from __future__ import annotations
 
@@ -52,12 +51,9 @@ __all__ = [
     "fourier_harmonics",
     "fundamental_crossings",
     "limit_cycle_features",
-    "period_sizes",
+    "peak_to_peak_sizes",
     "phase_free_harmonics",
     "robust_amplitude",
-    "settles",
-    "settling_gain",
-    "stationary_tail",
     "upward_mean_crossings",
     "white_noise_sd",
     "whole_period_harmonics",
@@ -76,19 +72,6 @@ MAX_CROSSINGS_PER_PERIOD = 3
 UNEQUAL_INTERVALS = 0.05
 REPEAT_RATIO = 0.3
 SUBHARMONIC_FRACTION = 0.2
-#: Relative peak-to-peak change that ends a record's stationary tail (:func:`stationary_tail`).
-TAIL_TOLERANCE = 0.15
-#: A tail whose size per two periods an exponential approach fits this much better than a
-#: constant is still settling (:func:`settles`; below the calibration's 100 for feature pieces:
-#: a drawn truth's 12 s record still 13 % under its cycle scores 42).
-SETTLING_GAIN = 25.0
-#: ... from at least this many crossings (two periods to start from, then six to compare).
-MIN_SETTLING_CROSSINGS = 9
-#: Pieces of a record :func:`settling_gain` needs at least (three parameters and three degrees
-#: of freedom).
-SETTLING_MIN_PIECES = 6
-
-
 class InsufficientPeriodsError(ValueError):
     """The record does not hold the two whole periods a limit-cycle feature needs."""
 
@@ -397,7 +380,7 @@ def limit_cycle_features(t, delta, n_harmonics=11) -> LimitCycleFeatures:
     period = float(np.mean(periods))
     w0 = 2 * np.pi / period
     sel = (t >= ups[0]) & (t < ups[-1])
-    ts, xs = t[sel], x[sel]
+    xs = x[sel]
     mean = float(np.mean(xs))
     k = np.arange(1, n_harmonics + 1)
     harmonics = np.abs(whole_period_harmonics(t, x, ups[0], ups[-1], ups.size - 1, n_harmonics))
@@ -464,7 +447,7 @@ def cycle_of(t, x, multiple=None):
     # cycle near its mean must not add crossings on one side only)
     c = cycle_crossings(t, x, level)
     if multiple is None:
-        c = fundamental_crossings(c, _sizes(t, x, c), signal=(t, x))
+        c = fundamental_crossings(c, peak_to_peak_sizes(t, x, c), signal=(t, x))
     else:
         c = c[::multiple]
     if c.size < 3:
@@ -491,120 +474,7 @@ def robust_amplitude(t, delta, bins=100):
     return 0.5 * float(np.max(means) - np.min(means))
 
 
-def _sizes(t, x, ups):
+def peak_to_peak_sizes(t, x, ups):
     """Peak-to-peak of ``x`` between consecutive crossings ``ups``."""
     idx = np.searchsorted(t, ups)
     return np.array([np.ptp(x[a:b]) if b > a else 0.0 for a, b in zip(idx[:-1], idx[1:])])
-
-
-def _two_period_sizes(t, x, ups):
-    """Peak-to-peak of ``x`` over each two consecutive periods (over each one when there are
-    fewer than three): lobes that alternate (a beat with a held controller) do not read as a
-    change of size, a change of attractor does."""
-    p2p = _sizes(t, x, ups)
-    return np.maximum(p2p[:-1], p2p[1:]) if ups.size >= 4 else p2p
-
-
-def stationary_tail(t, d, name="recording"):
-    """The end of a record over which the cycle's amplitude is settled.
-
-    A record may start with a transient or on another attractor (paper 000's small cycle: the
-    bundled controller-B record holds a 2.6e-4 rad cycle for 14 s before the large one). Periods
-    are taken between upward mean crossings, read at the fundamental
-    (:func:`fundamental_crossings`); walking back from the end, the tail keeps every period whose
-    peak-to-peak amplitude over it and the next period is within ``TAIL_TOLERANCE`` of the median
-    of the last five.
-
-    Returns
-    -------
-    t, d : ndarray
-        The tail.
-    ups : ndarray
-        Upward mean crossings in it (at least three).
-
-    Raises
-    ------
-    NoCycleError
-        When the record's end holds fewer than two whole periods.
-    """
-    half = t >= 0.5 * (t[0] + t[-1])
-    amp = 0.5 * float(np.ptp(d[half]))
-    level = float(np.mean(d[half]))
-    ups = (upward_mean_crossings(t, d, level, crossing_hysteresis(d[half], amp)) if amp > 0
-           else np.zeros(0))
-    ups = fundamental_crossings(ups, _sizes(t, d, ups), signal=(t, d))
-    if ups.size < 3:
-        raise NoCycleError(
-            f"{name}: no limit cycle in the record ({max(ups.size - 1, 0)} whole periods in its "
-            "second half; at least two are needed)")
-    p2p = _two_period_sizes(t, d, ups)
-    ref = float(np.median(p2p[-5:]))
-    first = p2p.size - 1
-    while first > 0 and abs(p2p[first - 1] / ref - 1.0) <= TAIL_TOLERANCE:
-        first -= 1
-    ups = ups[first:]
-    if ups.size < 3:
-        raise NoCycleError(f"{name}: the cycle's amplitude never settles (two whole periods alike "
-                           "are needed at the end of the record)")
-    sel = t >= ups[0] - 0.5 * (ups[1] - ups[0])
-    return t[sel], d[sel], ups
-
-
-def period_sizes(t, x, ups):
-    """First-harmonic amplitude of ``x`` over each period between consecutive crossings ``ups``
-    (a size that sensor noise does not bias, unlike the peak-to-peak)."""
-    idx = np.searchsorted(t, ups)  # as _sizes: the samples in [ups[j], ups[j + 1])
-    out = np.empty(ups.size - 1)
-    for j, (a, b) in enumerate(zip(idx[:-1], idx[1:])):
-        omega = 2 * math.pi / (ups[j + 1] - ups[j])
-        out[j] = abs(fourier_harmonics(t[a:b], x[a:b], omega, 1)[0])
-    return out
-
-
-def settling_gain(centres, values, noise_var) -> float:
-    """How much better ``a + b exp((c_last - c) / T)`` fits a record's piece features than a
-    constant: the chi-square gain at the best time constant ``T`` of a grid, in units of the
-    fit's residual variance where that exceeds the noise (a two-mode settling is not one
-    exponential). 0 with fewer than :data:`SETTLING_MIN_PIECES` pieces.
-
-    ``centres`` (s, increasing), ``values`` (the pieces' feature), ``noise_var`` (each piece's
-    feature variance under sensor noise).
-    """
-    c = np.asarray(centres, dtype=float)
-    f = np.asarray(values, dtype=float)
-    w = 1.0 / np.maximum(np.asarray(noise_var, dtype=float), 1e-300)
-    n = c.size
-    if n < SETTLING_MIN_PIECES or not np.all(np.isfinite(f)):
-        return 0.0
-    chi_constant = float(np.sum(w * (f - np.sum(w * f) / np.sum(w)) ** 2))
-    best = math.inf
-    for T in np.geomspace(0.25 * (c[1] - c[0]), c[-1] - c[0], 200):
-        X = np.stack([np.ones(n), np.exp((c[-1] - c) / T)], axis=1)
-        A = X.T @ (X * w[:, None])
-        if np.linalg.cond(A) > 1e12:
-            continue
-        beta = np.linalg.solve(A, X.T @ (w * f))
-        best = min(best, float(np.sum(w * (f - X @ beta) ** 2)))
-    if not math.isfinite(best):
-        return 0.0
-    return (chi_constant - best) / max(1.0, best / (n - 3))
-
-
-def settles(t, d, ups) -> bool:
-    """True when the cycle of the tail ``(t, d)`` (upward mean crossings ``ups``) is still settling.
-
-    Its peak-to-peak over each two periods follows an exponential approach that fits
-    ``SETTLING_GAIN`` better than a constant (:func:`settling_gain`, the calibration's test of
-    the same thing), in units of the sensor noise estimated from the record
-    (:func:`white_noise_sd`), over at least ``MIN_SETTLING_CROSSINGS`` crossings. A cycle born
-    near its bifurcation grows slowly, by a per cent or two per period after tens of seconds; its
-    tail then sits well under the settled cycle, which a comparison with the settled cycle reads
-    as a wrong linear block.
-    """
-    if ups.size < MIN_SETTLING_CROSSINGS:
-        return False
-    p2p = _two_period_sizes(t, d, ups)
-    noise_var = max((2.0 * white_noise_sd(d)) ** 2, 1e-30 * float(np.max(p2p)) ** 2)
-    with np.errstate(over="ignore", invalid="ignore"):
-        gain = settling_gain(ups[1:-1], p2p, np.full(p2p.size, noise_var))
-    return bool(gain >= SETTLING_GAIN)

@@ -433,7 +433,8 @@ def test_period_two_cycle_is_measured_at_its_fundamental():
     """A cycle with two upward mean crossings per period (alternating lobes, as a controller held
     at 200 Hz can give) is measured at its true period; a cycle that only wanders is not mistaken
     for one."""
-    from tvcid.models.cycle_reading import fundamental_crossings, stationary_tail
+    from tvcid.models.cycle_reading import fundamental_crossings
+    from tvcid.models.cycle_settling import stationary_tail
 
     rng = np.random.default_rng(3)
     t = np.arange(0, 30, 1e-3)

@@ -102,7 +102,8 @@ def test_held_command_through_the_delay_converges_with_the_step():
     """M000 held at 200 Hz, delay before the first integrator: the cycle's first harmonic at the
     fits' 5e-4 s step within 0.1 % of a 5e-5 s run (a line that spread each jump over the step
     before its node would read it 2.0 % small, 0.9 % at 2.5e-4 s)."""
-    from tvcid.models.cycle_reading import phase_free_harmonics, stationary_tail
+    from tvcid.models.cycle_reading import phase_free_harmonics
+    from tvcid.models.cycle_settling import stationary_tail
 
     def first_harmonic(dt):
         tr = simulate(hypothesis("M000"), ClosedLoop(5.84, 0.062, 12.3, sample_rate=200.0), 40.0,

@@ -15,8 +15,8 @@ from tvcid.models.cycle_reading import (
     CROSSING_HYSTERESIS,
     crossing_hysteresis,
     cycle_of,
-    stationary_tail,
 )
+from tvcid.models.cycle_settling import stationary_tail
 from tvcid.models.recording import Recording
 
 W = 2 * np.pi * 1.9
@@ -58,9 +58,9 @@ def test_simulated_cycle_is_measured_at_the_records_multiple():
     frequency (a jump of the features for a small change of a parameter), the record's does not."""
     from tvcid.models.cycle_reading import (
         SUBHARMONIC_FRACTION,
-        _sizes,
         crossing_multiple,
         fundamental_crossings,
+        peak_to_peak_sizes,
     )
 
     w = 2 * np.pi * 3.0
@@ -76,6 +76,6 @@ def test_simulated_cycle_is_measured_at_the_records_multiple():
     from tvcid.models.cycle_reading import crossing_hysteresis, upward_mean_crossings
 
     every = upward_mean_crossings(t, x, float(np.mean(x)), crossing_hysteresis(x, 0.5 * np.ptp(x)))
-    ups = fundamental_crossings(every, _sizes(t, x, every), signal=(t, x))
+    ups = fundamental_crossings(every, peak_to_peak_sizes(t, x, every), signal=(t, x))
     assert crossing_multiple(t, x, ups) == 2
     assert crossing_multiple(t, x, every) == 1

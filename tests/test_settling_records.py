@@ -3,7 +3,7 @@
 Drawn truths near the bifurcation that makes their cycle grow it slowly: a 12 s record taken 10 s
 after the loop closes can sit 5-25 % under the settled cycle. Compared with the settled cycle, the
 truth then costs tens to hundreds of units on its own record and the fit moves the linear block
-(:func:`tvcid.models.cycle_reading.settles`,
+(:func:`tvcid.models.cycle_settling.settles`,
 :meth:`tvcid.discovery.structure.targets.CycleTarget._transient_features`).
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pytest
 
 from tvcid.discovery.structure import targets
 from tvcid.discovery.structure.search import Objective
-from tvcid.models import cycle_reading, simulate
+from tvcid.models import cycle_settling, simulate
 from tvcid.models.recording import load_recording
 from tvcid.studies.benchmarks import scenarios
 from tvcid.studies.benchmarks.scenarios import draw_scenario, shortened, write_recordings
@@ -79,8 +79,8 @@ def test_a_still_growing_cycle_is_found_settling():
     growing = 0.01 * (1 - 0.25 * np.exp(-t / 5.0)) * np.sin(omega * t) + noise
     settled = 0.01 * np.sin(omega * t) + noise
     for x, expected in ((growing, True), (settled, False)):
-        tt, dd, ups = cycle_reading.stationary_tail(t, x)
-        assert cycle_reading.settles(tt, dd, ups) is expected
+        tt, dd, ups = cycle_settling.stationary_tail(t, x)
+        assert cycle_settling.settles(tt, dd, ups) is expected
 
 
 @pytest.mark.slow

@@ -47,12 +47,10 @@ from tvcid.models.cycle_reading import (
     crossing_multiple,
     cycle_crossings,
     cycle_of,
-    period_sizes,
     phase_free_harmonics,
-    settles,
-    stationary_tail,
     white_noise_sd,
 )
+from tvcid.models.cycle_settling import period_sizes, settles, stationary_tail
 from tvcid.models.cycle_state import RecordedCycleState
 from tvcid.models.edge_timing import edge_timing_for
 

@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from tvcid.models import ClosedLoop, OpenLoop, SimulationDiverged, simulate
-from tvcid.models.cycle_reading import InsufficientPeriodsError, NoCycleError, stationary_tail
+from tvcid.models.cycle_reading import InsufficientPeriodsError, NoCycleError
+from tvcid.models.cycle_settling import stationary_tail
 from tvcid.models.hypotheses import KICK_X0, ActuatorParams
 from tvcid.models.recording import save_recording
 from tvcid.models.reference import simulate_reference
@@ -58,7 +59,7 @@ ACCEPT_DT = 2e-4
 #: ``tests/test_scenarios.py::test_the_data_step_keeps_the_solver_error_under_the_smallest_noise``).
 DATA_DT = 5e-5
 #: Seconds at the end of a 30 s run over which a truth's cycle must be settled
-#: (:func:`tvcid.models.cycle_reading.stationary_tail`).
+#: (:func:`tvcid.models.cycle_settling.stationary_tail`).
 MIN_SETTLED = 8.0
 
 

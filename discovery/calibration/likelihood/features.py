@@ -9,7 +9,7 @@ widened by the cycle's own wander and settling over the window, and scales as
 the unbiased amplitude and the default. The features are read off the record and off each
 simulated cycle by :mod:`tvcid.models.cycle_reading` (:func:`~tvcid.models.cycle_reading.limit_cycle_features`,
 :func:`~tvcid.models.cycle_reading.cycle_features`), and a record still settling is told by
-:func:`~tvcid.models.cycle_reading.settling_gain`.
+:func:`~tvcid.models.cycle_settling.settling_gain`.
 """
 from __future__ import annotations
 
@@ -20,12 +20,11 @@ import numpy as np
 
 from tvcid.models.batch import CONTINUATION_RADIUS, BatchSimulator
 from tvcid.models.cycle_reading import (
-    SETTLING_MIN_PIECES,
     InsufficientPeriodsError,
     cycle_features,
     limit_cycle_features,
-    settling_gain,
 )
+from tvcid.models.cycle_settling import SETTLING_MIN_PIECES, settling_gain
 
 from .base import _LOG_2PI, features_inflation, tempered
 from .closed_loop import MIN_AMPLITUDE_RATIO, _ClosedLoopTerm
@@ -72,7 +71,7 @@ SETTLING_WINDOWS = 2.0
 #: explains its pieces' frequency or size this much better than a constant (chi-square gain in
 #: units of the fit's own residual variance where that exceeds the noise): an F of 50, p ~ 1e-5 at
 #: 12 pieces (a lower gain lets settled records whose pieces scatter beyond their noise count
-#: as settling), from at least :data:`tvcid.models.cycle_reading.SETTLING_MIN_PIECES` pieces.
+#: as settling), from at least :data:`tvcid.models.cycle_settling.SETTLING_MIN_PIECES` pieces.
 SETTLING_FIT_GAIN = 100.0
 
 
