@@ -36,6 +36,62 @@ def test_a_set_is_closed_when_one_or_when_nothing_parts_it():
     assert not part.closed and part.parting == ["t1", "s1"]
 
 
+class _Draws:
+    """Stands for a member's posterior draws: its name as every draw's parameters."""
+
+    def __init__(self, name):
+        self.name = name
+
+    def __len__(self):
+        return 4
+
+    def params(self, i):
+        return self.name
+
+    def median_params(self):
+        return self.name
+
+
+def test_a_member_under_the_deciding_share_is_not_counted_in_the_closure(monkeypatch):
+    """A member the weights decided against (under the deciding share) is left out before any
+    test is simulated: alone with one member it leaves the set closed with nothing simulated;
+    beside two members that agree it does not part them, though with every member counted it
+    would."""
+    import tvcid.discovery.prediction.closure as closure
+    import tvcid.discovery.prediction.set_prediction as set_prediction
+
+    seen = []
+
+    def menu_agreement(sets, candidate, *args, **kwargs):
+        seen.append(sorted(sets))
+        return {"name": candidate, "agree": "c" not in sets}
+
+    def predict(member_draws, *args, **kwargs):
+        class Prediction:
+            def to_dict(self):
+                return {"members_agree": True, "disagreeing": []}
+        return Prediction()
+
+    monkeypatch.setattr(closure, "menu_agreement", menu_agreement)
+    monkeypatch.setattr(set_prediction, "predict_cycle_over_set", predict)
+    from tvcid.discovery.prediction.settings import ControllerSetting
+
+    draws = {n: _Draws(n) for n in "abc"}
+    settings = [ControllerSetting(8.0, 0.06, 9.0)]
+
+    one = closure.set_closure({n: draws[n] for n in "ab"}, ["t1"], settings, 1e-5,
+                              weights={"a": 0.97, "b": 0.03})
+    assert one.closed and one.members == ["a"] and one.not_counted == ["b"] and seen == []
+
+    two = closure.set_closure(draws, ["t1", "t2"], settings, 1e-5,
+                              weights={"a": 0.6, "b": 0.37, "c": 0.03})
+    assert two.closed and two.not_counted == ["c"] and seen == [["a", "b"], ["a", "b"]]
+    assert two.to_dict()["not_counted"] == ["c"]
+
+    every = closure.set_closure(draws, ["t1", "t2"], settings, 1e-5)
+    assert not every.closed and every.parting == ["t1", "t2"] and every.not_counted == []
+
+
 @pytest.mark.slow
 def test_quick_loop_on_one_cycle_adds_the_suggested_test_from_the_truth(tmp_path, monkeypatch, capsys):
     """``python -m tvcid.studies.benchmarks.loop --quick --draws 1`` on the discovery benchmark's first

@@ -17,7 +17,11 @@ A set is *closed* when it holds one structure, or when its calibrated members ag
   added in quadrature).
 
 Then the choice between them does not matter to what a user would measure or design for; a set
-that is not closed says at which test or setting the members part.
+that is not closed says at which test or setting the members part. Where the members carry
+weights, a member under the deciding share
+(:data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`) is not counted: the data have
+decided against it, as the set's prediction and the next test leave it out; a set whose weight
+one member holds all but that share of is closed.
 """
 from __future__ import annotations
 
@@ -87,15 +91,19 @@ class SetClosure:
     Attributes
     ----------
     members : list of str
+        The members counted.
     tests : list of dict
         :func:`menu_agreement` of every test of the menu.
     settings : list of dict
         Per controller setting: its values, ``members_agree`` and the disagreeing pairs.
+    not_counted : list of str
+        Members under the deciding share of the weight, left out.
     """
 
     members: list
     tests: list = field(default_factory=list)
     settings: list = field(default_factory=list)
+    not_counted: list = field(default_factory=list)
 
     @property
     def closed(self) -> bool:
@@ -111,11 +119,11 @@ class SetClosure:
 
     def to_dict(self) -> dict:
         return {"closed": self.closed, "members": self.members, "parting": self.parting,
-                "tests": self.tests, "settings": self.settings}
+                "tests": self.tests, "settings": self.settings, "not_counted": self.not_counted}
 
 
 def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, dt=5e-4,
-                seed=0, config=None, resolution=None) -> SetClosure:
+                seed=0, config=None, resolution=None, weights=None) -> SetClosure:
     """Whether the members of a set agree on every test of ``candidates`` and on the cycle at
     every controller setting of ``settings``.
 
@@ -136,13 +144,22 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
         What a recording resolves of a cycle
         (:func:`tvcid.discovery.prediction.set_prediction.measurement_resolution`), by which the
         predicted cycles' bands are widened before they are compared.
+    weights : dict, optional
+        Structure name -> the member's weight in the set
+        (:func:`tvcid.discovery.prediction.draws.load_set_weights`); a member under the deciding
+        share is not counted. ``None``: every member counts.
     """
+    from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
+
     from .cycles import PredictionConfig
     from .set_prediction import predict_cycle_over_set
 
+    not_counted = sorted(n for n in member_draws
+                         if weights is not None and weights.get(n, 1.0) < DECIDING_SHARE)
+    member_draws = {n: d for n, d in member_draws.items() if n not in not_counted}
     names = list(member_draws)
     if len(names) <= 1:
-        return SetClosure(names)
+        return SetClosure(names, not_counted=not_counted)
     sets = {n: [d.params(i) for i in range(min(n_draws, len(d)))] for n, d in member_draws.items()}
     reference = member_draws[names[0]].median_params()
     tests = [menu_agreement(sets, c, noise_sd, dt, seed, reference) for c in candidates]
@@ -152,4 +169,4 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
                                       describing=False, resolution=resolution).to_dict()
         rows.append({"setting": f"Kp {s.kp:.3g}, Kd {s.kd:.3g}, mu {s.mu:.3g}",
                      "members_agree": pred["members_agree"], "disagreeing": pred["disagreeing"]})
-    return SetClosure(names, tests, rows)
+    return SetClosure(names, tests, rows, not_counted)

@@ -16,7 +16,9 @@ sensor and read back as a measured recording, and added to the run
   the fit can report a set smaller than that;
 * whether the set is *closed* (:func:`tvcid.discovery.prediction.closure.set_closure`): one structure,
   or members whose posterior responses to every test of the menu and whose predicted cycles at
-  three controller settings the recordings did not use agree within their bands; at round 0,
+  three controller settings the recordings did not use agree within their bands, a calibrated
+  member under the deciding share of the set's weight not counted (``not_counted``; each test's
+  and setting's pairs are kept under ``closure``); at round 0,
   whether the menu *can decide*: the set is closed, or a test of the menu parts its members
   (members that part only at unseen controller settings leave the menu nothing to decide);
 * what the run cost (:meth:`tvcid.run_record.RunCost.totals`: kernel steps, CPU and wall seconds)
@@ -113,7 +115,7 @@ def unseen_settings(seed, controller_rate, n=UNSEEN_SETTINGS):
 def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     """What round ``k`` of a draw leaves: the set, the truth in it, the fit ceiling, closure,
     whether the menu can decide, what the run cost."""
-    from tvcid.discovery.prediction.draws import load_set_draws
+    from tvcid.discovery.prediction.draws import load_set_draws, load_set_weights
     from tvcid.discovery.prediction.set_prediction import measurement_resolution
     from tvcid.discovery.prediction.closure import set_closure
     from tvcid.discovery.prediction.discrimination import default_candidates
@@ -137,18 +139,22 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     noise = median_sensor_noise(summary["sensor_noise"])
     t0 = time.perf_counter()
     controller_rate = next((r.controller_rate for r in scenario.recordings if r.kind == "closed"), None)
-    closure = set_closure(load_set_draws(out_dir, n_draws=config.closure_draws, seed=seed),
-                          default_candidates(rate), unseen_settings(seed, controller_rate), noise,
+    member_draws = load_set_draws(out_dir, n_draws=config.closure_draws, seed=seed)
+    weights = load_set_weights(out_dir)
+    closure = set_closure(member_draws, default_candidates(rate),
+                          unseen_settings(seed, controller_rate), noise,
                           n_draws=config.closure_draws, seed=seed,
-                          resolution=measurement_resolution(recordings))
+                          resolution=measurement_resolution(recordings), weights=weights)
     best = (summary.get("next_test") or {}).get("best")
     menu_parting = [t["name"] for t in closure.tests if not t.get("agree", True)]
     return {"round": k, "recordings": len(summary["recordings"]), "set": members,
             "set_size": len(members), "truth_in_set": truth.name in inside,
             "truth_member": inside.get(truth.name), "winner": summary["structures"][0]["structure"],
             "ceiling": ceiling, "ceiling_size": len(ceiling),
-            "calibrated": list(closure.members), "closed": closure.closed,
-            "parting": closure.parting,
+            "calibrated": list(member_draws), "weights": weights,
+            "counted": list(closure.members), "not_counted": closure.not_counted,
+            "closed": closure.closed, "parting": closure.parting,
+            "closure": {"tests": closure.tests, "settings": closure.settings},
             "menu_can_decide": bool(closure.closed or menu_parting),
             "suggested": None if best is None else best["name"],
             "cost": RunCost.from_dict(summary).totals(),
