@@ -20,8 +20,9 @@ Then the choice between them does not matter to what a user would measure or des
 that is not closed says at which test or setting the members part. Where the members carry
 weights, a member under the deciding share
 (:data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`) is not counted: the data have
-decided against it, as the set's prediction and the next test leave it out; a set whose weight
-one member holds all but that share of is closed.
+decided against it, as the set's prediction and the next test leave it out (it is still
+simulated, and the verdict counting every member is kept beside); a set whose weight one member
+holds all but that share of is closed.
 """
 from __future__ import annotations
 
@@ -88,16 +89,20 @@ def menu_agreement(member_sets: dict, candidate, noise_sd, dt=5e-4, seed=0, refe
 class SetClosure:
     """Whether a set is closed, test by test and setting by setting.
 
+    Every calibrated member is simulated; the verdict counts the members the weights have not
+    decided against, and :attr:`closed_counting_every_member` is the verdict had every member
+    counted.
+
     Attributes
     ----------
     members : list of str
-        The members counted.
+        Every member simulated.
     tests : list of dict
         :func:`menu_agreement` of every test of the menu.
     settings : list of dict
-        Per controller setting: its values, ``members_agree`` and the disagreeing pairs.
+        Per controller setting: its values, ``members_agree`` and the ``disagreeing`` pairs.
     not_counted : list of str
-        Members under the deciding share of the weight, left out.
+        Members under the deciding share of the weight, left out of the verdict.
     """
 
     members: list
@@ -106,20 +111,41 @@ class SetClosure:
     not_counted: list = field(default_factory=list)
 
     @property
-    def closed(self) -> bool:
-        return len(self.members) <= 1 or (
-            all(t.get("agree", True) for t in self.tests)
-            and all(s["members_agree"] for s in self.settings))
+    def counted(self) -> list:
+        """The members the verdict counts."""
+        return [m for m in self.members if m not in self.not_counted]
+
+    def _parting(self, counted) -> list:
+        def counts(pair):
+            return all(m in counted for m in pair)
+
+        tests = [t["name"] for t in self.tests
+                 if ("pairs" in t and any(counts(p["members"]) and not p["agree"]
+                                          for p in t["pairs"]))
+                 or ("pairs" not in t and not t.get("agree", True))]
+        settings = [s["setting"] for s in self.settings
+                    if ("disagreeing" in s and any(counts(d["members"]) for d in s["disagreeing"]))
+                    or ("disagreeing" not in s and not s["members_agree"])]
+        return tests + settings
 
     @property
     def parting(self) -> list:
-        """Names of the tests and settings at which the members part."""
-        return ([t["name"] for t in self.tests if not t.get("agree", True)]
-                + [s["setting"] for s in self.settings if not s["members_agree"]])
+        """Names of the tests and settings at which two counted members part."""
+        return self._parting(self.counted) if len(self.counted) > 1 else []
+
+    @property
+    def closed(self) -> bool:
+        return not self.parting
+
+    @property
+    def closed_counting_every_member(self) -> bool:
+        return len(self.members) <= 1 or not self._parting(self.members)
 
     def to_dict(self) -> dict:
-        return {"closed": self.closed, "members": self.members, "parting": self.parting,
-                "tests": self.tests, "settings": self.settings, "not_counted": self.not_counted}
+        return {"closed": self.closed, "members": self.members, "counted": self.counted,
+                "not_counted": self.not_counted, "parting": self.parting,
+                "closed_counting_every_member": self.closed_counting_every_member,
+                "tests": self.tests, "settings": self.settings}
 
 
 def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, dt=5e-4,
@@ -147,17 +173,16 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
     weights : dict, optional
         Structure name -> the member's weight in the set
         (:func:`tvcid.discovery.prediction.draws.load_set_weights`); a member under the deciding
-        share is not counted. ``None``: every member counts.
+        share is simulated but not counted in the verdict. ``None``: every member counts.
     """
     from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 
     from .cycles import PredictionConfig
     from .set_prediction import predict_cycle_over_set
 
-    not_counted = sorted(n for n in member_draws
-                         if weights is not None and weights.get(n, 1.0) < DECIDING_SHARE)
-    member_draws = {n: d for n, d in member_draws.items() if n not in not_counted}
     names = list(member_draws)
+    not_counted = sorted(n for n in names
+                         if weights is not None and weights.get(n, 1.0) < DECIDING_SHARE)
     if len(names) <= 1:
         return SetClosure(names, not_counted=not_counted)
     sets = {n: [d.params(i) for i in range(min(n_draws, len(d)))] for n, d in member_draws.items()}

@@ -255,7 +255,8 @@ def loop(records):
     rows = records["bench_loop"]["rows"]
     table = summarise(rows)
     rounds = "; ".join(
-        f"round {r['round']}: truth in the set {r['truth_in_set']} of {r['draws']}, closed "
+        f"round {r['round']}: truth in the set {r['truth_in_set']} of {r['draws']} (its member "
+        f"counted {r['truth_counted']}), closed "
         f"{r['closed']}, set sizes {r['set_sizes']} against fit ceilings {r['ceiling_sizes']}"
         for r in table["rounds"])
     ratios = ", ".join(f"{k.replace('_', ' ')} {v['median']:.2f} [{v['max']:.2f}]"
@@ -263,7 +264,9 @@ def loop(records):
     return (f"{table['draws']} of {MIN_DRAWS} draws finished ({table['failed']} failed); "
             + _goals_text(loop_goals(table, len(rows))) + f"; {rounds}; the menu can decide in "
             f"{table['menu_can_decide']} draws, of which closed "
-            f"{table['closed_where_menu_can_decide']}; an --add over a fresh run, median [largest]: {ratios or 'no --add run in one piece'}")
+            f"{table['closed_where_menu_can_decide']} ({table['closed_counting_every_member']} with "
+            "every member counted); an --add over a fresh run, median [largest]: "
+            f"{ratios or 'no --add run in one piece'}")
 
 
 def cycles_posterior(records):

@@ -18,14 +18,16 @@ sensor and read back as a measured recording, and added to the run
   or members whose posterior responses to every test of the menu and whose predicted cycles at
   three controller settings the recordings did not use agree within their bands, a calibrated
   member under the deciding share of the set's weight not counted (``not_counted``; each test's
-  and setting's pairs are kept under ``closure``); at round 0,
+  and setting's pairs are kept under ``closure``, and the verdict counting every member beside
+  it); whether the truth's member is counted (``truth_counted``); at round 0,
   whether the menu *can decide*: the set is closed, or a test of the menu parts its members
   (members that part only at unseen controller settings leave the menu nothing to decide);
 * what the run cost (:meth:`tvcid.run_record.RunCost.totals`: kernel steps, CPU and wall seconds)
   and, after each ``--add``, what a fresh ``tvcid discover`` on the same recordings costs, with
   its set: the ratio of the two is what the experiment loop saves.
 
-Goals, over at least 10 draws: the truth in the set at every round in every draw; the set closed
+Goals, over at least 10 draws: the truth in the set, its member counted, at every round in every
+draw (a set closed on members the truth's is not among has closed on a wrong answer); the set closed
 after at most two rounds in at least 80 % of the draws whose menu can decide; an ``--add``'s
 kernel steps at most a third of the fresh run's in the median and never above it; the set no
 larger than the fit ceiling's + 1 in at least 90 % of the draws (round 0). A round resumed from
@@ -152,8 +154,11 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
             "truth_member": inside.get(truth.name), "winner": summary["structures"][0]["structure"],
             "ceiling": ceiling, "ceiling_size": len(ceiling),
             "calibrated": list(member_draws), "weights": weights,
-            "counted": list(closure.members), "not_counted": closure.not_counted,
+            "counted": closure.counted, "not_counted": closure.not_counted,
+            "truth_counted": (inside.get(truth.name) is not None
+                              and inside[truth.name] not in closure.not_counted),
             "closed": closure.closed, "parting": closure.parting,
+            "closed_counting_every_member": closure.closed_counting_every_member,
             "closure": {"tests": closure.tests, "settings": closure.settings},
             "menu_can_decide": bool(closure.closed or menu_parting),
             "suggested": None if best is None else best["name"],
@@ -260,9 +265,10 @@ def guarded_draw(seed, out_dir, quick, ranges="wide", reuse=None) -> dict:
 
 def summarise(rows, rounds=ROUNDS) -> dict:
     """Per round (a draw whose loop ended earlier keeps its last round): draws with the truth in
-    the set, closed, the set within the ceiling + 1; the set sizes against the ceiling's. Over
-    the draws: ``truth_in_set_every_round``, ``menu_can_decide`` and of those
-    ``closed_where_menu_can_decide`` (after the last round); ``add_over_fresh``: per measure
+    the set, its member counted, closed, the set within the ceiling + 1; the set sizes against
+    the ceiling's. Over the draws: ``truth_in_set_every_round``, ``truth_counted_every_round``,
+    ``menu_can_decide`` and of those ``closed_where_menu_can_decide`` (after the last round) and
+    ``closed_counting_every_member``; ``add_over_fresh``: per measure
     (``kernel_steps``, ``cpu_seconds``, ``wall_seconds``) the ``median`` and ``max`` of the
     ratios of every ``--add`` run in one piece to its fresh run, over ``adds`` of them."""
     done = [r for r in rows if "error" not in r]
@@ -275,8 +281,13 @@ def summarise(rows, rounds=ROUNDS) -> dict:
                        "max": float(np.max(v)) if v else None}
     over = {"truth_in_set_every_round": sum(all(a["truth_in_set"] for a in r["rounds"])
                                             for r in done),
+            "truth_counted_every_round": sum(all(a.get("truth_counted", a["truth_in_set"])
+                                                 for a in r["rounds"]) for r in done),
             "menu_can_decide": len(can),
             "closed_where_menu_can_decide": sum(r["rounds"][-1]["closed"] for r in can),
+            "closed_counting_every_member": sum(
+                r["rounds"][-1].get("closed_counting_every_member", r["rounds"][-1]["closed"])
+                for r in can),
             "add_over_fresh": ratios}
     per_round = []
     for k in range(rounds + 1):
@@ -284,6 +295,7 @@ def summarise(rows, rounds=ROUNDS) -> dict:
         per_round.append({
             "round": k, "draws": len(at),
             "truth_in_set": sum(a["truth_in_set"] for a in at),
+            "truth_counted": sum(a.get("truth_counted", a["truth_in_set"]) for a in at),
             "closed": sum(a["closed"] for a in at),
             "within_ceiling_plus_one": sum(a["set_size"] <= a["ceiling_size"] + 1 for a in at),
             "set_sizes": [a["set_size"] for a in at], "ceiling_sizes": [a["ceiling_size"] for a in at],
@@ -296,13 +308,14 @@ def loop_goals(table, n_total) -> list:
     :data:`MIN_DRAWS` draws."""
     judged = n_total >= MIN_DRAWS
     rounds = table["rounds"]
-    every = table["truth_in_set_every_round"]
+    every = table["truth_counted_every_round"]
     last, first = rounds[-1], rounds[0]
     share = lambda k: k / n_total if n_total else None  # noqa: E731
     can, closed = table["menu_can_decide"], table["closed_where_menu_can_decide"]
     steps = table["add_over_fresh"]["kernel_steps"]
     return [
-        Goal("truth in the set at every round", share(every) if judged else None,
+        Goal("truth in the set, its member counted, at every round",
+             share(every) if judged else None,
              low=TRUTH_IN_SET, fmt="{:.0%}", shown=f"{every} of {n_total}",
              target=f"every draw, over >= {MIN_DRAWS} draws"),
         Goal(f"set closed after at most {last['round']} rounds, of the draws whose menu can decide",
@@ -336,9 +349,13 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     rounds = (QUICK if args.quick else FULL).rounds
 
+    def truth_state(r):
+        return ("OUT" if not r["truth_in_set"] else
+                "in" if r.get("truth_counted", True) else "in, under the deciding share")
+
     def describe(row):
         steps = " -> ".join(f"{r['set_size']} (ceiling {r['ceiling_size']}, truth "
-                            f"{'in' if r['truth_in_set'] else 'OUT'}, "
+                            f"{truth_state(r)}, "
                             f"{'closed' if r['closed'] else 'open'})" for r in row["rounds"])
         return f"draw {row['seed']}: truth {row['structure']}: {steps}"
 
@@ -350,12 +367,14 @@ def main(argv=None) -> int:
     table = summarise(rows, rounds)
     print(f"\n{table['draws']} draws ({table['failed']} failed)")
     for r in table["rounds"]:
-        print(f"  round {r['round']}: truth in the set {r['truth_in_set']}, closed {r['closed']}, "
+        print(f"  round {r['round']}: truth in the set {r['truth_in_set']} (counted "
+              f"{r['truth_counted']}), closed {r['closed']}, "
               f"set <= ceiling + 1 {r['within_ceiling_plus_one']}")
     ratios = ", ".join(f"{k} {v['median']:.2f} [{v['max']:.2f}]"
                        for k, v in table["add_over_fresh"].items() if v["median"] is not None)
     print(f"  menu can decide in {table['menu_can_decide']}, of them closed "
-          f"{table['closed_where_menu_can_decide']}; --add over a fresh run, median [largest]: "
+          f"{table['closed_where_menu_can_decide']} (every member counted "
+          f"{table['closed_counting_every_member']}); --add over a fresh run, median [largest]: "
           f"{ratios or 'no --add run in one piece'}")
     return goal_report(loop_goals(table, len(rows)))
 
