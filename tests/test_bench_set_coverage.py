@@ -436,7 +436,8 @@ def test_the_table_counts_chains_stopped_at_the_cap_apart_and_old_or_failed_rows
 def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     """docs/results.md's row for the set coverage: the finished draws, the rows of an earlier
     layout counted apart, each printed quantity's count, the chains' split, the allowed ranges'
-    counts and the widths; under 30 draws no goal is met, whatever the share."""
+    counts, the widths and the misses by cause; under 30 draws no goal is met, whatever the
+    share."""
     from tvcid.studies.benchmarks.claim_values import set_coverage
 
     truth = M002()
@@ -449,6 +450,7 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     rows[0]["cost"] = {"kernel_steps": 4e9, "cpu_seconds": 900.0, "wall_seconds": 600.0}
     rows[1].update(cost={"kernel_steps": 9e9, "cpu_seconds": 2000.0, "wall_seconds": 1300.0},
                    chains_carried_over=True)
+    rows[1]["misses"] = [{"quantity": "delay", "cause": "weight elsewhere"}]
     old = {"seed": 1003, "structure": "s", "truth_in_set": True, "members": ["s"],
            "converged": True, "quantities": {"delay": {"truth": 1.0, "inside": True}}}
     text = set_coverage({"bench_set_coverage": {
@@ -471,6 +473,7 @@ def test_the_claim_counts_the_stored_draws_and_judges_none_under_thirty():
     assert "truth inside the range the recordings allow: backlash 2 of 2" in text
     assert "median relative width of the intervals judged: dead_zone[error] 0.2" in text
     assert "members calibrated per draw 1-2" in text
+    assert "misses by cause (1 draws explained): weight elsewhere 1 (delay of draw 1001)" in text
 
 
 def test_a_rerun_drops_the_rows_of_the_earlier_layout_so_their_draws_run_again(tmp_path):

@@ -229,6 +229,14 @@ def set_coverage(records):
                   f"kernel steps, {cost['cpu_seconds']['median']:.0f} "
                   f"[{cost['cpu_seconds']['max']:.0f}] CPU s, {cost['wall_seconds']['median']:.0f} "
                   f"[{cost['wall_seconds']['max']:.0f}] wall s")
+    misses = table.get("misses") or {"draws": 0}
+    if misses["draws"]:
+        from .set_misses import CAUSES
+
+        split += (f"; misses by cause ({misses['draws']} draws explained): " + (", ".join(
+            f"{c} {len(misses['causes'][c])} ("
+            + ", ".join(f"{q} of draw {seed}" for seed, q in misses["causes"][c]) + ")"
+            for c in CAUSES if misses["causes"][c]) or "none"))
     old = (f", {table['old_layout']} of an earlier layout, not counted"
            if table["old_layout"] else "")
     commits = "; ".join(f"rows {how} at " + ", ".join(f"`{c}` ({n})" for c, n in counts.items())

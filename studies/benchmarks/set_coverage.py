@@ -35,6 +35,12 @@ coverage counts only the truths outside, and over ten draws a 90 % interval's mi
 two, while the median distance of every truth from its median, against the 0.41 of calibrated
 Gaussian intervals, says at any count whether the intervals are too wide or too narrow.
 
+Each miss is explained by the truth's own member of the set (:mod:`.set_misses`, read from the
+draw's ``discovery.json``, again at every ``--rejudge``): the truth's structure out of the set or
+not calibrated, the weights printing the quantity away from a member whose own interval holds
+the truth, or that member's own interval missing it (its chain converged or not); the table
+lists the misses by cause.
+
 Goals, over at least 30 finished draws: for each printed quantity, the truth covered in 80-97 %
 of the draws whose judgement of it can fail; the truths' median distance from their interval's
 median 0.3-0.5 half-widths (coverage not bought by width); no printed interval narrower than
@@ -75,10 +81,12 @@ from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
 from .set_judge import (RULES, beyond_prior, inside_interval, narrower_than_step,  # noqa: F401
                         printed_as, quantity_entry, rejudge_row, row_verdicts)
+from .set_misses import CAUSES, cause_counts, with_miss_causes
 
 CODE_COMMIT = code_commit()
 #: The files whose code judges a stored row (``--rejudge``): their commit is the judging one.
-JUDGE_FILES = tuple(Path(__file__).with_name(n) for n in ("set_judge.py", "set_coverage.py"))
+JUDGE_FILES = tuple(Path(__file__).with_name(n)
+                    for n in ("set_judge.py", "set_misses.py", "set_coverage.py"))
 #: The band the share of truths covered must fall in.
 GOAL_BAND = (0.80, 0.97)
 #: The quantities the report prints, each with its goal.
@@ -143,7 +151,7 @@ def run_draw(seed, out_dir, quick, ranges="wide") -> dict:
                cost=RunCost.from_dict(summary).totals(),
                seconds_by_stage={k: round(float(v), 1) for k, v in summary["timings"].items()
                                  if isinstance(v, (int, float))})
-    return row
+    return with_miss_causes(row, draw_dir)
 
 
 def guarded_draw(seed, out_dir, quick, ranges="wide") -> dict:
@@ -270,7 +278,9 @@ def summarise(rows) -> dict:
         in one piece (a draw resumed from an earlier run's directory counts only what its last
         run did), the ``median``, ``max`` and ``sum`` of the whole run's ``kernel_steps``,
         ``cpu_seconds`` and ``wall_seconds`` (:meth:`tvcid.run_record.RunCost.totals`);
-        ``converged``, ``truth_in_set``, ``cycles_only`` (``draws`` and their ``converged``).
+        ``misses``: the misses of the rows that explain them, by cause
+        (:func:`.set_misses.cause_counts`); ``converged``, ``truth_in_set``, ``cycles_only``
+        (``draws`` and their ``converged``).
     """
     finished = [r for r in rows if "error" not in r]
     done = [r for r in finished if of_this_layout(r) and judged_by_these_rules(r)]
@@ -327,7 +337,7 @@ def summarise(rows) -> dict:
             "old_layout": len(finished) - len(done), "commits": commits, "quantities": quantities,
             "cannot_fail": cannot_fail, "beyond_prior": beyond,
             "by_chains": by_chains, "allowed": allowed, "step": step, "position": position,
-            "cost": cost,
+            "cost": cost, "misses": cause_counts(done),
             "converged": sum(r["converged"] for r in done),
             "truth_in_set": sum(r["truth_in_set"] for r in done),
             "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)}}
@@ -381,14 +391,17 @@ def drop_old_layout(path) -> int:
 
 
 def rejudge_record(path, everything=False) -> int:
-    """Judge the rows of ``path`` (a ``bench.json``) again (:func:`rejudge_rows`) and write it
-    back with its table; returns how many rows were judged."""
+    """Judge the rows of ``path`` (a ``bench.json``) again (:func:`rejudge_rows`), explain their
+    misses from their draws' directories beside it (:func:`.set_misses.with_miss_causes`) and
+    write it back with its table; returns how many rows were judged."""
     path = Path(path)
     if not path.exists():
         return 0
     record = json.loads(path.read_text())
     rows, n = rejudge_rows(record["rows"], everything=everything)
-    if n:
+    rows = [r if "error" in r else with_miss_causes(r, path.parent / f"draw{r['seed']:03d}")
+            for r in rows]
+    if n or rows != record["rows"]:
         write_json(path, {**record, "rows": rows, "table": summarise(rows)})
     return n
 
@@ -427,6 +440,12 @@ def print_table(table) -> None:
               f"{c['kernel_steps']['median']:.3g} [{c['kernel_steps']['max']:.3g}] kernel steps, "
               f"{c['cpu_seconds']['median']:.0f} [{c['cpu_seconds']['max']:.0f}] CPU s, "
               f"{c['wall_seconds']['median']:.0f} [{c['wall_seconds']['max']:.0f}] wall s")
+    m = table["misses"]
+    if m["draws"]:
+        causes = "; ".join(f"{c} {len(m['causes'][c])} ("
+                           + ", ".join(f"draw {seed} {q}" for seed, q in m["causes"][c]) + ")"
+                           for c in CAUSES if m["causes"][c])
+        print(f"  misses by cause ({m['draws']} draws explained): {causes or 'none'}")
     s = table["step"]
     print(f"  printed intervals narrower than twice the step error: {s['narrower']} of "
           f"{s['intervals']} ({s['widened']} widened, {s['without_step_error']} without a step error)")
