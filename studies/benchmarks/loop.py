@@ -12,8 +12,8 @@ sensor and read back as a measured recording, and added to the run
 
 * the set (its unmerged members), whether it holds the truth's structure;
 * the fit ceiling: the minimal structures that fit the recordings at least as well as the true
-  parameters themselves (:func:`tvcid.studies.benchmarks.verdicts.as_well_as_truth`); no rule based on
-  the fit can report a set smaller than that;
+  parameters themselves (:func:`tvcid.studies.benchmarks.verdicts.as_well_as_truth`); no rule
+  based on the fit can report a set smaller than that;
 * whether the set is *closed* (:func:`tvcid.discovery.prediction.closure.set_closure`): one structure,
   or members whose posterior responses to every test of the menu and whose predicted cycles at
   three controller settings the recordings did not use agree within their bands, a calibrated
