@@ -88,3 +88,30 @@ def test_causes_are_read_from_the_draws_directory_and_counted(tmp_path):
     assert counts["draws"] == 1 and list(counts["causes"]) == list(CAUSES)
     assert counts["causes"]["weight elsewhere"] == [[7, "delay"]]
     assert sum(map(len, counts["causes"].values())) == 1
+
+
+def test_the_truths_fit_is_weighed_against_the_true_parameters_on_the_draws_recordings():
+    """On the bundled draw 1000 (two limit cycles within the papers' ranges), the true
+    parameters' own cost is computed from the recordings; a fit of the truth's structure at or
+    below it is a second mode as good as the truth, one above it is not."""
+    from pathlib import Path
+
+    from tvcid.studies.benchmarks.scenarios import draw_scenario
+    from tvcid.studies.benchmarks.set_misses import fit_against_truth
+
+    bundled = Path(__file__).resolve().parents[1] / "data" / "bench" / "draw1000"
+    name = draw_scenario(1000, ranges="papers").structure.name
+    row = {"seed": 1000, "structure": name, "design": {"ranges": "papers"}}
+
+    def discovery(cost):
+        return {"structures": [{"structure": name, "cost": cost}]}
+
+    at_truth = fit_against_truth(row, discovery(0.0), bundled)["cost_at_truth"]
+    assert 0.0 < at_truth < 10.0
+    assert fit_against_truth(row, discovery(0.9 * at_truth), bundled)["as_good_as_truth"]
+    assert not fit_against_truth(row, discovery(1.1 * at_truth), bundled)["as_good_as_truth"]
+    assert fit_against_truth(row, discovery(0.0), bundled / "absent") is None
+    counts = cause_counts([{"seed": 1000, "misses": [
+        {"quantity": "delay", "cause": "member misses, converged"}],
+        "fit_against_truth": {"as_good_as_truth": True}}])
+    assert counts["second_mode"] == [[1000, "delay"]]

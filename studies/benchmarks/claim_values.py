@@ -237,6 +237,10 @@ def set_coverage(records):
             f"{c} {len(misses['causes'][c])} ("
             + ", ".join(f"{q} of draw {seed}" for seed, q in misses["causes"][c]) + ")"
             for c in CAUSES if misses["causes"][c]) or "none"))
+        if misses.get("second_mode"):
+            split += ("; of the truth's member's misses, where its structure fits elsewhere at "
+                      "least as well as the truth: " + ", ".join(
+                          f"{q} of draw {seed}" for seed, q in misses["second_mode"]))
     old = (f", {table['old_layout']} of an earlier layout, not counted"
            if table["old_layout"] else "")
     commits = "; ".join(f"rows {how} at " + ", ".join(f"`{c}` ({n})" for c, n in counts.items())

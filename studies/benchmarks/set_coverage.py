@@ -446,6 +446,10 @@ def print_table(table) -> None:
                            + ", ".join(f"draw {seed} {q}" for seed, q in m["causes"][c]) + ")"
                            for c in CAUSES if m["causes"][c])
         print(f"  misses by cause ({m['draws']} draws explained): {causes or 'none'}")
+        if m.get("second_mode"):
+            print("  of the truth's member's misses, where its structure fits elsewhere at least "
+                  "as well as the truth: " + ", ".join(f"draw {seed} {q}"
+                                                       for seed, q in m["second_mode"]))
     s = table["step"]
     print(f"  printed intervals narrower than twice the step error: {s['narrower']} of "
           f"{s['intervals']} ({s['widened']} widened, {s['without_step_error']} without a step error)")

@@ -15,16 +15,20 @@ structure is the truth's, or into which the truth's is merged):
   ``lacking``), with the weight its members hold.
 
 Each cause records the facts it rests on: the truth's member, its weight and whether its chain
-converged, its own interval, and the heaviest member with its weight and interval. The causes are
-read from the draw's ``discovery.json`` (no sampling), so rows sampled at one commit are
-explained at another.
+converged, its own interval, and the heaviest member with its weight and interval. Where the
+truth's member misses, the row also records the structure search's fit of the truth's structure
+against the true parameters' own cost on the same recordings (``fit_against_truth``): a fit at
+least as good as the truth away from it is a second mode the recordings hold (the fit is not
+unique), not a search that stopped short. The causes are read from the draw's directory (no
+sampling), so rows sampled at one commit are explained at another.
 """
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-__all__ = ["CAUSES", "cause_counts", "miss_causes", "truth_member", "with_miss_causes"]
+__all__ = ["CAUSES", "cause_counts", "fit_against_truth", "miss_causes", "truth_member",
+           "with_miss_causes"]
 
 #: Every cause a miss can have, in the order the table counts them.
 CAUSES = ("out of the set", "not calibrated", "weight elsewhere", "member misses, converged",
@@ -89,19 +93,55 @@ def miss_causes(row, discovery) -> list:
     return out
 
 
+def fit_against_truth(row, discovery, recordings_dir):
+    """The in-sample cost of the structure search's fit of the truth's structure
+    (``truth_structure_cost``) and of the true parameters themselves (``cost_at_truth``,
+    :func:`.discovery.cost_at_truth`) on the recordings in ``recordings_dir``; ``None`` where
+    the truth's structure was not fitted or the recordings are not there."""
+    from tvcid.discovery.structure.targets import make_target
+    from tvcid.models.recording import load_recordings
+
+    from .discovery import cost_at_truth
+    from .draws import row_ranges
+    from .scenarios import draw_scenario
+
+    own = next((s for s in discovery["structures"] if s["structure"] == row["structure"]), None)
+    paths = sorted(Path(recordings_dir).glob("*.csv"))
+    if own is None or own.get("cost") is None or not paths:
+        return None
+    truth = draw_scenario(row["seed"], ranges=row_ranges(row)).truth
+    at_truth = cost_at_truth([make_target(r, 5e-4) for r in load_recordings(paths)], truth)
+    return {"truth_structure_cost": own["cost"], "cost_at_truth": at_truth,
+            "as_good_as_truth": own["cost"] <= at_truth}
+
+
 def with_miss_causes(row, draw_dir):
-    """``row`` with ``misses`` (:func:`miss_causes`) read from ``draw_dir/discover/discovery.json``;
-    unchanged where that file is not there (a row copied without its draw's directory)."""
+    """``row`` with ``misses`` (:func:`miss_causes`) read from ``draw_dir/discover/discovery.json``,
+    and where the truth's member misses, ``fit_against_truth`` (:func:`fit_against_truth`, on
+    ``draw_dir/recordings``); unchanged where that file is not there (a row copied without its
+    draw's directory)."""
     path = Path(draw_dir) / "discover" / "discovery.json"
     if "error" in row or not path.is_file():
         return row
-    return {**row, "misses": miss_causes(row, json.loads(path.read_text()))}
+    discovery = json.loads(path.read_text())
+    misses = miss_causes(row, discovery)
+    out = {**row, "misses": misses}
+    if any(m["cause"].startswith("member misses") for m in misses):
+        if row.get("fit_against_truth") is None:
+            out["fit_against_truth"] = fit_against_truth(row, discovery,
+                                                         Path(draw_dir) / "recordings")
+    return out
 
 
 def cause_counts(rows) -> dict:
-    """Over the rows that explain their misses: ``draws`` and per cause of :data:`CAUSES` the
-    misses, each ``[seed, quantity]``."""
+    """Over the rows that explain their misses: ``draws``; per cause of :data:`CAUSES` the
+    misses, each ``[seed, quantity]``; ``second_mode``: the member misses whose draw's fit of
+    the truth's structure is at least as good as the truth (:func:`fit_against_truth`)."""
     explained = [r for r in rows if "misses" in r]
+    second = [[r["seed"], m["quantity"]] for r in explained for m in r["misses"]
+              if m["cause"].startswith("member misses")
+              and (r.get("fit_against_truth") or {}).get("as_good_as_truth")]
     return {"draws": len(explained),
             "causes": {c: [[r["seed"], m["quantity"]] for r in explained for m in r["misses"]
-                           if m["cause"] == c] for c in CAUSES}}
+                           if m["cause"] == c] for c in CAUSES},
+            "second_mode": second}
