@@ -192,3 +192,34 @@ def test_shortcut_agrees_with_full_length_runs(posterior_dir):
     assert acc["outcome_agreement_min"] == 1.0
     assert acc["amplitude"]["quantile_max"] < 0.005
     assert acc["frequency"]["quantile_max"] < 0.005
+
+
+def test_draws_with_a_delay_under_the_default_step_are_predicted_at_a_halved_step():
+    """A member whose delay prior reaches under 0.5 ms (a fit under 1 ms halves the floor) has
+    draws with delays the default step cannot hold: they are predicted, and measured by the
+    closure's tests, at the step halved until one step fits under the shortest delay, as the
+    member was calibrated; delays of at least the step leave it alone."""
+    from tvcid.discovery.calibration.priors import Uniform
+    from tvcid.discovery.prediction.closure import set_closure
+    from tvcid.discovery.prediction.cycles import step_under_delays
+    from tvcid.discovery.prediction.discrimination import default_candidates
+    from tvcid.discovery.prediction.settings import ControllerSetting
+    from tvcid.models import M002
+
+    delays = np.array([[4.2e-4], [4.6e-4], [5.5e-4], [7e-4]])
+    draws = PosteriorDraws(names=("delay",), samples=delays, internal=delays, base=M002(),
+                           priors={"delay": Uniform(3e-4, 2e-2)}, config={})
+    config = PredictionConfig(transient=2.0, window=3.0, pilot=3.0)
+    assert step_under_delays(config, draws.param_sets()).dt == pytest.approx(2.5e-4)
+    assert step_under_delays(config, [M002()]) is config
+    with pytest.raises(ValueError, match="shorter than the step"):
+        simulate(draws.params(0), ClosedLoop(5.84, 0.062, 12.3), 0.1, dt=5e-4)
+    pred = predict_cycle(draws, ControllerSetting(5.84, 0.062, 12.3, sample_rate=200.0), config,
+                         describing=False)
+    assert pred.config.dt == pytest.approx(2.5e-4)
+    assert np.count_nonzero(pred.outcomes.outcome == "cycle") == len(delays)
+    setting = ControllerSetting(8.0, 0.06, 9.0, sample_rate=200.0)
+    closure = set_closure({"a": draws, "b": draws}, default_candidates(2000.0)[:1], [setting],
+                          1e-5, n_draws=4, config=config)
+    assert closure.closed and [t["name"] for t in closure.tests] == [
+        default_candidates(2000.0)[0].name]

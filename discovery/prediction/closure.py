@@ -26,6 +26,7 @@ holds all but that share of is closed.
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import tempfile
 from dataclasses import dataclass, field
@@ -163,6 +164,9 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
     settings : sequence of :class:`tvcid.discovery.prediction.settings.ControllerSetting`
     noise_sd : float
         Sensor noise sd (rad) of the simulated tests.
+    dt : float
+        Integration step (s) of the tests, halved until one step fits under the draws' shortest
+        delay (:func:`.cycles.step_under_delays`).
     n_draws : int
         Posterior draws per member (the first ``n_draws`` of each, which
         :func:`~tvcid.discovery.prediction.draws.load_set_draws` already drew at random).
@@ -177,7 +181,7 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
     """
     from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 
-    from .cycles import PredictionConfig
+    from .cycles import PredictionConfig, step_under_delays
     from .set_prediction import predict_cycle_over_set
 
     names = list(member_draws)
@@ -186,6 +190,8 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
     if len(names) <= 1:
         return SetClosure(names, not_counted=not_counted)
     sets = {n: [d.params(i) for i in range(min(n_draws, len(d)))] for n, d in member_draws.items()}
+    dt = step_under_delays(dataclasses.replace(PredictionConfig(), dt=dt),
+                           [p for v in sets.values() for p in v]).dt
     reference = member_draws[names[0]].median_params()
     tests = [menu_agreement(sets, c, noise_sd, dt, seed, reference) for c in candidates]
     rows = []

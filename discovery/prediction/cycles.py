@@ -36,6 +36,7 @@ __all__ = [
     "cycle_map",
     "predict_cycle",
     "simulate_cycles",
+    "step_under_delays",
 ]
 
 CYCLE, REST, DIVERGED = "cycle", "rest", "diverged"
@@ -168,6 +169,7 @@ def simulate_cycles(param_sets, loops, config=PredictionConfig(), progress=None)
     param_sets, loops = list(param_sets), list(loops)
     if len(param_sets) != len(loops):
         raise ValueError(f"{len(param_sets)} parameter sets for {len(loops)} loops")
+    config = step_under_delays(config, param_sets)
     outcome, amp, h1, freq, drift = _run_and_measure(param_sets, loops, config, progress)
     growing = np.flatnonzero(outcome == GROWING)
     if growing.size:
@@ -186,6 +188,22 @@ def simulate_cycles(param_sets, loops, config=PredictionConfig(), progress=None)
                 amp[i], h1[i], freq[i], drift[i] = a2[k], h2[k], f2[k], d2[k]
     return CycleOutcomes(outcome=outcome.astype(str), amplitude=amp, first_harmonic=h1,
                          frequency=freq, drift=drift)
+
+
+def step_under_delays(config, param_sets):
+    """``config`` with its step halved until one step fits under the shortest delay of
+    ``param_sets`` (:func:`tvcid.discovery.calibration.priors.step_under_delay`; the kernel needs
+    ``delay >= dt``), unchanged where every delay is 0 or at least ``config.dt``.
+
+    A member whose delay prior reaches under the default step was calibrated at such a halved
+    step (:func:`tvcid.discovery.members.member_calibration.calibrate_member`), and its draws
+    are predicted at it."""
+    from tvcid.discovery.calibration.priors import step_under_delay
+
+    delays = [p.delay for p in param_sets if p.delay > 0]
+    if not delays or min(delays) >= config.dt * (1.0 - 1e-9):
+        return config
+    return dataclasses.replace(config, dt=step_under_delay(min(delays), config.dt))
 
 
 def _run_and_measure(param_sets, loops, config, progress):
@@ -350,7 +368,7 @@ def predict_cycle(draws, setting: ControllerSetting, config=PredictionConfig(),
         Add the median model's describing-function prediction.
     """
     median = draws.median_params()
-    config = _settling(config, [setting])
+    config = step_under_delays(_settling(config, [setting]), draws.param_sets())
     theta, thetad, y, yd, x = _pilot_state(median, setting, config)
     loop = setting.closed_loop(theta0=theta, thetad0=thetad)
     params = _own_noise([p.replace(y0=y, yd0=yd, x0=x) for p in draws.param_sets()],
@@ -528,7 +546,7 @@ def cycle_map(draws, base: ControllerSetting, grid: dict, config=PredictionConfi
     param_sets = draws.param_sets()
     points = list(itertools.product(*values))
     settings = [base.replace(**dict(zip(keys, pt))) for pt in points]
-    config = _settling(config, settings)
+    config = step_under_delays(_settling(config, settings), param_sets)
     bar = None
     if progress:
         from tqdm.auto import tqdm
