@@ -66,12 +66,23 @@ def test_each_miss_is_told_by_the_truths_own_member():
 
 
 def test_a_truth_merged_into_a_member_is_read_on_that_member():
-    """A truth whose structure is merged into a calibrated member is that member's."""
+    """A truth whose structure is merged into a calibrated member, directly or through a
+    structure merged in turn, is that member's: its interval holding the truth, the weights
+    printed it away; missing it, the member lacks components the truth has."""
     discovery = _discovery([_member(TRUTH, 1.0, True, (2e-3, 3e-3), (30.0, 40.0))],
                            inside=(TRUTH, RICHER), merged={RICHER: TRUTH})
     assert truth_member(RICHER, discovery)["structure"] == TRUTH
-    row = _row({"delay": _entry("interval", 2.5e-3)}, structure=RICHER)
-    assert miss_causes(row, discovery)[0]["cause"] == "weight elsewhere"
+    row = _row({"delay": _entry("interval", 2.5e-3), "bandwidth": _entry("interval", 50.0)},
+               structure=RICHER)
+    causes = [m["cause"] for m in miss_causes(row, discovery)]
+    assert causes == ["weight elsewhere", "merged into a simpler member"]
+    chained = _discovery([_member(TRUTH, 1.0, True, (2e-3, 3e-3), (30.0, 40.0))],
+                         inside=(TRUTH, NEIGHBOUR, RICHER),
+                         merged={RICHER: NEIGHBOUR, NEIGHBOUR: TRUTH})
+    assert truth_member(RICHER, chained)["structure"] == TRUTH
+    looped = _discovery([], inside=(NEIGHBOUR, RICHER),
+                        merged={RICHER: NEIGHBOUR, NEIGHBOUR: RICHER})
+    assert truth_member(RICHER, looped) is None
 
 
 def test_causes_are_read_from_the_draws_directory_and_counted(tmp_path):

@@ -9,8 +9,11 @@ structure is the truth's, or into which the truth's is merged):
   so no member posterior holds it;
 * ``weight elsewhere``: the truth's member's own 90 % interval holds the truth, and the members
   the weights favour print it away;
-* ``member misses, converged`` and ``member misses, stopped at the cap``: the truth's member's
-  own interval misses the truth, its chain converged or not;
+* ``merged into a simpler member``: the truth's structure is merged into a member without some
+  of its components (which did not beat it by the set's margin), and that member's own interval
+  misses the truth: the components it lacks moved the quantity;
+* ``member misses, converged`` and ``member misses, stopped at the cap``: the truth's member, of
+  the truth's own structure, has its own interval miss the truth, its chain converged or not;
 * ``presence``: a component printed present or absent against the truth (rules ``absent`` and
   ``lacking``), with the weight its members hold.
 
@@ -31,21 +34,25 @@ __all__ = ["CAUSES", "cause_counts", "fit_against_truth", "miss_causes", "truth_
            "with_miss_causes"]
 
 #: Every cause a miss can have, in the order the table counts them.
-CAUSES = ("out of the set", "not calibrated", "weight elsewhere", "member misses, converged",
-          "member misses, stopped at the cap", "presence")
+CAUSES = ("out of the set", "not calibrated", "weight elsewhere", "merged into a simpler member",
+          "member misses, converged", "member misses, stopped at the cap", "presence")
 
 
 def truth_member(truth_name, discovery):
     """The calibrated member of ``discovery``'s set (a ``discovery.json`` dict) that is the
-    truth's structure or into which it is merged; ``None`` where the truth's structure is out of
-    the set or its member is not calibrated."""
+    truth's structure or into which it is merged (through every merge: a structure merged into
+    one that is merged in turn); ``None`` where the truth's structure is out of the set or its
+    member is not calibrated."""
     members = {m["structure"]: m for m in discovery["set_posterior"]["members"]}
-    if truth_name in members:
-        return members[truth_name]
-    entry = next((s for s in discovery["structures"] if s["structure"] == truth_name), None)
-    if entry is None or not entry["indistinguishable_from_best"]:
-        return None
-    return members.get(entry.get("merged_into"))
+    entries = {s["structure"]: s for s in discovery["structures"]}
+    name, seen = truth_name, set()
+    while name not in members:
+        entry = entries.get(name)
+        if entry is None or not entry["indistinguishable_from_best"] or name in seen:
+            return None
+        seen.add(name)
+        name = entry.get("merged_into")
+    return members[name]
 
 
 def _interval(member, name):
@@ -85,6 +92,8 @@ def miss_causes(row, discovery) -> list:
             cause = "not calibrated"
         elif own is not None and e.get("truth") is not None and own[0] <= e["truth"] <= own[1]:
             cause = "weight elsewhere"
+        elif member["structure"] != name:
+            cause = "merged into a simpler member"
         elif member.get("converged"):
             cause = "member misses, converged"
         else:
