@@ -28,6 +28,7 @@ from .claim_values import (
     coverage_features,
     coverage_waveform,
     coverage_widening,
+    cycles_posterior,
     discover_speed,
     discovery_ceiling,
     discovery_fresh,
@@ -216,6 +217,15 @@ CLAIMS = (
           "bench_set_coverage",
           "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
           "_under_thirty"),
+    Claim("a member's posterior on limit cycles alone (the truth's structure on drawn designs "
+          "without open-loop tests, data from the reference path read back as measured), the "
+          "default calibration and nested sampling against a reference chain five times the "
+          "cap (goal: every 90 % interval end within 0.2 of the reference's width in <= 600 CPU "
+          "s, no miss the method's own diagnostic passes)",
+          cycles_posterior, lambda r: r["bench_cycles_posterior"]["rows"],
+          "python -m tvcid.studies.benchmarks.cycles_posterior --draws 10",
+          "bench_cycles_posterior",
+          "tests/test_bench_cycles_posterior.py::test_the_claim_names_each_methods_cost_and_move"),
     Claim("`tvcid discover` on four M000 recordings (two 40 s limit cycles, two 10 s open-loop "
           "tests), the set's calibration included (goal 600 s on 2 cores)",
           discover_speed, lambda r: [r["bench_discover_speed"]],
