@@ -37,7 +37,7 @@ def test_a_set_is_closed_when_one_or_when_nothing_parts_it():
 
 
 class _Draws:
-    """Stands for a member's posterior draws: its name as every draw's parameters."""
+    """Stands for a member's posterior draws: M002's parameters as every draw."""
 
     def __init__(self, name):
         self.name = name
@@ -46,10 +46,12 @@ class _Draws:
         return 4
 
     def params(self, i):
-        return self.name
+        from tvcid.models import M002
+
+        return M002()
 
     def median_params(self):
-        return self.name
+        return self.params(0)
 
 
 def test_a_member_under_the_deciding_share_is_not_counted_in_the_closure(monkeypatch):
