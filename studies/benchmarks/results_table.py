@@ -36,6 +36,7 @@ from .claim_values import (
     discovery_race,
     discovery_short,
     evaluation_cost,
+    loop,
     next_test,
     set_coverage,
     widening_rows,
@@ -217,6 +218,17 @@ CLAIMS = (
           "bench_set_coverage",
           "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
           "_under_thirty"),
+    Claim("the experiment loop: after `tvcid discover`, the test the run suggests (at most two "
+          "in turn) recorded from the truth by the reference path and added with `--add`, "
+          "truths and designs drawn over the generator's ranges (goals over >= 10 draws: the "
+          "truth in the set, its member counted, at every round in every draw; the set closed in "
+          ">= 80 % of the draws whose menu can decide; an --add's kernel steps at most a third "
+          "of a fresh run's on the same recordings in the median, never above it)",
+          loop, lambda r: r["bench_loop"]["rows"],
+          "python -m tvcid.studies.benchmarks.loop --seed 3000 --draws 10 --reuse "
+          "results/bench_set_coverage",
+          "bench_loop",
+          "tests/test_bench_loop.py::test_the_loops_claim_states_each_goal_round_and_cost_ratio"),
     Claim("a member's posterior on limit cycles alone (the truth's structure on drawn designs "
           "without open-loop tests, data from the reference path read back as measured), the "
           "default calibration and nested sampling against a reference chain five times the "
