@@ -100,6 +100,7 @@ def test_a_member_under_the_deciding_share_is_not_counted_in_the_closure(monkeyp
     every = closure.set_closure(draws, ["t1", "t2"], settings, 1e-5)
     kp = "Kp 8, Kd 0.06, mu 9"
     assert not every.closed and every.parting == ["t1", "t2", kp] and every.not_counted == []
+    assert every.parting_tests == ["t1", "t2"] and two.parting_tests == []
 
 
 @pytest.mark.slow

@@ -116,7 +116,8 @@ class SetClosure:
         """The members the verdict counts."""
         return [m for m in self.members if m not in self.not_counted]
 
-    def _parting(self, counted) -> list:
+    def _parting(self, counted) -> tuple:
+        """The tests and the settings at which two of ``counted`` part."""
         def counts(pair):
             return all(m in counted for m in pair)
 
@@ -127,12 +128,17 @@ class SetClosure:
         settings = [s["setting"] for s in self.settings
                     if ("disagreeing" in s and any(counts(d["members"]) for d in s["disagreeing"]))
                     or ("disagreeing" not in s and not s["members_agree"])]
-        return tests + settings
+        return (tests, settings) if len(counted) > 1 else ([], [])
+
+    @property
+    def parting_tests(self) -> list:
+        """Names of the menu's tests at which two counted members part."""
+        return self._parting(self.counted)[0]
 
     @property
     def parting(self) -> list:
         """Names of the tests and settings at which two counted members part."""
-        return self._parting(self.counted) if len(self.counted) > 1 else []
+        return sum(self._parting(self.counted), [])
 
     @property
     def closed(self) -> bool:
@@ -140,7 +146,7 @@ class SetClosure:
 
     @property
     def closed_counting_every_member(self) -> bool:
-        return len(self.members) <= 1 or not self._parting(self.members)
+        return not sum(self._parting(self.members), [])
 
     def to_dict(self) -> dict:
         return {"closed": self.closed, "members": self.members, "counted": self.counted,

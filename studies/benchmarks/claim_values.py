@@ -277,8 +277,8 @@ def loop(records):
             + _goals_text(loop_goals(table, len(rows))) + f"; {rounds}; the menu can decide in "
             f"{table['menu_can_decide']} draws, of which closed "
             f"{table['closed_where_menu_can_decide']} "
-            f"({table['closed_counting_every_member']} with every member counted); an --add over a fresh run, median [largest]: "
-            f"{ratios or 'no --add run in one piece'}")
+            f"({table['closed_counting_every_member']} with every member counted); an --add over "
+            f"a fresh run, median [largest]: {ratios or 'no --add run in one piece'}")
 
 
 def cycles_posterior(records):

@@ -20,7 +20,7 @@ sensor and read back as a measured recording, and added to the run
   member under the deciding share of the set's weight not counted (``not_counted``; each test's
   and setting's pairs are kept under ``closure``, and the verdict counting every member beside
   it); whether the truth's member is counted (``truth_counted``); at round 0,
-  whether the menu *can decide*: the set is closed, or a test of the menu parts its members
+  whether the menu *can decide*: the set is closed, or a test of the menu parts two counted members
   (members that part only at unseen controller settings leave the menu nothing to decide);
 * what the run cost (:meth:`tvcid.run_record.RunCost.totals`: kernel steps, CPU and wall seconds)
   and, after each ``--add``, what a fresh ``tvcid discover`` on the same recordings costs, with
@@ -55,11 +55,11 @@ from tvcid.run_record import RunCost
 
 from ..common import code_commit
 from .discovery import cost_at_truth
-from .verdicts import as_well_as_truth
 from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report
 from .scenarios import design_of, draw_scenario, record_added_test, write_recordings
+from .verdicts import as_well_as_truth
 
 CODE_COMMIT = code_commit()
 #: Rounds of the loop at most (suggested tests added one after the other).
@@ -148,7 +148,6 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
                           n_draws=config.closure_draws, seed=seed,
                           resolution=measurement_resolution(recordings), weights=weights)
     best = (summary.get("next_test") or {}).get("best")
-    menu_parting = [t["name"] for t in closure.tests if not t.get("agree", True)]
     return {"round": k, "recordings": len(summary["recordings"]), "set": members,
             "set_size": len(members), "truth_in_set": truth.name in inside,
             "truth_member": inside.get(truth.name), "winner": summary["structures"][0]["structure"],
@@ -160,7 +159,7 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
             "closed": closure.closed, "parting": closure.parting,
             "closed_counting_every_member": closure.closed_counting_every_member,
             "closure": {"tests": closure.tests, "settings": closure.settings},
-            "menu_can_decide": bool(closure.closed or menu_parting),
+            "menu_can_decide": bool(closure.closed or closure.parting_tests),
             "suggested": None if best is None else best["name"],
             "cost": RunCost.from_dict(summary).totals(),
             "seconds_discover": summary["timings"].get("discovery"),
