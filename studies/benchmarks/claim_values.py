@@ -188,6 +188,7 @@ def set_coverage(records):
     median relative width of the intervals judged, the draws' sets and chains, and the rows'
     sampling and judging commits; rows of an earlier layout are counted, not judged."""
     from .set_coverage import MIN_DRAWS, coverage_goals, summarise
+    from .set_misses import causes_text
 
     rows = records["bench_set_coverage"]["rows"]
     table = summarise(rows)
@@ -229,18 +230,9 @@ def set_coverage(records):
                   f"kernel steps, {cost['cpu_seconds']['median']:.0f} "
                   f"[{cost['cpu_seconds']['max']:.0f}] CPU s, {cost['wall_seconds']['median']:.0f} "
                   f"[{cost['wall_seconds']['max']:.0f}] wall s")
-    misses = table.get("misses") or {"draws": 0}
-    if misses["draws"]:
-        from .set_misses import CAUSES
-
-        split += (f"; misses by cause ({misses['draws']} draws explained): " + (", ".join(
-            f"{c} {len(misses['causes'][c])} ("
-            + ", ".join(f"{q} of draw {seed}" for seed, q in misses["causes"][c]) + ")"
-            for c in CAUSES if misses["causes"][c]) or "none"))
-        if misses.get("second_mode"):
-            split += ("; of the truth's member's misses, where its structure fits elsewhere at "
-                      "least as well as the truth: " + ", ".join(
-                          f"{q} of draw {seed}" for seed, q in misses["second_mode"]))
+    misses = causes_text(table.get("misses") or {})
+    if misses:
+        split += f"; {misses}"
     old = (f", {table['old_layout']} of an earlier layout, not counted"
            if table["old_layout"] else "")
     commits = "; ".join(f"rows {how} at " + ", ".join(f"`{c}` ({n})" for c, n in counts.items())

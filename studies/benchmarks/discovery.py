@@ -122,6 +122,15 @@ def cost_at_truth(targets, truth) -> float:
     return float(Objective(targets).costs([truth])[0].sum())
 
 
+def recordings_cost_at_truth(recordings, truth) -> float:
+    """:func:`cost_at_truth` on the targets the discovery makes of ``recordings`` at its default
+    step."""
+    from tvcid.discovery.structure.targets import make_target
+
+    dt = StructureDiscovery().dt
+    return cost_at_truth([make_target(r, dt) for r in recordings], truth)
+
+
 def run_draw(seed, out_dir, quick, ranges="wide", race=None):
     scenario = draw_scenario(seed, ranges=ranges)
     draw_dir = out_dir / f"draw{seed:03d}"

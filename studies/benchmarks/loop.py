@@ -54,7 +54,7 @@ from tvcid.models.strict_json import write_json
 from tvcid.run_record import RunCost
 
 from ..common import code_commit
-from .discovery import cost_at_truth
+from .discovery import recordings_cost_at_truth
 from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report
@@ -121,7 +121,6 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     from tvcid.discovery.prediction.set_prediction import measurement_resolution
     from tvcid.discovery.prediction.closure import set_closure
     from tvcid.discovery.prediction.discrimination import default_candidates
-    from tvcid.discovery.structure.targets import make_target
     from tvcid.models.recording import load_recordings
     from tvcid.pipeline import median_sensor_noise
 
@@ -131,7 +130,7 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     inside = {s["structure"]: s.get("merged_into") or s["structure"] for s in summary["structures"]
               if s["indistinguishable_from_best"]}
     own = next((s for s in summary["structures"] if s["structure"] == truth.name), None)
-    at_truth = cost_at_truth([make_target(r, 5e-4) for r in recordings], scenario.truth)
+    at_truth = recordings_cost_at_truth(recordings, scenario.truth)
     ceiling_row = {"structure": truth.name, "cost_at_truth": at_truth,
                    "truth_structure_cost": None if own is None else own["cost"],
                    "ranking": [{"structure": s["structure"], "cost": s["cost"]} for s in summary["structures"]

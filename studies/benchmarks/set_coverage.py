@@ -19,9 +19,9 @@ each by one rule of :mod:`tvcid.studies.benchmarks.set_judge`, named in the row:
 quantity on its printed 90 % interval), ``allowed`` (a not-pinned one on the range the
 recordings allow, an open end judged on the prior's bound on its side, stored per quantity as
 ``prior_bounds``), ``absent`` (a component the truth lacks: not printed present) and ``lacking``
-(the truth has it and nothing is printed, or it is printed absent). A judgement that cannot fail (a truth of 0 against
-"present or absent"; a truth inside the prior against a range open at both ends) is counted
-apart (``can_fail`` false) and left out of the goals.
+(the truth has it and nothing is printed, or it is printed absent). A judgement that cannot
+fail (a truth of 0 against "present or absent"; a truth inside the prior against a range open
+at both ends) is counted apart (``can_fail`` false) and left out of the goals.
 
 A dead-zone place, or the threshold, that the truth does not have is printed but not judged
 (``rule`` ``None``): the truth's own place is. Beside the verdict, each printed quantity records
@@ -36,10 +36,8 @@ two, while the median distance of every truth from its median, against the 0.41 
 Gaussian intervals, says at any count whether the intervals are too wide or too narrow.
 
 Each miss is explained by the truth's own member of the set (:mod:`.set_misses`, read from the
-draw's ``discovery.json``, again at every ``--rejudge``): the truth's structure out of the set or
-not calibrated, the weights printing the quantity away from a member whose own interval holds
-the truth, or that member's own interval missing it (its chain converged or not); the table
-lists the misses by cause.
+draw's ``discovery.json``, again at every ``--rejudge``), one of
+:data:`.set_misses.CAUSES`; the table lists the misses by cause.
 
 Goals, over at least 30 finished draws: for each printed quantity, the truth covered in 80-97 %
 of the draws whose judgement of it can fail; the truths' median distance from their interval's
@@ -81,7 +79,7 @@ from .goals import report as goal_report
 from .scenarios import draw_scenario, write_recordings
 from .set_judge import (RULES, beyond_prior, inside_interval, narrower_than_step,  # noqa: F401
                         printed_as, quantity_entry, rejudge_row, row_verdicts)
-from .set_misses import CAUSES, cause_counts, with_miss_causes
+from .set_misses import cause_counts, causes_text, with_miss_causes
 
 CODE_COMMIT = code_commit()
 #: The files whose code judges a stored row (``--rejudge``): their commit is the judging one.
@@ -440,16 +438,8 @@ def print_table(table) -> None:
               f"{c['kernel_steps']['median']:.3g} [{c['kernel_steps']['max']:.3g}] kernel steps, "
               f"{c['cpu_seconds']['median']:.0f} [{c['cpu_seconds']['max']:.0f}] CPU s, "
               f"{c['wall_seconds']['median']:.0f} [{c['wall_seconds']['max']:.0f}] wall s")
-    m = table["misses"]
-    if m["draws"]:
-        causes = "; ".join(f"{c} {len(m['causes'][c])} ("
-                           + ", ".join(f"draw {seed} {q}" for seed, q in m["causes"][c]) + ")"
-                           for c in CAUSES if m["causes"][c])
-        print(f"  misses by cause ({m['draws']} draws explained): {causes or 'none'}")
-        if m.get("second_mode"):
-            print("  of the truth's member's misses, where its structure fits elsewhere at least "
-                  "as well as the truth: " + ", ".join(f"draw {seed} {q}"
-                                                       for seed, q in m["second_mode"]))
+    if causes_text(table["misses"]):
+        print(f"  {causes_text(table['misses'])}")
     s = table["step"]
     print(f"  printed intervals narrower than twice the step error: {s['narrower']} of "
           f"{s['intervals']} ({s['widened']} widened, {s['without_step_error']} without a step error)")

@@ -30,8 +30,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-__all__ = ["CAUSES", "cause_counts", "fit_against_truth", "miss_causes", "truth_member",
-           "with_miss_causes"]
+__all__ = ["CAUSES", "cause_counts", "causes_text", "fit_against_truth", "miss_causes",
+           "truth_member", "with_miss_causes"]
 
 #: Every cause a miss can have, in the order the table counts them.
 CAUSES = ("out of the set", "not calibrated", "weight elsewhere", "merged into a simpler member",
@@ -105,12 +105,11 @@ def miss_causes(row, discovery) -> list:
 def fit_against_truth(row, discovery, recordings_dir):
     """The in-sample cost of the structure search's fit of the truth's structure
     (``truth_structure_cost``) and of the true parameters themselves (``cost_at_truth``,
-    :func:`.discovery.cost_at_truth`) on the recordings in ``recordings_dir``; ``None`` where
-    the truth's structure was not fitted or the recordings are not there."""
-    from tvcid.discovery.structure.targets import make_target
+    :func:`.discovery.recordings_cost_at_truth`) on the recordings in ``recordings_dir``;
+    ``None`` where the truth's structure was not fitted or the recordings are not there."""
     from tvcid.models.recording import load_recordings
 
-    from .discovery import cost_at_truth
+    from .discovery import recordings_cost_at_truth
     from .draws import row_ranges
     from .scenarios import draw_scenario
 
@@ -119,7 +118,7 @@ def fit_against_truth(row, discovery, recordings_dir):
     if own is None or own.get("cost") is None or not paths:
         return None
     truth = draw_scenario(row["seed"], ranges=row_ranges(row)).truth
-    at_truth = cost_at_truth([make_target(r, 5e-4) for r in load_recordings(paths)], truth)
+    at_truth = recordings_cost_at_truth(load_recordings(paths), truth)
     return {"truth_structure_cost": own["cost"], "cost_at_truth": at_truth,
             "as_good_as_truth": own["cost"] <= at_truth}
 
@@ -154,3 +153,19 @@ def cause_counts(rows) -> dict:
             "causes": {c: [[r["seed"], m["quantity"]] for r in explained for m in r["misses"]
                            if m["cause"] == c] for c in CAUSES},
             "second_mode": second}
+
+
+def causes_text(counts) -> str:
+    """:func:`cause_counts` as the table and ``docs/results.md`` print it; empty where no row
+    explains its misses."""
+    if not counts.get("draws"):
+        return ""
+    text = (f"misses by cause ({counts['draws']} draws explained): " + (", ".join(
+        f"{c} {len(counts['causes'][c])} ("
+        + ", ".join(f"{q} of draw {seed}" for seed, q in counts["causes"][c]) + ")"
+        for c in CAUSES if counts["causes"][c]) or "none"))
+    if counts.get("second_mode"):
+        text += ("; of the truth's member's misses, where its structure fits elsewhere at least "
+                 "as well as the truth: " + ", ".join(f"{q} of draw {seed}"
+                                                      for seed, q in counts["second_mode"]))
+    return text
