@@ -57,7 +57,8 @@ class _Draws:
 def test_a_member_under_the_deciding_share_is_not_counted_in_the_closure(monkeypatch):
     """Every member is simulated, but one the weights decided against (under the deciding share)
     does not part the set: beside one member it leaves the set closed, beside two that agree it
-    does not part them at a test or a setting, though with every member counted it would."""
+    does not part them at a test or a setting, though with every member counted it would; one
+    whose weight is not final is counted whatever its weight."""
     import itertools
 
     import tvcid.discovery.prediction.closure as closure
@@ -101,6 +102,11 @@ def test_a_member_under_the_deciding_share_is_not_counted_in_the_closure(monkeyp
     kp = "Kp 8, Kd 0.06, mu 9"
     assert not every.closed and every.parting == ["t1", "t2", kp] and every.not_counted == []
     assert every.parting_tests == ["t1", "t2"] and two.parting_tests == []
+
+    # under the share, but its weight not final (its chain stopped at its cap): counted
+    unsure = closure.set_closure(draws, ["t1", "t2"], settings, 1e-5,
+                                 weights={"a": 0.6, "b": 0.37, "c": 0.03}, unsure=["c"])
+    assert not unsure.closed and unsure.not_counted == [] and unsure.parting == every.parting
 
 
 @pytest.mark.slow

@@ -151,6 +151,41 @@ def test_the_next_test_leaves_out_the_members_the_weights_decided_against(tmp_pa
     assert _next_test_lines(nt) == []
 
 
+def test_the_next_test_keeps_a_member_under_the_share_whose_weight_is_not_final(tmp_path,
+                                                                                 monkeypatch):
+    """A member under 5 % whose chain stopped at its cap (``set_posterior.unsure``) is not left
+    out: the candidates are ranked on both members."""
+    from types import SimpleNamespace
+
+    import tvcid.discovery.prediction.discrimination as discrimination
+    import tvcid.discovery.structure.targets as targets
+    from tvcid.models import M002, M001i
+    from tvcid.pipeline import next_test
+    from tvcid.run_record import RunRecord
+
+    ranked = []
+
+    class Stop(Exception):
+        pass
+
+    def discriminating_tests(members, *args, **kwargs):
+        ranked.append(len(members))
+        raise Stop
+
+    monkeypatch.setattr(discrimination, "discriminating_tests", discriminating_tests)
+    monkeypatch.setattr(targets, "make_target", lambda rec, dt: None)
+    rows = [{"structure": n, "params": p.to_dict(), "indistinguishable_from_best": True,
+             "merged_into": None} for n, p in (("a", M002()), ("b", M001i()))]
+    summary = {"structures": rows, "sensor_noise": {},
+               "set_posterior": {"members": [{"structure": "a", "weight": 0.995},
+                                             {"structure": "b", "weight": 0.005}],
+                                 "unsure": ["b"]}}
+    with pytest.raises(Stop):
+        next_test(RunRecord.from_dict(summary), [SimpleNamespace(sample_rate=1000.0)], 0,
+                  tmp_path)
+    assert ranked == [2]
+
+
 def test_a_merged_members_weight_counts_for_the_structure_it_is_merged_into(tmp_path):
     """A superset merged into a member of the set can carry the weight its posterior earns; the
     next test counts it for the structure it is merged into: that one is kept, the rest (under

@@ -45,15 +45,17 @@ def test_a_choice_is_decided_by_the_set_by_the_weights_or_left_open_with_each_si
     holds under 5 % together; otherwise every value's share is given, and a value held only by
     a structure without a weight (beyond the cap) keeps the choice open."""
     c = weighed_choices(DECIDED, {A: 0.97, B: 0.01, C: 0.02}, [A, B, C])
-    assert c["friction"] == {"value": "on", "by": "set", "weights": {"on": 1.0}}
+    assert c["friction"] == {"value": "on", "by": "set", "weights": {"on": 1.0}, "unsure": []}
     assert c["delay_position"]["value"] == "before_first_integrator"
     assert c["delay_position"]["by"] == "weights"
     assert c["bandpass"]["value"] == "off" and c["bandpass"]["weights"]["on"] == pytest.approx(0.02)
     c = weighed_choices(DECIDED, {A: 0.6, B: 0.3, C: 0.1}, [A, B, C])
     assert c["delay_position"] == {"value": None, "by": "open", "weights": {
-        "before_first_integrator": pytest.approx(0.7), "output": pytest.approx(0.3)}}
+        "before_first_integrator": pytest.approx(0.7), "output": pytest.approx(0.3)},
+        "unsure": []}
     c = weighed_choices(DECIDED, {A: 1.0}, [A, C])  # C beyond the cap: no weight
-    assert c["bandpass"] == {"value": None, "by": "open", "weights": {"off": 1.0, "on": None}}
+    assert c["bandpass"] == {"value": None, "by": "open", "weights": {"off": 1.0, "on": None},
+                             "unsure": []}
     assert DECIDING_SHARE == 0.05
 
 
@@ -141,3 +143,38 @@ def test_pinned_combinations_are_printed_per_member_with_the_free_directions():
     assert not any("- `d`" in li for li in lines)
     assert lines[-1] == ("Under 5 % of the weight, their combinations in `discovery.json` "
                          "(`set_posterior.members[].posterior.pinned`): `d`.")
+
+
+def test_a_member_whose_weight_is_not_final_keeps_its_choice_open_and_its_component_open():
+    """A member under 5 % whose chain stopped at its cap (``unsure``) is not decided against: the
+    delay position it holds stays open, named with its share and "weight not final", and the
+    band-pass loop only its kind of member holds prints "present or absent", not "absent"."""
+    from tvcid.discovery.members.set_posterior import left_open_by_choices
+
+    weights = {A: 0.93, B: 0.005, C: 0.065}
+    settled = weighed_choices(DECIDED, weights, list(weights))
+    assert settled["delay_position"]["by"] == "weights"
+    choices = weighed_choices(DECIDED, weights, list(weights), unsure=[B])
+    assert choices["delay_position"] == {"value": None, "by": "open", "weights": {
+        "before_first_integrator": pytest.approx(0.995), "output": pytest.approx(0.005)},
+        "unsure": ["output"]}
+    assert left_open_by_choices(choices) == {}  # the delay position is no component
+
+    rng = np.random.default_rng(4)
+    members = [_member(A, rng), _member(C, rng, bandpass=True)]
+    choices = weighed_choices(DECIDED, {A: 0.99, C: 0.01}, [A, C], unsure=[C])
+    assert choices["bandpass"]["by"] == "open"
+    left_open = left_open_by_choices(choices)
+    assert left_open == {"bandpass_gain": "weight not final"}
+    sp = combine(members, weights=[0.99, 0.01], seed=1, left_open=left_open).to_dict()
+    q = sp["quantities"]["bandpass_gain"]
+    assert not decided_absent(q)
+    sp["choices"] = choices
+    rows = [{"structure": n, "indistinguishable_from_best": True, "merged_into": None}
+            for n in (A, C)]
+    text = _screen({"structures": rows, "decided": DECIDED, "set_posterior": sp})
+    row = next(li for li in text.splitlines() if li.startswith("| bandpass_gain |"))
+    assert "| present or absent (1.0 % of the weight present; a member under 5 % stopped" in row
+    assert "absent (the members with it" not in row
+    assert "band-pass loop off (99 %) or on (1.0 %, weight not final)" in text
+    assert "A weight not final is a member's whose chain stopped at its cap" in text

@@ -75,6 +75,8 @@ def test_agreement_rule_on_known_bands():
     apart = {"a": band(5, 8), "b": band(5, 8), "c": band(9, 8)}
     assert not members_agree(apart, weights={"a": 0.5, "b": 0.45, "c": 0.05})[0]
     assert members_agree(apart, weights={"a": 0.5, "b": 0.47, "c": 0.03}) == (True, [])
+    # ... unless its weight is not final (its chain stopped at its cap)
+    assert not members_agree(apart, weights={"a": 0.5, "b": 0.47, "c": 0.03}, unsure=["c"])[0]
     with pytest.raises(ValueError, match="no member"):
         predict_cycle_over_set({}, SETTING_A)
 
@@ -271,6 +273,19 @@ def test_stored_weights_are_read_and_checked(tmp_path):
         return load_set_weights(tmp_path)
 
     assert run_with([3.0, 1.0]) == {"a": 0.75, "b": 0.25}
+    from tvcid.discovery.prediction.draws import load_unsure_members
+
+    assert load_unsure_members(tmp_path) == ()  # no evidence weighting stored: none unsure
+    stored = json.loads((tmp_path / "discovery.json").read_text())
+    stored["set_posterior"]["weighting"] = {"method": "evidence", "upper": {"a": 0.8, "b": 0.3},
+                                            "evidence": {"a": {"reliable": True},
+                                                         "b": {"reliable": False}}}
+    stored["set_posterior"]["members"][0]["converged"] = True
+    (tmp_path / "discovery.json").write_text(json.dumps(stored))
+    assert load_unsure_members(tmp_path) == ("b",)  # worked out where the run stores none
+    stored["set_posterior"]["unsure"] = ["a"]
+    (tmp_path / "discovery.json").write_text(json.dumps(stored))
+    assert load_unsure_members(tmp_path) == ("a",)  # the run's own list where it stores one
     assert run_with([None, None]) is None
     for weights, message in (([0.5, None], "member b stores no weight"),
                              ([0.5, -0.1], "member b's weight -0.1 is not a finite number"),

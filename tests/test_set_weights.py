@@ -176,3 +176,43 @@ def test_an_unreliable_screening_run_screens_its_member_only_far_under_the_share
     near = SetWeights(weighed.weights, "evidence", "rule",
                       upper={**weighed.upper, "c": 0.05 * math.exp(-19.5)})
     assert screened_members(near, unsure={"c"}) == ["b"]
+
+
+def _stored_set(members):
+    """A ``set_posterior`` as ``discovery.json`` stores it: ``members`` rows of (name, weight,
+    upper, converged, screened, evidence reliable)."""
+    return {"members": [{"structure": n, "weight": w, "converged": conv,
+                         "posterior": {"screened": {"steps": 300}} if scr else {}}
+                        for n, w, _, conv, scr, _ in members],
+            "weighting": {"method": "evidence",
+                          "upper": {n: u for n, _, u, *_ in members},
+                          "evidence": {n: {"reliable": rel} for n, *_, rel in members}}}
+
+
+def test_a_member_whose_weight_is_not_final_is_not_decided_against_unless_far_under_the_share():
+    """A member whose chain stopped at its cap, or whose evidence is unreliable, is unsure: the
+    data decide against it only 20 nats under the share even at its allowance. A converged
+    member with reliable evidence, or one screened by its weight, is decided against under the
+    share; no member over it is."""
+    import math
+
+    from tvcid.discovery.members.set_weights import decided_against, unsure_members
+
+    far = 0.05 * math.exp(-20.5)
+    sp = _stored_set([
+        ("best", 0.90, 0.95, True, False, True),
+        ("capped", 0.005, 0.026, False, False, True),    # chain stopped at its cap
+        ("unreliable", 0.01, 0.02, True, False, False),  # Pareto k >= 0.7 or few points
+        ("settled", 0.01, 0.02, True, False, True),
+        ("screened", 0.01, 0.02, False, True, True),
+        ("hopeless", far / 2, far, False, False, False),
+        ("rest", 0.075 - far / 2, 0.1, False, False, True),
+    ])
+    unsure = unsure_members(sp)
+    assert unsure == ["capped", "unreliable", "rest"]
+    weights = {m["structure"]: m["weight"] for m in sp["members"]}
+    assert decided_against(weights, unsure) == ["settled", "screened", "hopeless"]
+    assert decided_against(weights) == ["capped", "unreliable", "settled", "screened", "hopeless"]
+    assert decided_against(None, unsure) == []
+    assert unsure_members({**sp, "members": sp["members"][:1]}) == []  # a set of one
+    assert unsure_members({**sp, "weighting": {"method": "held-out scores"}}) == []

@@ -226,16 +226,17 @@ def next_test(record, recs, seed, out, spent=None):
     (:func:`tvcid.discovery.prediction.discrimination.discriminating_tests` on the set's unmerged
     members at their fitted parameters, refitted to the recordings for the best
     candidates; the default menu acquired at the recordings' highest rate, the recordings'
-    median noise); writes ``next_test.png``. A calibrated member whose weight is under
-    :data:`tvcid.discovery.members.set_weights.DECIDING_SHARE` is left out (``left_out``: the data
-    have decided against it), the weight of the members merged into it counted as its own; one
-    beyond the calibration's cap stays. ``None`` for a set of one.
+    median noise); writes ``next_test.png``. A calibrated member the data decide against
+    (:func:`tvcid.discovery.members.set_weights.decided_against`: under the deciding share, its
+    weight final) is left out (``left_out``), the weight of the members merged into it counted
+    as its own; one beyond the calibration's cap, or whose weight is not final, stays. ``None``
+    for a set of one.
     A dict ``spent`` gets what it simulated, ``simulated_seconds`` and ``simulated_steps``."""
     from tvcid.discovery.prediction.discrimination import (
         default_candidates,
         discriminating_tests,
     )
-    from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
+    from tvcid.discovery.members.set_weights import decided_against, unsure_members
     from tvcid.discovery.structure.targets import make_target
     from tvcid.models import params_from_dict
 
@@ -245,10 +246,12 @@ def next_test(record, recs, seed, out, spent=None):
             into = s["merged_into"]
             weight[into] = weight.get(into, 0.0) + weight.pop(s["structure"])
     rows = record.set_rows()
+    sp = record.set_posterior or {}
+    against = set(decided_against(weight, sp.get("unsure", unsure_members(sp))))
     left_out = [{"structure": s["structure"], "weight": weight[s["structure"]]} for s in rows
-                if weight.get(s.get("structure"), 1.0) < DECIDING_SHARE]
+                if s.get("structure") in against]
     members = [params_from_dict("custom", s["params"]) for s in rows
-               if weight.get(s.get("structure"), 1.0) >= DECIDING_SHARE]
+               if s.get("structure") not in against]
     spent = spent if spent is not None else {}
     spent.update(simulated_seconds=0.0, simulated_steps=0.0)
     if len(members) < 2:  # the weights leave one structure: nothing to split

@@ -163,6 +163,11 @@ def _quantity_row(name, q, capped=False) -> str:
     if partly_present(q):
         return (f"| {name} | present or absent ({100 * q['present']:.0f} % of the weight present) | "
                 f"if present, {interval} | {q['unit']} | {_verdict(q, capped)} |")
+    if q.get("left_open") == "weight not final":
+        return (f"| {name} | present or absent ({100 * q['present']:.1f} % of the weight present; "
+                f"a member under {100 * DECIDING_SHARE:.0f} % stopped at its cap or has an "
+                f"unreliable evidence, so its weight is not final) | if present, {interval} | "
+                f"{q['unit']} | {_verdict(q, capped)} |")
     if q.get("left_open"):  # the members without it could not be calibrated
         return (f"| {name} | present or absent (the set leaves it open; only members with it "
                 f"calibrated) | if present, {interval} | {q['unit']} | {_verdict(q, capped)} |")
@@ -339,7 +344,7 @@ def _decided_line(summary, best) -> str:
     if not choices:  # no calibration: the set's structures alone
         choices = {c: {"value": None if v is None else _shown(v), "by": "set" if v is not None
                        else "open", "weights": {}} for c, v in summary["decided"].items()}
-    decided, open_ = [], []
+    decided, open_, not_final = [], [], False
     for c, v in choices.items():
         if v["by"] == "set":
             raw = summary["decided"][c]
@@ -351,11 +356,23 @@ def _decided_line(summary, best) -> str:
             seen = v["weights"] or {s: None for s in _seen(summary, c)}
             # the largest share first, the values without a weight last
             seen = dict(sorted(seen.items(), key=lambda kv: (kv[1] is None, -(kv[1] or 0.0))))
+            unsure = {u for u in v.get("unsure") or ()
+                      if seen.get(u) is not None and seen[u] < DECIDING_SHARE}
+            not_final = not_final or bool(unsure)
             open_.append(f"{CHOICE_LABELS[c]} " + " or ".join(
-                f"{value} ({'uncalibrated' if w is None else f'{100 * w:.0f} %'})"
+                f"{value} ({'uncalibrated' if w is None else _share(w)}"
+                f"{', weight not final' if value in unsure else ''})"
                 if v["weights"] else value for value, w in seen.items()))
     return ("Decided: " + (", ".join(decided) or "no structural choice") + ". Not decided: "
-            + ("; ".join(open_) or "nothing") + ".")
+            + ("; ".join(open_) or "nothing") + "."
+            + (" A weight not final is a member's whose chain stopped at its cap or whose "
+               "evidence is unreliable: the data do not yet decide against it." if not_final
+               else ""))
+
+
+def _share(w) -> str:
+    """A share of the weight as a percentage, to one decimal under the deciding share."""
+    return f"{100 * w:.1f} %" if w < DECIDING_SHARE else f"{100 * w:.0f} %"
 
 
 def _seen(summary, choice) -> list:

@@ -12,6 +12,7 @@ import math
 import os
 import time
 
+from tvcid.discovery.members.set_weights import UNSURE_NATS
 from tvcid.discovery.speed import cpu_seconds
 
 from .result import DiscoveryResult
@@ -33,10 +34,10 @@ SCREENING = {"polish_restarts": 0, "importance_rounds": 2, "importance_only": Tr
 #: Pareto ``k`` of a screening's importance run at or over which its evidence (PSIS's threshold
 #: of a reliable estimate) screens the member only with a margin: ...
 SCREEN_MAX_K = 0.7
-#: ... its weight, even at its allowance, under the deciding share by this many nats (a factor of
-#: 5e8). Such an estimate of the log evidence errs low by an amount its standard error does not
-#: bound: the margin is a choice, not a bound; the set-coverage benchmark judges it.
-SCREEN_UNSURE_NATS = 20.0
+#: ... its weight, even at its allowance, under the deciding share by this many nats: the margin
+#: the final weights ask of a member whose weight is not final
+#: (:data:`tvcid.discovery.members.set_weights.UNSURE_NATS`).
+SCREEN_UNSURE_NATS = UNSURE_NATS
 
 
 def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, executor=None):
@@ -75,12 +76,13 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
         MemberPosterior,
         calibration_reasons,
         combine,
-        left_open_quantities,
+        left_open_by_choices,
         richer_members,
     )
     from tvcid.discovery.members.set_weights import (
         DECIDING_SHARE,
         evidence_weights,
+        unsure_members,
         weighed_choices,
     )
 
@@ -206,10 +208,12 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
         weights = weighting.weights
     else:
         weighting, weights = None, {names[0]: 1.0}
-    choices = weighed_choices(record.decided, weights, record.indistinguishable)
-    # a component whose other side only uncalibrated members hold prints "present or absent"
-    left_open = left_open_quantities({c: None if v["by"] == "open" and None in v["weights"].values()
-                                      else True for c, v in choices.items()})
+    unsure = [] if weighting is None else unsure_members({
+        "members": [{"structure": m.structure, "converged": m.converged, "posterior": m.summary,
+                     "weight": weights[m.structure]} for m in members],
+        "weighting": weighting.to_dict()})
+    choices = weighed_choices(record.decided, weights, record.indistinguishable, unsure)
+    left_open = left_open_by_choices(choices)
     if weighting is not None:
         combined = combine(members, weights=weighting.of(names), seed=seed,
                            criterion=weighting.rule, left_open=left_open).to_dict()
@@ -225,6 +229,7 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     combined["distinct_members"] = len(rows)
     combined["failed"] = failed
     combined["screened"] = sorted(screened & set(names))
+    combined["unsure"] = unsure
     for row in combined["members"]:  # what each member's own work cost, both rounds
         row.update(by_member[row["structure"]])
     record.set_posterior = combined

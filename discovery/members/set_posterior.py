@@ -50,7 +50,7 @@ from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member
 from ..structure.indistinguishable import DECIDING_SHARE
 
 __all__ = ["MemberPosterior", "SetPosterior", "combine", "not_pinned", "prior_quantities",
-           "richer_members", "calibration_reasons", "decided_absent"]
+           "richer_members", "calibration_reasons", "decided_absent", "left_open_by_choices"]
 
 #: A quantity depends on the structure when the members' medians spread by more than this
 #: fraction of the median width of their 90 % intervals.
@@ -313,6 +313,23 @@ def left_open_quantities(decided) -> tuple:
     return tuple(n for n in QUANTITY_UNITS if n in names)
 
 
+def left_open_by_choices(choices) -> dict:
+    """Component quantity -> why its component prints "present or absent" whatever the calibrated
+    members' weights say, from the choices of
+    :func:`tvcid.discovery.members.set_weights.weighed_choices`: ``True`` where a value of the
+    open choice is held only by members without a weight (beyond the cap, or failed),
+    ``"weight not final"`` where a value under the deciding share is held by a member whose
+    weight is not final (``unsure``). ``combine``'s ``left_open``."""
+    def side(test):
+        return left_open_quantities({c: None if v["by"] == "open" and test(v) else True
+                                     for c, v in choices.items()})
+
+    uncalibrated = side(lambda v: None in v["weights"].values())
+    not_final = side(lambda v: bool(v.get("unsure")) and any(
+        w is not None and w < DECIDING_SHARE for w in v["weights"].values()))
+    return {**dict.fromkeys(not_final, "weight not final"), **dict.fromkeys(uncalibrated, True)}
+
+
 def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
             left_open=()) -> SetPosterior:
     """Mix the members' draws, each with its weight, into one posterior per shared quantity.
@@ -327,11 +344,15 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
         with a seeded ``numpy.random.Generator``).
     criterion : str, optional
         How the weights were made, for the report.
-    left_open : iterable of str, optional
+    left_open : iterable of str, or dict, optional
         Component quantities whose component the set leaves open
-        (:func:`left_open_quantities`): whatever the calibrated members hold, they print
-        "present or absent" (``left_open`` true), since a member without the component may be
-        the one that could not be calibrated.
+        (:func:`left_open_quantities`): whatever the calibrated members' weights say, they print
+        "present or absent" (``left_open`` true), since a member on the other side may be one
+        that could not be calibrated. A dict maps each to why: ``"uncalibrated"`` (the
+        default), or ``"weight not final"`` where that side's members are calibrated but their
+        weight is not final
+        (:func:`tvcid.discovery.members.set_weights.unsure_members`); ``left_open`` then holds
+        the reason.
 
     Returns
     -------
@@ -427,9 +448,10 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
                                                        for i in widened_by) if widened else None),
                             "support": _joined_support([supports[i][name] for i in counted]),
                             "equal_weights": _quantiles(equal)}
-    for name in left_open:
+    why = left_open if isinstance(left_open, dict) else dict.fromkeys(left_open, True)
+    for name, reason in why.items():
         if name in quantities:
-            quantities[name]["left_open"] = True
+            quantities[name]["left_open"] = reason
     if criterion is None:
         criterion = ("equal weights" if weights is None else "weights given")
     intervals = [{n: {**_quantiles(v), **({"widened": True} if was else {})}

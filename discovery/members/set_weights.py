@@ -40,10 +40,17 @@ from .member_evidence import ImportanceDraws, log_evidence
 from .ranking_shares import RANKING_RULE, ranking_shares
 
 __all__ = ["SetWeights", "evidence_weights", "common_temperature", "weighed_choices",
-           "EVIDENCE_RULE", "EQUAL_RULE"]
+           "unsure_members", "decided_against", "EVIDENCE_RULE", "EQUAL_RULE", "UNSURE_NATS"]
 
 #: Standard errors of a member's log evidence added before it is judged under the share.
 SE_ALLOWANCE = 2.0
+#: How far under the deciding share (in nats: a factor of 5e8) a member's weight, even at its
+#: allowance, must be before the data decide against it when its weight is not final: its chain
+#: stopped at its cap, or its evidence rests on unreliable ratios. Such an estimate of the log
+#: evidence errs low by an amount its standard error does not bound (a chain that has not reached
+#: part of its posterior leaves that part's likelihood out), so the margin is a choice, not a
+#: bound; the set-coverage benchmark judges it.
+UNSURE_NATS = 20.0
 #: The equal-weight alternative's rule.
 EQUAL_RULE = "equal weights: 1/n for each of the n calibrated members"
 #: The weights' rule (:func:`evidence_weights`).
@@ -193,14 +200,50 @@ def _normalised(log_z) -> np.ndarray:
     return w / w.sum()
 
 
-def weighed_choices(decided, weights, set_structures=()) -> dict:
+def unsure_members(set_posterior) -> list:
+    """The calibrated members whose weight is not final, so that the data cannot yet decide
+    against them: each member of ``set_posterior`` (``discovery.json``'s, or :func:`combine`'s
+    dict with its ``weighting``) whose chain stopped at its cap (neither converged nor screened
+    by its weight, ``tvcid.set_stage``) or whose evidence is not reliable
+    (:attr:`.member_evidence.Evidence.reliable`), unless its weight even at its allowance
+    (:attr:`SetWeights.upper`) is under :data:`DECIDING_SHARE` by :data:`UNSURE_NATS`.
+
+    A set of one member, or one without evidence weights, has none. The members' order is kept.
+    """
+    members = (set_posterior or {}).get("members") or []
+    weighting = (set_posterior or {}).get("weighting") or {}
+    if len(members) < 2 or weighting.get("method") != "evidence":
+        return []
+    evidence, upper = weighting.get("evidence") or {}, weighting.get("upper") or {}
+    floor = DECIDING_SHARE * math.exp(-UNSURE_NATS)
+    out = []
+    for m in members:
+        name = m["structure"]
+        stopped = not m.get("converged") and not (m.get("posterior") or {}).get("screened")
+        unreliable = not (evidence.get(name) or {}).get("reliable", False)
+        if (stopped or unreliable) and upper.get(name, m.get("weight", 1.0)) >= floor:
+            out.append(name)
+    return out
+
+
+def decided_against(weights, unsure=(), share=DECIDING_SHARE) -> list:
+    """The members the data decide against: under ``share`` of the weight, their weight final
+    (not in ``unsure``, :func:`unsure_members`). ``weights``: member -> weight, or ``None`` (no
+    member is decided against). The members' order is kept."""
+    if weights is None:
+        return []
+    return [n for n, w in weights.items() if w < share and n not in set(unsure)]
+
+
+def weighed_choices(decided, weights, set_structures=(), unsure=()) -> dict:
     """Each structural choice decided by the set or by the members' weights, one rule for all.
 
     A choice the set's structures agree on (``decided[choice]`` not ``None``) is decided by the
     set. One they leave open is decided by the weights when the calibrated members holding every
-    other value keep under :data:`DECIDING_SHARE` of the weight together, and no structure of
-    the set outside the calibrated members (beyond the cap, or failed) holds another value;
-    otherwise it is not decided, and every value's share is given.
+    other value keep under :data:`DECIDING_SHARE` of the weight together, none of them is in
+    ``unsure`` (:func:`unsure_members`: its weight is not final), and no structure of the set
+    outside the calibrated members (beyond the cap, or failed) holds another value; otherwise
+    it is not decided, and every value's share is given.
 
     Parameters
     ----------
@@ -211,12 +254,15 @@ def weighed_choices(decided, weights, set_structures=()) -> dict:
         Calibrated member (structure name) -> weight.
     set_structures : iterable of str
         Every structure of the set (merged ones included).
+    unsure : iterable of str
+        Calibrated members whose weight is not final (:func:`unsure_members`).
 
     Returns
     -------
     dict
         Choice -> ``{"value": v or None, "by": "set" | "weights" | "open", "weights": {value:
-        share}}`` (values as the report shows them: ``"on"``/``"off"`` for a component).
+        share}, "unsure": [values held by a member in unsure]}`` (values as the report shows
+        them: ``"on"``/``"off"`` for a component).
     """
     from tvcid.models.structures import Structure
 
@@ -227,18 +273,20 @@ def weighed_choices(decided, weights, set_structures=()) -> dict:
     out = {}
     for choice, value in decided.items():
         if value is not None:
-            out[choice] = {"value": shown(value), "by": "set", "weights": {shown(value): 1.0}}
+            out[choice] = {"value": shown(value), "by": "set", "weights": {shown(value): 1.0},
+                           "unsure": []}
             continue
         shares = {}
         for name, w in weights.items():
             v = shown(parsed[name][choice])
             shares[v] = shares.get(v, 0.0) + float(w)
         elsewhere = {shown(parsed[n][choice]) for n in set_structures if n not in weights}
+        not_final = sorted({shown(parsed[n][choice]) for n in unsure if n in weights})
         best = max(shares, key=shares.get) if shares else None
         decisive = (best is not None and 1.0 - shares[best] < DECIDING_SHARE
-                    and elsewhere <= {best})
+                    and elsewhere | set(not_final) <= {best})
         for v in sorted(elsewhere - set(shares)):
             shares[v] = None  # held only by members without a weight
         out[choice] = {"value": best if decisive else None, "by": "weights" if decisive else "open",
-                       "weights": shares}
+                       "weights": shares, "unsure": not_final}
     return out

@@ -19,10 +19,12 @@ A set is *closed* when it holds one structure, or when its calibrated members ag
 Then the choice between them does not matter to what a user would measure or design for; a set
 that is not closed says at which test or setting the members part. Where the members carry
 weights, a member under the deciding share
-(:data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`) is not counted: the data have
-decided against it, as the set's prediction and the next test leave it out (it is still
-simulated, and the verdict counting every member is kept beside); a set whose weight one member
-holds all but that share of is closed.
+(:data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`) whose weight is final is not
+counted: the data have decided against it, as the set's prediction and the next test leave it
+out (it is still simulated, and the verdict counting every member is kept beside); a set whose
+weight one member holds all but that share of is closed. A member whose weight is not final (its
+chain stopped at its cap, or its evidence is unreliable:
+:func:`tvcid.discovery.members.set_weights.unsure_members`) is counted whatever its weight.
 """
 from __future__ import annotations
 
@@ -156,7 +158,7 @@ class SetClosure:
 
 
 def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, dt=5e-4,
-                seed=0, config=None, resolution=None, weights=None) -> SetClosure:
+                seed=0, config=None, resolution=None, weights=None, unsure=()) -> SetClosure:
     """Whether the members of a set agree on every test of ``candidates`` and on the cycle at
     every controller setting of ``settings``.
 
@@ -182,17 +184,23 @@ def set_closure(member_draws: dict, candidates, settings, noise_sd, n_draws=24, 
         predicted cycles' bands are widened before they are compared.
     weights : dict, optional
         Structure name -> the member's weight in the set
-        (:func:`tvcid.discovery.prediction.draws.load_set_weights`); a member under the deciding
-        share is simulated but not counted in the verdict. ``None``: every member counts.
+        (:func:`tvcid.discovery.prediction.draws.load_set_weights`); a member the data decide
+        against (under the deciding share, its weight final:
+        :func:`tvcid.discovery.members.set_weights.decided_against`) is simulated but not
+        counted in the verdict. ``None``: every member counts.
+    unsure : iterable of str
+        Members whose weight is not final
+        (:func:`tvcid.discovery.prediction.draws.load_unsure_members`): counted whatever their
+        weight.
     """
-    from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
+    from tvcid.discovery.members.set_weights import decided_against
 
     from .cycles import PredictionConfig, step_under_delays
     from .set_prediction import predict_cycle_over_set
 
     names = list(member_draws)
-    not_counted = sorted(n for n in names
-                         if weights is not None and weights.get(n, 1.0) < DECIDING_SHARE)
+    not_counted = sorted(decided_against(
+        None if weights is None else {n: weights.get(n, 1.0) for n in names}, unsure))
     if len(names) <= 1:
         return SetClosure(names, not_counted=not_counted)
     sets = {n: [d.params(i) for i in range(min(n_draws, len(d)))] for n, d in member_draws.items()}

@@ -18,7 +18,7 @@ from tvcid.models.hypotheses import ActuatorParams, params_from_dict
 from ..calibration.priors import SIGMA, LogUniform, Uniform
 
 __all__ = ["NoPosteriorError", "PosteriorDraws", "load_chain_draws", "load_posterior_draws",
-           "load_set_draws", "load_set_weights"]
+           "load_set_draws", "load_set_weights", "load_unsure_members"]
 
 _PRIOR_KINDS = {"Uniform": Uniform, "LogUniform": LogUniform}
 
@@ -256,3 +256,18 @@ def load_set_weights(directory) -> dict | None:
     if total <= 0:
         raise ValueError(f"{where}: every member's weight is 0")
     return {n: float(w) / total for n, w in stored.items()}
+
+
+def load_unsure_members(directory) -> tuple:
+    """The members of a ``tvcid discover`` directory's set whose weight is not final
+    (:func:`tvcid.discovery.members.set_weights.unsure_members`): ``discovery.json``'s
+    ``set_posterior.unsure``, or worked out from the stored members and weighting where the run
+    stores none. Empty for a single structure or a ``tvcid fit`` directory."""
+    from tvcid.discovery.members.set_weights import unsure_members
+
+    directory = Path(directory)
+    if not _set_members(directory):
+        return ()
+    sp = json.loads((directory / "discovery.json").read_text())["set_posterior"]
+    stored = sp.get("unsure")
+    return tuple(stored if stored is not None else unsure_members(sp))

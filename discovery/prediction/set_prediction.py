@@ -23,7 +23,8 @@ quadrature: the sum of the half-widths (``2 h`` for two equal ones, against ``sq
 the difference of two Gaussian measurements of one value at 98 %, not 90 %. Otherwise the choice of
 structure changes the answer there, and the output says so. Where the members carry weights, a
 member under the deciding share (:data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`)
-is not counted: the data have decided against it, and the output names it (``not_counted``). Without
+whose weight is final is not counted: the data have decided against it, and the output names it
+(``not_counted``); one whose weight is not final (``unsure``) is counted. Without
 ``r``, members whose chains pin them tightly would be called apart for differences no recording
 could show (two members of one set, fitting the recorded cycles alike, predict them 0.1-0.5 % apart
 with bands narrower than that).
@@ -145,19 +146,21 @@ def _apart(a, b, resolution=0.0) -> bool:
     return hi["q50"] - lo["q50"] > float(np.sqrt(h_lo**2 + r_lo**2 + h_hi**2 + r_hi**2))
 
 
-def members_agree(bands: dict, resolution=None, weights=None) -> tuple:
+def members_agree(bands: dict, resolution=None, weights=None, unsure=()) -> tuple:
     """Whether the members' predictions agree (the module's rule), and the disagreeing pairs.
 
     ``bands``: member -> a :meth:`.cycles.CyclePrediction.to_dict`; ``resolution``: relative sd per
     quantity (:func:`measurement_resolution`; ``None``: the bands alone); ``weights``: member ->
-    weight, where a member under :data:`tvcid.discovery.structure.indistinguishable.DECIDING_SHARE`
-    (the data have decided against it) is not counted (``None``: every member counts). Returns
-    ``(agree, [(a, b, why), ...])``."""
-    from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
+    weight, where a member the data decide against
+    (:func:`tvcid.discovery.members.set_weights.decided_against`: under the deciding share, not
+    in ``unsure``, the members whose weight is not final) is not counted (``None``: every member
+    counts). Returns ``(agree, [(a, b, why), ...])``."""
+    from tvcid.discovery.members.set_weights import decided_against
 
     resolution = resolution or {}
-    counted = {n: b for n, b in bands.items()
-               if weights is None or weights.get(n, 1.0) >= DECIDING_SHARE}
+    against = set(decided_against(
+        None if weights is None else {n: weights.get(n, 1.0) for n in bands}, unsure))
+    counted = {n: b for n, b in bands.items() if n not in against}
     pairs = []
     for (na, a), (nb, b) in combinations(counted.items(), 2):
         osc_a, osc_b = a["fraction_oscillating"] > 0.5, b["fraction_oscillating"] > 0.5
@@ -191,11 +194,15 @@ class SetPrediction:
         What a recording resolves (:func:`measurement_resolution`), for :func:`members_agree`.
     weights : dict or None
         Structure name -> weight of the member in the set (normalised here); ``None``: equal.
+    unsure : tuple
+        Members whose weight is not final, counted in the verdict whatever their weight
+        (:func:`members_agree`).
     """
 
     members: dict = field(repr=False)
     resolution: dict = None
     weights: dict = None
+    unsure: tuple = ()
 
     def member_weights(self) -> dict:
         """Structure name -> weight, summing to 1."""
@@ -205,12 +212,13 @@ class SetPrediction:
         """The mixture's bands and oscillating fraction (the module's rule), the verdict, and per
         member its :meth:`.cycles.CyclePrediction.to_dict` with its ``weight`` and
         ``share_of_band`` (its part of the mixture's oscillating mass)."""
-        from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
+        from tvcid.discovery.members.set_weights import decided_against
 
         w = self.member_weights()
         bands = {n: p.to_dict() for n, p in self.members.items()}
         agree, pairs = members_agree(bands, self.resolution,
-                                     weights=w if self.weights is not None else None)
+                                     weights=w if self.weights is not None else None,
+                                     unsure=self.unsure)
         mass = {n: w[n] * b["fraction_oscillating"] for n, b in bands.items()}
         total = sum(mass.values())
         for n, b in bands.items():
@@ -223,8 +231,9 @@ class SetPrediction:
             "members_agree": agree,
             "disagreeing": [{"members": [a, b], "why": why} for a, b, why in pairs],
             # members the weights decided against: not counted in the verdict
-            "not_counted": sorted(n for n in bands if self.weights is not None
-                                  and w[n] < DECIDING_SHARE),
+            "not_counted": sorted(decided_against(w if self.weights is not None else None,
+                                                  self.unsure)),
+            "unsure": list(self.unsure),
             "members": bands,
             "weights": w,
             "weights_stored": self.weights is not None,
@@ -234,26 +243,30 @@ class SetPrediction:
 
 
 def predict_cycle_over_set(member_draws: dict, setting, config=PredictionConfig(),
-                           describing=True, resolution=None, weights=None) -> SetPrediction:
+                           describing=True, resolution=None, weights=None,
+                           unsure=()) -> SetPrediction:
     """:func:`.cycles.predict_cycle` for every member (``member_draws``: structure name ->
     :class:`.draws.PosteriorDraws`, e.g. :func:`.draws.load_set_draws`); ``resolution`` as in
     :func:`members_agree`; ``weights``: structure name -> weight (e.g.
-    :func:`.draws.load_set_weights`; ``None``: equal)."""
+    :func:`.draws.load_set_weights`; ``None``: equal); ``unsure``: members whose weight is not
+    final (:func:`.draws.load_unsure_members`)."""
     if not member_draws:
         raise ValueError("predict_cycle_over_set: no member")
     _normalised(weights, list(member_draws))  # refuse bad weights before simulating
     return SetPrediction({n: predict_cycle(d, setting, config, describing=describing)
-                          for n, d in member_draws.items()}, resolution, weights)
+                          for n, d in member_draws.items()}, resolution, weights, tuple(unsure))
 
 
 @dataclass(frozen=True)
 class SetMap:
     """:class:`.cycles.CycleMap` per member over one grid, and where the members disagree
-    (``resolution`` as in :func:`members_agree`; ``weights`` as in :class:`SetPrediction`)."""
+    (``resolution`` as in :func:`members_agree`; ``weights`` and ``unsure`` as in
+    :class:`SetPrediction`)."""
 
     members: dict = field(repr=False)
     resolution: dict = None
     weights: dict = None
+    unsure: tuple = ()
 
     def disagreement(self) -> np.ndarray:
         """Boolean array over the grid: True where some pair of members disagrees
@@ -266,7 +279,8 @@ class SetMap:
             out[idx] = not members_agree(
                 bands, self.resolution,
                 weights=None if self.weights is None else _normalised(self.weights,
-                                                                      list(self.members)))[0]
+                                                                      list(self.members)),
+                unsure=self.unsure)[0]
         return out
 
     def to_dict(self) -> dict:
@@ -294,11 +308,12 @@ class SetMap:
 
 
 def cycle_map_over_set(member_draws: dict, base, grid: dict, config=PredictionConfig(),
-                       describing=True, progress=False, resolution=None, weights=None) -> SetMap:
+                       describing=True, progress=False, resolution=None, weights=None,
+                       unsure=()) -> SetMap:
     """:func:`.cycles.cycle_map` for every member over the same grid; ``resolution`` as in
-    :func:`members_agree`, ``weights`` as in :func:`predict_cycle_over_set`."""
+    :func:`members_agree`, ``weights`` and ``unsure`` as in :func:`predict_cycle_over_set`."""
     if not member_draws:
         raise ValueError("cycle_map_over_set: no member")
     _normalised(weights, list(member_draws))
     return SetMap({n: cycle_map(d, base, grid, config, describing=describing, progress=progress)
-                   for n, d in member_draws.items()}, resolution, weights)
+                   for n, d in member_draws.items()}, resolution, weights, tuple(unsure))

@@ -117,7 +117,11 @@ def unseen_settings(seed, controller_rate, n=UNSEEN_SETTINGS):
 def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     """What round ``k`` of a draw leaves: the set, the truth in it, the fit ceiling, closure,
     whether the menu can decide, what the run cost."""
-    from tvcid.discovery.prediction.draws import load_set_draws, load_set_weights
+    from tvcid.discovery.prediction.draws import (
+        load_set_draws,
+        load_set_weights,
+        load_unsure_members,
+    )
     from tvcid.discovery.prediction.set_prediction import measurement_resolution
     from tvcid.discovery.prediction.closure import set_closure
     from tvcid.discovery.prediction.discrimination import default_candidates
@@ -142,16 +146,18 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
     controller_rate = next((r.controller_rate for r in scenario.recordings if r.kind == "closed"), None)
     member_draws = load_set_draws(out_dir, n_draws=config.closure_draws, seed=seed)
     weights = load_set_weights(out_dir)
+    unsure = load_unsure_members(out_dir)
     closure = set_closure(member_draws, default_candidates(rate),
                           unseen_settings(seed, controller_rate), noise,
                           n_draws=config.closure_draws, seed=seed,
-                          resolution=measurement_resolution(recordings), weights=weights)
+                          resolution=measurement_resolution(recordings), weights=weights,
+                          unsure=unsure)
     best = (summary.get("next_test") or {}).get("best")
     return {"round": k, "recordings": len(summary["recordings"]), "set": members,
             "set_size": len(members), "truth_in_set": truth.name in inside,
             "truth_member": inside.get(truth.name), "winner": summary["structures"][0]["structure"],
             "ceiling": ceiling, "ceiling_size": len(ceiling),
-            "calibrated": list(member_draws), "weights": weights,
+            "calibrated": list(member_draws), "weights": weights, "unsure": list(unsure),
             "counted": closure.counted, "not_counted": closure.not_counted,
             "truth_counted": (inside.get(truth.name) is not None
                               and inside[truth.name] not in closure.not_counted),

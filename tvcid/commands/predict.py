@@ -165,7 +165,7 @@ def _band(q, scale, unit) -> str:
 def _run_over_set(args, members, setting, grid, config) -> int:
     """Every member of a discover directory's set predicts; the mixture's band, and whether the
     members agree (:mod:`tvcid.discovery.prediction.set_prediction`)."""
-    from tvcid.discovery.prediction.draws import load_set_weights
+    from tvcid.discovery.prediction.draws import load_set_weights, load_unsure_members
     from tvcid.discovery.prediction.set_prediction import (
         MIXTURE_RULE,
         cycle_map_over_set,
@@ -176,10 +176,12 @@ def _run_over_set(args, members, setting, grid, config) -> int:
     from tvcid.models.strict_json import write_json
 
     weights = load_set_weights(args.directory)
+    unsure = load_unsure_members(args.directory)
     resolution = run_resolution(args.directory, seed=args.seed)
     if not grid:
         result = predict_cycle_over_set(members, setting, config, describing=not args.no_df,
-                                        resolution=resolution, weights=weights).to_dict()
+                                        resolution=resolution, weights=weights,
+                                        unsure=unsure).to_dict()
         if args.json:
             print(strict_json.dumps(result))
             return 0
@@ -205,8 +207,9 @@ def _run_over_set(args, members, setting, grid, config) -> int:
                             for d in result["disagreeing"])
             print(f"  the choice of structure changes the answer here ({why})")
         for name, b in result["members"].items():
-            print(f"  {name}: weight {b['weight']:.3g}, oscillating {b['fraction_oscillating']:.0%}"
-                  f" ({b['share_of_band']:.0%} of the band); amplitude "
+            final = " (not final)" if name in result["unsure"] else ""
+            print(f"  {name}: weight {b['weight']:.3g}{final}, oscillating "
+                  f"{b['fraction_oscillating']:.0%} ({b['share_of_band']:.0%} of the band); amplitude "
                   f"{_band(b['amplitude'], 1e3, 'mrad')}; frequency "
                   f"{_band(b['frequency'], 1.0, 'rad/s')}")
         return 0
@@ -214,7 +217,7 @@ def _run_over_set(args, members, setting, grid, config) -> int:
     out.mkdir(parents=True, exist_ok=True)
     smap = cycle_map_over_set(members, setting, grid, config, describing=not args.no_df,
                               progress=not args.no_progress, resolution=resolution,
-                              weights=weights)
+                              weights=weights, unsure=unsure)
     write_json(out / "map.json", smap.to_dict(), indent=1)
     import matplotlib
 
