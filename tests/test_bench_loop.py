@@ -191,8 +191,12 @@ def test_members_agree_on_a_test_when_their_difference_is_inside_their_own_sprea
 
 def test_round_zero_is_taken_from_a_set_coverage_run_once(tmp_path):
     """``--reuse DIR``: a draw's recordings and discovery in the set-coverage benchmark's layout
-    are copied to the loop's, once; a draw the loop has started, or one the other run has not
-    discovered, is left alone."""
+    are copied to the loop's, once, when that run has finished it (its row written); a draw the
+    loop has started, one the other run has not discovered or not finished, is left alone, and
+    with a wait the loop looks again until the row is there."""
+    import json
+    import threading
+
     from tvcid.studies.benchmarks.loop import reuse_round_zero
 
     source = tmp_path / "setcov" / "draw1000"
@@ -201,8 +205,16 @@ def test_round_zero_is_taken_from_a_set_coverage_run_once(tmp_path):
     (source / "discover").mkdir()
     (source / "discover" / "discovery.json").write_text("{}")
     draw, run = tmp_path / "loop" / "draw1000", tmp_path / "loop" / "draw1000_loop"
+    assert not reuse_round_zero(tmp_path / "setcov", 1000, draw, run)  # still running there
+    assert not run.exists()
+    bench = tmp_path / "setcov" / "bench.json"
+    bench.write_text(json.dumps({"rows": [{"seed": 1000}]}))
     assert not reuse_round_zero(tmp_path / "setcov", 1001, draw, run)  # not discovered there
-    assert reuse_round_zero(tmp_path / "setcov", 1000, draw, run)
+    bench.write_text(json.dumps({"rows": []}))
+    timer = threading.Timer(0.3, lambda: bench.write_text(json.dumps({"rows": [{"seed": 1000}]})))
+    timer.start()
+    assert reuse_round_zero(tmp_path / "setcov", 1000, draw, run, wait=0.05)  # once finished
+    timer.join()
     assert (draw / "rec00_closed.csv").exists() and (run / "discovery.json").read_text() == "{}"
     (run / "discovery.json").write_text('{"rounds": 1}')
     assert not reuse_round_zero(tmp_path / "setcov", 1000, draw, run)

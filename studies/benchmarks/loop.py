@@ -1,7 +1,7 @@
 """Does following the suggested tests close the set? The experiment-loop benchmark.
 
 ``python -m tvcid.studies.benchmarks.loop [--quick] [--draws N] [--seed S] [--ranges wide|papers]
-[--jobs J | --dask ADDRESS] [--out DIR] [--reuse SET_COVERAGE_DIR]``
+[--jobs J | --dask ADDRESS] [--out DIR] [--reuse SET_COVERAGE_DIR [--wait-for-reuse]]``
 
 For each draw of the discovery benchmark (:func:`tvcid.studies.benchmarks.scenarios.draw_scenario`,
 the same seeds and ``--ranges``), ``tvcid discover`` runs on the draw's recordings (:func:`tvcid.pipeline.discover`,
@@ -17,9 +17,10 @@ sensor and read back as a measured recording, and added to the run
 * whether the set is *closed* (:func:`tvcid.discovery.prediction.closure.set_closure`): one structure,
   or members whose posterior responses to every test of the menu and whose predicted cycles at
   three controller settings the recordings did not use agree within their bands, a calibrated
-  member under the deciding share of the set's weight not counted (``not_counted``; each test's
-  and setting's pairs are kept under ``closure``, and the verdict counting every member beside
-  it); whether the truth's member is counted (``truth_counted``); at round 0,
+  member the data decide against (under the deciding share of the set's weight, its weight
+  final) not counted (``not_counted``; ``unsure``: members counted whatever their weight; each
+  test's and setting's pairs are kept under ``closure``, and the verdict counting every member
+  beside it); whether the truth's member is counted (``truth_counted``); at round 0,
   whether the menu *can decide*: the set is closed, or a test of the menu parts two counted members
   (members that part only at unseen controller settings leave the menu nothing to decide);
 * what the run cost (:meth:`tvcid.run_record.RunCost.totals`: kernel steps, CPU and wall seconds)
@@ -35,7 +36,9 @@ an interrupted run (its run directory, or the fresh run's, already there) counts
 last process did: its costs are left out of the ratios (``resumed``). Rows are written to
 ``DIR/bench.json`` as each draw ends (a rerun resumes), each naming the commit of the code that
 ran it. Round 0 is the set-coverage benchmark's discovery of the same draw: ``--reuse DIR``
-takes it from that benchmark's output rather than running it again (its cost is that run's).
+takes it from that benchmark's output rather than running it again (its cost is that run's),
+once that benchmark has finished the draw; ``--wait-for-reuse`` waits for it, so the loop can run
+beside the set coverage.
 """
 from __future__ import annotations
 
@@ -172,17 +175,31 @@ def round_row(k, summary, out_dir, scenario, config, seed) -> dict:
             "seconds_closure": time.perf_counter() - t0}
 
 
-def reuse_round_zero(reuse, seed, draw_dir, run_dir) -> bool:
+def reuse_finished(reuse, seed) -> bool:
+    """Whether ``reuse`` (a set-coverage benchmark's output) holds draw ``seed`` finished: a row
+    without an error in its ``bench.json``. A draw it is still running is not."""
+    path = Path(reuse) / "bench.json"
+    rows = json.loads(path.read_text()).get("rows", []) if path.is_file() else []
+    return any(r.get("seed") == seed and "error" not in r for r in rows)
+
+
+def reuse_round_zero(reuse, seed, draw_dir, run_dir, wait=0.0) -> bool:
     """Copy draw ``seed``'s recordings and its ``tvcid discover`` run from ``reuse`` (a
     set-coverage benchmark's output: ``drawNNN/recordings``, ``drawNNN/discover``) to
-    ``draw_dir`` and ``run_dir``, where the loop has not started that draw; True if copied.
+    ``draw_dir`` and ``run_dir``, where the loop has not started that draw and ``reuse`` has
+    finished it (:func:`reuse_finished`); True if copied. ``wait``: seconds between looks while
+    ``reuse`` holds the draw's directory but not yet its row (a set-coverage run beside this one
+    that has not reached its end); 0 does not wait.
 
     The discovery then resumes the copied run (the same recordings by content, the same seed
     and options: its ranking, and chains from their checkpoints), so round 0 costs nothing twice.
     """
     source = Path(reuse) / f"draw{seed:03d}"
     run_dir, draw_dir = Path(run_dir), Path(draw_dir)
-    if run_dir.exists() or not (source / "discover" / "discovery.json").is_file():
+    while wait > 0 and not run_dir.exists() and source.is_dir() and not reuse_finished(reuse, seed):
+        time.sleep(wait)
+    if (run_dir.exists() or not (source / "discover" / "discovery.json").is_file()
+            or not reuse_finished(reuse, seed)):
         return False
     if not draw_dir.exists():
         shutil.copytree(source / "recordings", draw_dir)
@@ -208,9 +225,10 @@ def fresh_comparison(add_summary, fresh_summary, truth_name, resumed) -> dict:
             "add_over_fresh": ratios}
 
 
-def run_draw(seed, out_dir, quick, config=None, ranges="wide", reuse=None) -> dict:
+def run_draw(seed, out_dir, quick, config=None, ranges="wide", reuse=None, wait=0.0) -> dict:
     """The draw's discovery, then up to ``config.rounds`` suggested tests added; round 0 copied
-    from ``reuse`` where that holds the draw's discovery (:func:`reuse_round_zero`)."""
+    from ``reuse`` where that holds the draw's discovery finished (:func:`reuse_round_zero`,
+    ``wait`` as there)."""
     from tvcid.discovery.prediction.discrimination import default_candidates
     from tvcid.pipeline import add_recordings, discover
 
@@ -219,7 +237,7 @@ def run_draw(seed, out_dir, quick, config=None, ranges="wide", reuse=None) -> di
     out_dir = Path(out_dir)
     run_dir = out_dir / f"draw{seed:03d}_loop"
     if reuse is not None:
-        reuse_round_zero(reuse, seed, out_dir / f"draw{seed:03d}", run_dir)
+        reuse_round_zero(reuse, seed, out_dir / f"draw{seed:03d}", run_dir, wait)
     paths = write_recordings(scenario, out_dir / f"draw{seed:03d}", reuse=True)
     resumed = (run_dir / "discovery.json").exists()
     t0 = time.perf_counter()
@@ -258,10 +276,10 @@ def _added(run_dir) -> list:
     return (json.loads(path.read_text()).get("added") or []) if path.exists() else []
 
 
-def guarded_draw(seed, out_dir, quick, ranges="wide", reuse=None) -> dict:
+def guarded_draw(seed, out_dir, quick, ranges="wide", reuse=None, wait=0.0) -> dict:
     """:func:`run_draw`, a failure recorded as a row (counted against every goal)."""
     try:
-        return run_draw(seed, out_dir, quick, ranges=ranges, reuse=reuse)
+        return run_draw(seed, out_dir, quick, ranges=ranges, reuse=reuse, wait=wait)
     except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
         return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "ranges": ranges,
                 "commit": CODE_COMMIT}
@@ -349,7 +367,11 @@ def main(argv=None) -> int:
     parser.add_argument("--reuse", metavar="DIR", default=None,
                         help="take each draw's round 0 from the set-coverage benchmark's output "
                              "DIR (python -m tvcid.studies.benchmarks.set_coverage --out DIR, the same "
-                             "seeds and --ranges), where it holds the draw's discovery")
+                             "seeds and --ranges), where it holds the draw's discovery finished")
+    parser.add_argument("--wait-for-reuse", action="store_true",
+                        help="where --reuse DIR holds a draw's directory but not yet its row (a "
+                             "set-coverage run beside this one), wait for it to finish instead of "
+                             "running round 0 here")
     args = parser.parse_args(argv)
     rounds = (QUICK if args.quick else FULL).rounds
 
@@ -366,7 +388,8 @@ def main(argv=None) -> int:
     def save(path, rows):
         write_json(path, {"quick": args.quick, "rows": rows, "table": summarise(rows, rounds)})
 
-    draw = guarded_draw if args.reuse is None else functools.partial(guarded_draw, reuse=args.reuse)
+    draw = guarded_draw if args.reuse is None else functools.partial(
+        guarded_draw, reuse=args.reuse, wait=60.0 if args.wait_for_reuse else 0.0)
     rows = run_benchmark(args, draw, describe, save)
     table = summarise(rows, rounds)
     print(f"\n{table['draws']} draws ({table['failed']} failed)")
