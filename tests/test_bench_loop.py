@@ -210,8 +210,15 @@ def test_round_zero_is_taken_from_a_set_coverage_run_once(tmp_path):
     bench = tmp_path / "setcov" / "bench.json"
     bench.write_text(json.dumps({"rows": [{"seed": 1000}]}))
     assert not reuse_round_zero(tmp_path / "setcov", 1001, draw, run)  # not discovered there
-    bench.write_text(json.dumps({"rows": []}))
-    timer = threading.Timer(0.3, lambda: bench.write_text(json.dumps({"rows": [{"seed": 1000}]})))
+    bench.unlink()  # the set coverage beside has not yet written a row, nor started the draw
+    moved = tmp_path / "setcov" / "later"
+    source.rename(moved)
+
+    def finish():
+        moved.rename(source)
+        bench.write_text(json.dumps({"rows": [{"seed": 1000}]}))
+
+    timer = threading.Timer(0.3, finish)
     timer.start()
     assert reuse_round_zero(tmp_path / "setcov", 1000, draw, run, wait=0.05)  # once finished
     timer.join()

@@ -188,15 +188,15 @@ def reuse_round_zero(reuse, seed, draw_dir, run_dir, wait=0.0) -> bool:
     set-coverage benchmark's output: ``drawNNN/recordings``, ``drawNNN/discover``) to
     ``draw_dir`` and ``run_dir``, where the loop has not started that draw and ``reuse`` has
     finished it (:func:`reuse_finished`); True if copied. ``wait``: seconds between looks while
-    ``reuse`` holds the draw's directory but not yet its row (a set-coverage run beside this one
-    that has not reached its end); 0 does not wait.
+    ``reuse`` does not yet hold the draw's row (a set-coverage run beside this one that has not
+    reached the draw's end); 0 does not wait.
 
     The discovery then resumes the copied run (the same recordings by content, the same seed
     and options: its ranking, and chains from their checkpoints), so round 0 costs nothing twice.
     """
     source = Path(reuse) / f"draw{seed:03d}"
     run_dir, draw_dir = Path(run_dir), Path(draw_dir)
-    while wait > 0 and not run_dir.exists() and source.is_dir() and not reuse_finished(reuse, seed):
+    while wait > 0 and not run_dir.exists() and not reuse_finished(reuse, seed):
         time.sleep(wait)
     if (run_dir.exists() or not (source / "discover" / "discovery.json").is_file()
             or not reuse_finished(reuse, seed)):
@@ -369,9 +369,8 @@ def main(argv=None) -> int:
                              "DIR (python -m tvcid.studies.benchmarks.set_coverage --out DIR, the same "
                              "seeds and --ranges), where it holds the draw's discovery finished")
     parser.add_argument("--wait-for-reuse", action="store_true",
-                        help="where --reuse DIR holds a draw's directory but not yet its row (a "
-                             "set-coverage run beside this one), wait for it to finish instead of "
-                             "running round 0 here")
+                        help="where --reuse DIR does not yet hold a draw's row (a set-coverage "
+                             "run beside this one), wait for it instead of running round 0 here")
     args = parser.parse_args(argv)
     rounds = (QUICK if args.quick else FULL).rounds
 
