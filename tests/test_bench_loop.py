@@ -229,10 +229,11 @@ def test_round_zero_is_taken_from_a_set_coverage_run_once(tmp_path):
 
 
 def _round(k, truth_in=True, closed=False, can=True, ratio=None, resumed=False, counted=True,
-           closed_every=None):
+           closed_every=None, not_counted=()):
     row = {"round": k, "truth_in_set": truth_in, "truth_counted": truth_in and counted,
            "closed": closed, "closed_counting_every_member": closed if closed_every is None
-           else closed_every, "set_size": 1 if closed else 3,
+           else closed_every, "set": ["a"] if closed else ["a", "b", "c", "d"],
+           "set_size": 1 if closed else 4, "not_counted": list(not_counted),
            "ceiling_size": 2, "menu_can_decide": can, "resumed": resumed}
     if k:
         ratios = {key: (None if resumed else ratio)
@@ -253,7 +254,7 @@ def test_the_loops_goals_count_every_round_the_decidable_menus_and_the_adds_in_o
     for i in range(10):
         can = i < 8
         closed = can and i != 0
-        rounds = [_round(0, can=can, counted=(i != 4)),
+        rounds = [_round(0, can=can, counted=(i != 4), not_counted=("c", "d")[:i % 3]),
                   _round(1, truth_in=(i != 9), ratio=0.2 + 0.01 * i),
                   _round(2, closed=closed, ratio=0.25, resumed=(i == 3),
                          closed_every=closed and i != 5)]
@@ -263,6 +264,10 @@ def test_the_loops_goals_count_every_round_the_decidable_menus_and_the_adds_in_o
     assert (table["menu_can_decide"], table["closed_where_menu_can_decide"],
             table["closed_counting_every_member"]) == (8, 7, 6)
     assert [r["truth_counted"] for r in table["rounds"]] == [9, 9, 10]
+    # round 0: sets of 4 against ceilings of 2, 0, 1 or 2 members decided against
+    assert table["rounds"][0]["counted_sizes"] == [4, 3, 2, 4, 3, 2, 4, 3, 2, 4]
+    assert table["rounds"][0]["within_ceiling_plus_one"] == 0
+    assert table["rounds"][0]["counted_within_ceiling_plus_one"] == 6
     steps = table["add_over_fresh"]["kernel_steps"]
     assert steps["adds"] == 19 and steps["max"] == pytest.approx(0.29)
     assert steps["median"] == pytest.approx(0.25)
@@ -285,7 +290,7 @@ def test_the_loops_claim_states_each_goal_round_and_cost_ratio():
     assert text.startswith("3 of 10 draws finished (0 failed); goal truth in the set, its member "
                            "counted, at every round: 3 of 3")
     assert ("round 1: truth in the set 3 of 3 (its member counted 3), closed 3, set sizes "
-            "[1, 1, 1]") in text
+            "[1, 1, 1] (counted members [1, 1, 1])") in text
     assert "the menu can decide in 3 draws, of which closed 3 (3 with every member counted)" in text
     assert "an --add over a fresh run, median [largest]: kernel steps 0.30 [0.30]" in text
     assert text.count("NOT met") == 5  # under ten draws nothing is judged

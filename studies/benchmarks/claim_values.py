@@ -261,7 +261,8 @@ def loop(records):
     rounds = "; ".join(
         f"round {r['round']}: truth in the set {r['truth_in_set']} of {r['draws']} (its member "
         f"counted {r['truth_counted']}), closed "
-        f"{r['closed']}, set sizes {r['set_sizes']} against fit ceilings {r['ceiling_sizes']}"
+        f"{r['closed']}, set sizes {r['set_sizes']} (counted members {r['counted_sizes']}) "
+        f"against fit ceilings {r['ceiling_sizes']}"
         for r in table["rounds"])
     ratios = ", ".join(f"{k.replace('_', ' ')} {v['median']:.2f} [{v['max']:.2f}]"
                        for k, v in table["add_over_fresh"].items() if v["median"] is not None)

@@ -285,11 +285,18 @@ def guarded_draw(seed, out_dir, quick, ranges="wide", reuse=None, wait=0.0) -> d
                 "commit": CODE_COMMIT}
 
 
+def _counted_size(round_row) -> int:
+    """The members of a round's set the data have not decided against: the set less the
+    closure's ``not_counted`` (members the weights decide against, their weight final)."""
+    return len(set(round_row["set"]) - set(round_row.get("not_counted") or ()))
+
+
 def summarise(rows, rounds=ROUNDS) -> dict:
     """Per round (a draw whose loop ended earlier keeps its last round): draws with the truth in
-    the set, its member counted, closed, the set within the ceiling + 1; the set sizes against
-    the ceiling's. Over the draws: ``truth_in_set_every_round``, ``truth_counted_every_round``,
-    ``menu_can_decide`` and of those ``closed_where_menu_can_decide`` (after the last round) and
+    the set, its member counted, closed, the set within the ceiling + 1, and the set's counted
+    members within it; the set sizes and the counted members' against the ceiling's. Over the
+    draws: ``truth_in_set_every_round``, ``truth_counted_every_round``, ``menu_can_decide`` and of
+    those ``closed_where_menu_can_decide`` (after the last round) and
     ``closed_counting_every_member``; ``add_over_fresh``: per measure
     (``kernel_steps``, ``cpu_seconds``, ``wall_seconds``) the ``median`` and ``max`` of the
     ratios of every ``--add`` run in one piece to its fresh run, over ``adds`` of them."""
@@ -320,7 +327,10 @@ def summarise(rows, rounds=ROUNDS) -> dict:
             "truth_counted": sum(a.get("truth_counted", a["truth_in_set"]) for a in at),
             "closed": sum(a["closed"] for a in at),
             "within_ceiling_plus_one": sum(a["set_size"] <= a["ceiling_size"] + 1 for a in at),
+            "counted_within_ceiling_plus_one": sum(_counted_size(a) <= a["ceiling_size"] + 1
+                                                   for a in at),
             "set_sizes": [a["set_size"] for a in at], "ceiling_sizes": [a["ceiling_size"] for a in at],
+            "counted_sizes": [_counted_size(a) for a in at],
         })
     return {"draws": len(done), "failed": len(rows) - len(done), "rounds": per_round, **over}
 
@@ -395,7 +405,8 @@ def main(argv=None) -> int:
     for r in table["rounds"]:
         print(f"  round {r['round']}: truth in the set {r['truth_in_set']} (counted "
               f"{r['truth_counted']}), closed {r['closed']}, "
-              f"set <= ceiling + 1 {r['within_ceiling_plus_one']}")
+              f"set <= ceiling + 1 {r['within_ceiling_plus_one']} (its counted members "
+              f"{r['counted_within_ceiling_plus_one']})")
     ratios = ", ".join(f"{k} {v['median']:.2f} [{v['max']:.2f}]"
                        for k, v in table["add_over_fresh"].items() if v["median"] is not None)
     print(f"  menu can decide in {table['menu_can_decide']}, of them closed "
