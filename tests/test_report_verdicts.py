@@ -178,3 +178,21 @@ def test_a_member_whose_weight_is_not_final_keeps_its_choice_open_and_its_compon
     assert "absent (the members with it" not in row
     assert "band-pass loop off (99 %) or on (1.0 %, weight not final)" in text
     assert "A weight not final is a member's whose chain stopped at its cap" in text
+
+
+def test_a_merged_structure_is_spoken_for_by_the_calibrated_members_holding_its_value():
+    """A superset merged into a member holds its member's positions: the weights decide the
+    delay position whatever merged structures hold, where a structure beyond the cap with the
+    other position keeps it open. A component only merged structures hold stays open (no
+    calibrated member speaks for it); one a calibrated member also holds is decided by the
+    weights, as the table's "absent" says."""
+    weights = {A: 0.99, B: 0.01}
+    merged = weighed_choices(DECIDED, weights, [A, B, D], merged=[D])
+    assert merged["delay_position"]["by"] == "weights"
+    assert merged["delay_position"]["value"] == "before_first_integrator"
+    assert merged["bandpass"] == {"value": None, "by": "open",
+                                  "weights": {"off": 1.0, "on": None}, "unsure": []}
+    beyond_cap = weighed_choices(DECIDED, weights, [A, B, D])
+    assert beyond_cap["delay_position"]["by"] == "open"
+    spoken = weighed_choices(DECIDED, {A: 0.989, B: 0.01, C: 0.001}, [A, B, C, D], merged=[D])
+    assert spoken["bandpass"]["by"] == "weights" and spoken["bandpass"]["value"] == "off"

@@ -235,7 +235,7 @@ def decided_against(weights, unsure=(), share=DECIDING_SHARE) -> list:
     return [n for n, w in weights.items() if w < share and n not in set(unsure)]
 
 
-def weighed_choices(decided, weights, set_structures=(), unsure=()) -> dict:
+def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=()) -> dict:
     """Each structural choice decided by the set or by the members' weights, one rule for all.
 
     A choice the set's structures agree on (``decided[choice]`` not ``None``) is decided by the
@@ -243,7 +243,10 @@ def weighed_choices(decided, weights, set_structures=(), unsure=()) -> dict:
     other value keep under :data:`DECIDING_SHARE` of the weight together, none of them is in
     ``unsure`` (:func:`unsure_members`: its weight is not final), and no structure of the set
     outside the calibrated members (beyond the cap, or failed) holds another value; otherwise
-    it is not decided, and every value's share is given.
+    it is not decided, and every value's share is given. A structure merged into another
+    (``merged``: a superset that is its member at its added components' zero) holds its member's
+    positions, and is counted outside the calibrated members only for a value no calibrated
+    member holds: its member's weight speaks for the values they share.
 
     Parameters
     ----------
@@ -256,6 +259,8 @@ def weighed_choices(decided, weights, set_structures=(), unsure=()) -> dict:
         Every structure of the set (merged ones included).
     unsure : iterable of str
         Calibrated members whose weight is not final (:func:`unsure_members`).
+    merged : iterable of str
+        The structures of ``set_structures`` merged into another.
 
     Returns
     -------
@@ -270,6 +275,7 @@ def weighed_choices(decided, weights, set_structures=(), unsure=()) -> dict:
         return v if isinstance(v, str) else ("on" if v else "off")
 
     parsed = {n: Structure.parse(n).to_dict() for n in set(weights) | set(set_structures)}
+    merged = set(merged)
     out = {}
     for choice, value in decided.items():
         if value is not None:
@@ -280,7 +286,9 @@ def weighed_choices(decided, weights, set_structures=(), unsure=()) -> dict:
         for name, w in weights.items():
             v = shown(parsed[name][choice])
             shares[v] = shares.get(v, 0.0) + float(w)
-        elsewhere = {shown(parsed[n][choice]) for n in set_structures if n not in weights}
+        without = [n for n in set_structures if n not in weights]
+        elsewhere = ({shown(parsed[n][choice]) for n in without if n not in merged}
+                     | ({shown(parsed[n][choice]) for n in without if n in merged} - set(shares)))
         not_final = sorted({shown(parsed[n][choice]) for n in unsure if n in weights})
         best = max(shares, key=shares.get) if shares else None
         decisive = (best is not None and 1.0 - shares[best] < DECIDING_SHARE
