@@ -196,3 +196,16 @@ def test_a_merged_structure_is_spoken_for_by_the_calibrated_members_holding_its_
     assert beyond_cap["delay_position"]["by"] == "open"
     spoken = weighed_choices(DECIDED, {A: 0.989, B: 0.01, C: 0.001}, [A, B, C, D], merged=[D])
     assert spoken["bandpass"]["by"] == "weights" and spoken["bandpass"]["value"] == "off"
+
+
+def test_an_unsure_member_on_the_heavy_side_leaves_the_light_side_absent():
+    """The heaviest member stopped at its cap, the band-pass loop held open by a structure beyond
+    the cap: the component's row is not "weight not final", since the member whose weight is not
+    final holds the side over the share; only an unsure member under the share opens it."""
+    from tvcid.discovery.members.set_posterior import left_open_by_choices
+
+    heavy = weighed_choices(DECIDED, {A: 0.99, C: 0.01}, [A, C, D], unsure=[A])
+    assert heavy["bandpass"]["by"] == "open" and heavy["bandpass"]["unsure"] == ["off"]
+    assert left_open_by_choices(heavy) == {}
+    light = weighed_choices(DECIDED, {A: 0.99, C: 0.01}, [A, C, D], unsure=[C])
+    assert left_open_by_choices(light) == {"bandpass_gain": "weight not final"}

@@ -193,7 +193,7 @@ def test_a_member_whose_weight_is_not_final_is_not_decided_against_unless_far_un
     """A member whose chain stopped at its cap, or whose evidence is unreliable, is unsure: the
     data decide against it only 20 nats under the share even at its allowance. A converged
     member with reliable evidence, or one screened by its weight, is decided against under the
-    share; no member over it is."""
+    share, whatever its evidence; no member over it is."""
     import math
 
     from tvcid.discovery.members.set_weights import decided_against, unsure_members
@@ -204,7 +204,7 @@ def test_a_member_whose_weight_is_not_final_is_not_decided_against_unless_far_un
         ("capped", 0.005, 0.026, False, False, True),    # chain stopped at its cap
         ("unreliable", 0.01, 0.02, True, False, False),  # Pareto k >= 0.7 or few points
         ("settled", 0.01, 0.02, True, False, True),
-        ("screened", 0.01, 0.02, False, True, True),
+        ("screened", 0.01, 0.02, False, True, False),    # decided by the screening's rule
         ("hopeless", far / 2, far, False, False, False),
         ("rest", 0.075 - far / 2, 0.1, False, False, True),
     ])

@@ -241,13 +241,15 @@ def next_test(record, recs, seed, out, spent=None):
     from tvcid.models import params_from_dict
 
     weight = record.member_weights()
-    for s in record.structures:  # a merged member's weight is its structure's
+    sp = record.set_posterior or {}
+    unsure = set(sp.get("unsure", unsure_members(sp)))
+    for s in record.structures:  # a merged member's weight, and its being unsure, its structure's
         if s["indistinguishable_from_best"] and s["merged_into"] and s.get("structure") in weight:
             into = s["merged_into"]
             weight[into] = weight.get(into, 0.0) + weight.pop(s["structure"])
+            unsure |= {into} if s["structure"] in unsure else set()
     rows = record.set_rows()
-    sp = record.set_posterior or {}
-    against = set(decided_against(weight, sp.get("unsure", unsure_members(sp))))
+    against = set(decided_against(weight, unsure))
     left_out = [{"structure": s["structure"], "weight": weight[s["structure"]]} for s in rows
                 if s.get("structure") in against]
     members = [params_from_dict("custom", s["params"]) for s in rows

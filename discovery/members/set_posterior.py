@@ -319,14 +319,16 @@ def left_open_by_choices(choices) -> dict:
     :func:`tvcid.discovery.members.set_weights.weighed_choices`: ``True`` where a value of the
     open choice is held only by members without a weight (beyond the cap, or failed),
     ``"weight not final"`` where a value under the deciding share is held by a member whose
-    weight is not final (``unsure``). ``combine``'s ``left_open``."""
+    weight is not final (``unsure``; an unsure member on the side over the share leaves the
+    other side decided against as far as it goes). ``combine``'s ``left_open``."""
     def side(test):
         return left_open_quantities({c: None if v["by"] == "open" and test(v) else True
                                      for c, v in choices.items()})
 
     uncalibrated = side(lambda v: None in v["weights"].values())
-    not_final = side(lambda v: bool(v.get("unsure")) and any(
-        w is not None and w < DECIDING_SHARE for w in v["weights"].values()))
+    not_final = side(lambda v: any(v["weights"].get(u) is not None
+                                   and v["weights"][u] < DECIDING_SHARE
+                                   for u in v.get("unsure") or ()))
     return {**dict.fromkeys(not_final, "weight not final"), **dict.fromkeys(uncalibrated, True)}
 
 

@@ -203,10 +203,11 @@ def _normalised(log_z) -> np.ndarray:
 def unsure_members(set_posterior) -> list:
     """The calibrated members whose weight is not final, so that the data cannot yet decide
     against them: each member of ``set_posterior`` (``discovery.json``'s, or :func:`combine`'s
-    dict with its ``weighting``) whose chain stopped at its cap (neither converged nor screened
-    by its weight, ``tvcid.set_stage``) or whose evidence is not reliable
-    (:attr:`.member_evidence.Evidence.reliable`), unless its weight even at its allowance
-    (:attr:`SetWeights.upper`) is under :data:`DECIDING_SHARE` by :data:`UNSURE_NATS`.
+    dict with its ``weighting``) whose chain stopped at its cap (not converged) or whose
+    evidence is not reliable (:attr:`.member_evidence.Evidence.reliable`), unless its weight
+    even at its allowance (:attr:`SetWeights.upper`) is under :data:`DECIDING_SHARE` by
+    :data:`UNSURE_NATS`. A member screened by its weight (``tvcid.set_stage``) is not: the
+    screening decided against it by its own rule, with the same margin for an unreliable run.
 
     A set of one member, or one without evidence weights, has none. The members' order is kept.
     """
@@ -219,9 +220,11 @@ def unsure_members(set_posterior) -> list:
     out = []
     for m in members:
         name = m["structure"]
-        stopped = not m.get("converged") and not (m.get("posterior") or {}).get("screened")
+        if (m.get("posterior") or {}).get("screened"):
+            continue
         unreliable = not (evidence.get(name) or {}).get("reliable", False)
-        if (stopped or unreliable) and upper.get(name, m.get("weight", 1.0)) >= floor:
+        if ((not m.get("converged") or unreliable)
+                and upper.get(name, m.get("weight", 1.0)) >= floor):
             out.append(name)
     return out
 
