@@ -180,22 +180,40 @@ def test_a_member_whose_weight_is_not_final_keeps_its_choice_open_and_its_compon
     assert "A weight not final is a member's whose chain stopped at its cap" in text
 
 
-def test_a_merged_structure_is_spoken_for_by_the_calibrated_members_holding_its_value():
-    """A superset merged into a member holds its member's positions: the weights decide the
-    delay position whatever merged structures hold, where a structure beyond the cap with the
-    other position keeps it open. A component only merged structures hold stays open (no
-    calibrated member speaks for it); one a calibrated member also holds is decided by the
-    weights, as the table's "absent" says."""
+def test_a_merged_structure_is_spoken_for_by_its_member_where_its_additions_are_decided_off():
+    """A superset merged into a member holds its member's positions: where the weights decide its
+    added components off, its member speaks for it and the weights decide the delay position,
+    where a structure beyond the cap with the other position keeps it open. Where the weights
+    decide its added component on, the superset (the truth's structure with a backlash its
+    member lacks) keeps its position open. A component only merged structures hold stays open;
+    one a calibrated member also holds is decided by the weights, as the table's "absent" says."""
     weights = {A: 0.99, B: 0.01}
-    merged = weighed_choices(DECIDED, weights, [A, B, D], merged=[D])
-    assert merged["delay_position"]["by"] == "weights"
-    assert merged["delay_position"]["value"] == "before_first_integrator"
-    assert merged["bandpass"] == {"value": None, "by": "open",
-                                  "weights": {"off": 1.0, "on": None}, "unsure": []}
-    beyond_cap = weighed_choices(DECIDED, weights, [A, B, D])
-    assert beyond_cap["delay_position"]["by"] == "open"
-    spoken = weighed_choices(DECIDED, {A: 0.989, B: 0.01, C: 0.001}, [A, B, C, D], merged=[D])
+    b_bandpass = B + "+bandpass"  # merged into B: adds the band-pass loop
+    spoken = weighed_choices(DECIDED, {A: 0.989, B: 0.01, C: 0.001}, [A, B, C, b_bandpass],
+                             merged={b_bandpass: B})
     assert spoken["bandpass"]["by"] == "weights" and spoken["bandpass"]["value"] == "off"
+    assert spoken["delay_position"]["by"] == "weights"
+    assert spoken["delay_position"]["value"] == "before_first_integrator"
+    assert weighed_choices(DECIDED, {A: 0.989, B: 0.01, C: 0.001},
+                           [A, B, C, b_bandpass])["delay_position"]["by"] == "open"  # beyond cap
+    only_merged = weighed_choices(DECIDED, weights, [A, B, b_bandpass], merged={b_bandpass: B})
+    assert only_merged["bandpass"] == {"value": None, "by": "open",
+                                       "weights": {"off": 1.0, "on": None}, "unsure": []}
+    assert only_merged["delay_position"]["by"] == "open"  # its addition is not decided off
+
+    # the truth dz_error+delay_before_first_integrator+backlash+bandpass merged into the member
+    # without backlash; the member with backlash, at the other position, takes the weight
+    decided = {**DECIDED, "dead_zone_position": "error", "friction": False, "backlash": None,
+               "bandpass": True}
+    truth = "dz_error+delay_before_first_integrator+backlash+bandpass"
+    member = "dz_error+delay_before_first_integrator+bandpass"
+    heavy = "dz_error+delay_before_integrator+backlash+bandpass"
+    c = weighed_choices(decided, {member: 1e-30, heavy: 1.0}, [member, heavy, truth],
+                        merged={truth: member})
+    assert c["backlash"]["value"] == "on" and c["backlash"]["by"] == "weights"
+    assert c["delay_position"]["by"] == "open"
+    assert c["delay_position"]["weights"] == {"before_integrator": 1.0,
+                                              "before_first_integrator": pytest.approx(1e-30)}
 
 
 def test_an_unsure_member_on_the_heavy_side_leaves_the_light_side_absent():

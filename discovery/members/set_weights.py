@@ -238,7 +238,7 @@ def decided_against(weights, unsure=(), share=DECIDING_SHARE) -> list:
     return [n for n, w in weights.items() if w < share and n not in set(unsure)]
 
 
-def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=()) -> dict:
+def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=None) -> dict:
     """Each structural choice decided by the set or by the members' weights, one rule for all.
 
     A choice the set's structures agree on (``decided[choice]`` not ``None``) is decided by the
@@ -246,10 +246,14 @@ def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=()) -
     other value keep under :data:`DECIDING_SHARE` of the weight together, none of them is in
     ``unsure`` (:func:`unsure_members`: its weight is not final), and no structure of the set
     outside the calibrated members (beyond the cap, or failed) holds another value; otherwise
-    it is not decided, and every value's share is given. A structure merged into another
-    (``merged``: a superset that is its member at its added components' zero) holds its member's
-    positions, and is counted outside the calibrated members only for a value no calibrated
-    member holds: its member's weight speaks for the values they share.
+    it is not decided, and every value's share is given.
+
+    A structure merged into another (``merged``: a superset that is its member at its added
+    components' zero) is not calibrated, but its member speaks for it where the weights decide
+    its added components off: it then counts outside the calibrated members only for a component
+    value no calibrated member holds. Where the weights leave an added component open or decide
+    it on, the superset could hold weight its member lacks (the truth's structure with a
+    backlash its member has not), and its positions keep their choices open.
 
     Parameters
     ----------
@@ -262,8 +266,8 @@ def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=()) -
         Every structure of the set (merged ones included).
     unsure : iterable of str
         Calibrated members whose weight is not final (:func:`unsure_members`).
-    merged : iterable of str
-        The structures of ``set_structures`` merged into another.
+    merged : dict, optional
+        Structure of ``set_structures`` merged into another -> that member.
 
     Returns
     -------
@@ -272,15 +276,22 @@ def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=()) -
         share}, "unsure": [values held by a member in unsure]}`` (values as the report shows
         them: ``"on"``/``"off"`` for a component).
     """
-    from tvcid.models.structures import Structure
+    from tvcid.models.structures import COMPONENT_FIELDS, Structure
 
     def shown(v):
         return v if isinstance(v, str) else ("on" if v else "off")
 
-    parsed = {n: Structure.parse(n).to_dict() for n in set(weights) | set(set_structures)}
-    merged = set(merged)
+    merged = dict(merged or {})
+    parsed = {n: Structure.parse(n).to_dict()
+              for n in set(weights) | set(set_structures) | set(merged.values())}
+    added = {n: {c for c, v in parsed[n].items() if v is True and parsed[m][c] is not True}
+             for n, m in merged.items()}
+    without = [n for n in set_structures if n not in weights]
+    components = set(COMPONENT_FIELDS)
     out = {}
-    for choice, value in decided.items():
+    # the components first: whether the weights decide a merged superset's additions off
+    for choice in sorted(decided, key=lambda c: c not in components):
+        value = decided[choice]
         if value is not None:
             out[choice] = {"value": shown(value), "by": "set", "weights": {shown(value): 1.0},
                            "unsure": []}
@@ -289,9 +300,13 @@ def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=()) -
         for name, w in weights.items():
             v = shown(parsed[name][choice])
             shares[v] = shares.get(v, 0.0) + float(w)
-        without = [n for n in set_structures if n not in weights]
-        elsewhere = ({shown(parsed[n][choice]) for n in without if n not in merged}
-                     | ({shown(parsed[n][choice]) for n in without if n in merged} - set(shares)))
+        if choice in components:
+            spoken = {n for n in without if n in merged}
+        else:
+            spoken = {n for n in without if n in merged
+                      and all(out.get(c, {}).get("value") == "off" for c in added[n])}
+        elsewhere = ({shown(parsed[n][choice]) for n in without if n not in spoken}
+                     | ({shown(parsed[n][choice]) for n in spoken} - set(shares)))
         not_final = sorted({shown(parsed[n][choice]) for n in unsure if n in weights})
         best = max(shares, key=shares.get) if shares else None
         decisive = (best is not None and 1.0 - shares[best] < DECIDING_SHARE
@@ -300,4 +315,4 @@ def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=()) -
             shares[v] = None  # held only by members without a weight
         out[choice] = {"value": best if decisive else None, "by": "weights" if decisive else "open",
                        "weights": shares, "unsure": not_final}
-    return out
+    return {c: out[c] for c in decided}
