@@ -515,3 +515,49 @@ def test_the_truths_position_tells_calibrated_intervals_from_too_wide_ones():
     assert truth_position(entry) == pytest.approx(1.0)
     assert truth_position({**entry, "truth": 0.8}) == pytest.approx(-3.0)
     assert truth_position({**entry, "rule": "allowed"}) is None
+
+
+def test_the_printed_choices_are_judged_against_the_truth_by_this_codes_rule_and_the_runs(tmp_path):
+    """A run whose truth (backlash on, before the first integrator) is merged into a member
+    without backlash, and whose member with backlash at another place takes the weight: its
+    stored choices print that other place, wrong; this code's rule leaves the place open. The
+    counts, the goal (none wrong) and their words say both."""
+    from tvcid.studies.benchmarks.set_coverage import read_from_draw
+    from tvcid.studies.benchmarks.verdicts import choices_text, printed_choice_counts
+
+    truth = "dz_error+delay_before_first_integrator+backlash+bandpass"
+    member = "dz_error+delay_before_first_integrator+bandpass"
+    heavy = "dz_error+delay_before_integrator+backlash+bandpass"
+    rows_ = [{"structure": n, "indistinguishable_from_best": True, "merged_into": into}
+             for n, into in ((heavy, None), (member, None), (truth, member))]
+    stored = {"value": "before_integrator", "by": "weights", "weights": {}, "unsure": []}
+    discovery = {"structures": rows_, "indistinguishable": [heavy, member, truth],
+                 "decided": {"dead_zone_position": "error", "delay_position": None,
+                             "friction": False, "backlash": None, "bandpass": True},
+                 "set_posterior": {"members": [{"structure": heavy, "weight": 1.0},
+                                               {"structure": member, "weight": 1e-30}],
+                                   "unsure": [], "choices": {"delay_position": stored}}}
+    (tmp_path / "discover").mkdir()
+    (tmp_path / "discover" / "discovery.json").write_text(json.dumps(discovery))
+    row = read_from_draw({"seed": 3015, "structure": truth, "quantities": {}}, tmp_path)
+    choices = row["printed_choices"]
+    assert choices["delay_position"] == {"value": None, "by": "open", "verdict": "open",
+                                         "stored": {"value": "before_integrator",
+                                                    "verdict": "wrong"}}
+    assert choices["backlash"]["verdict"] == "right" and choices["backlash"]["by"] == "weights"
+    assert choices["friction"]["verdict"] == "right" and choices["friction"]["stored"] is None
+    wrong = {**row, "seed": 3016, "printed_choices": {
+        **choices, "delay_position": {"value": "output", "by": "weights", "verdict": "wrong",
+                                      "stored": None}}}
+    counts = printed_choice_counts([row, wrong, {"seed": 1, "error": "boom"}])
+    assert counts["draws"] == 2 and counts["open"] == 1 and counts["right"] == 8
+    assert counts["by_weights"] == 2
+    assert counts["wrong"] == [[3016, "delay_position", "output", "weights"]]
+    assert counts["stored_wrong"] == [[3015, "delay_position", "before_integrator"]]
+    assert choices_text(counts) == (
+        "structural choices as printed over 2 draws: 8 right (2 of them by the weights), 1 "
+        "open, 1 wrong (draw 3016 delay_position output (by the weights)); as the sampling "
+        "commit printed them, wrong: draw 3015 delay_position before_integrator")
+    goal = coverage_goals({**summarise(_mixed_rows(2)), "choices": counts})[-1]
+    assert goal.what.startswith("structural choices printed wrongly") and not goal.met
+    assert read_from_draw({"seed": 1, "error": "boom"}, tmp_path) == {"seed": 1, "error": "boom"}

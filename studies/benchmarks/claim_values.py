@@ -189,6 +189,7 @@ def set_coverage(records):
     sampling and judging commits; rows of an earlier layout are counted, not judged."""
     from .set_coverage import MIN_DRAWS, coverage_goals, summarise
     from .set_misses import causes_text
+    from .verdicts import choices_text
 
     rows = records["bench_set_coverage"]["rows"]
     table = summarise(rows)
@@ -233,6 +234,9 @@ def set_coverage(records):
     misses = causes_text(table.get("misses") or {})
     if misses:
         split += f"; {misses}"
+    choices = choices_text(table.get("choices"))
+    if choices:
+        split += f"; {choices}"
     old = (f", {table['old_layout']} of an earlier layout, not counted"
            if table["old_layout"] else "")
     commits = "; ".join(f"rows {how} at " + ", ".join(f"`{c}` ({n})" for c, n in counts.items())

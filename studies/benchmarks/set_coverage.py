@@ -37,12 +37,14 @@ Gaussian intervals, says at any count whether the intervals are too wide or too 
 
 Each miss is explained by the truth's own member of the set (:mod:`.set_misses`, read from the
 draw's ``discovery.json``, again at every ``--rejudge``), one of
-:data:`.set_misses.CAUSES`; the table lists the misses by cause.
+:data:`.set_misses.CAUSES`; the table lists the misses by cause. Each structural choice as the
+report prints it, by the set or by the weights (:func:`.verdicts.printed_choices`, from the same
+file, by the judging commit's rule and by the run's stored one), is judged right, wrong or open.
 
 Goals, over at least 30 finished draws: for each printed quantity, the truth covered in 80-97 %
 of the draws whose judgement of it can fail; the truths' median distance from their interval's
 median 0.3-0.5 half-widths (coverage not bought by width); no printed interval narrower than
-twice its step error. The chains' convergence is reported, not a goal: the draws with a chain
+twice its step error; no structural choice printed wrongly. The chains' convergence is reported, not a goal: the draws with a chain
 stopped at its cap are counted apart (``by_chains``), not left out. Each row records what its
 run cost (kernel steps, CPU and wall seconds, ``cost``). Rows are written to ``DIR/bench.json`` as each draw ends (a rerun
 resumes; rows of an earlier layout, judged on the interval alone, are run again, and rows judged
@@ -80,6 +82,7 @@ from .scenarios import draw_scenario, write_recordings
 from .set_judge import (RULES, beyond_prior, inside_interval, narrower_than_step,  # noqa: F401
                         printed_as, quantity_entry, rejudge_row, row_verdicts)
 from .set_misses import cause_counts, causes_text, with_miss_causes
+from .verdicts import choices_text, printed_choice_counts, with_printed_choices
 
 CODE_COMMIT = code_commit()
 #: The files whose code judges a stored row (``--rejudge``): their commit is the judging one.
@@ -149,7 +152,14 @@ def run_draw(seed, out_dir, quick, ranges="wide") -> dict:
                cost=RunCost.from_dict(summary).totals(),
                seconds_by_stage={k: round(float(v), 1) for k, v in summary["timings"].items()
                                  if isinstance(v, (int, float))})
-    return with_miss_causes(row, draw_dir)
+    return read_from_draw(row, draw_dir)
+
+
+def read_from_draw(row, draw_dir) -> dict:
+    """``row`` with what its draw's directory tells beyond the printed quantities: its misses'
+    causes (:func:`.set_misses.with_miss_causes`) and each structural choice as printed
+    (:func:`.verdicts.with_printed_choices`)."""
+    return with_printed_choices(with_miss_causes(row, draw_dir), draw_dir)
 
 
 def guarded_draw(seed, out_dir, quick, ranges="wide") -> dict:
@@ -277,7 +287,8 @@ def summarise(rows) -> dict:
         run did), the ``median``, ``max`` and ``sum`` of the whole run's ``kernel_steps``,
         ``cpu_seconds`` and ``wall_seconds`` (:meth:`tvcid.run_record.RunCost.totals`);
         ``misses``: the misses of the rows that explain them, by cause
-        (:func:`.set_misses.cause_counts`); ``converged``, ``truth_in_set``, ``cycles_only``
+        (:func:`.set_misses.cause_counts`); ``choices``: the structural choices as printed,
+        right, open or wrong (:func:`.verdicts.printed_choice_counts`); ``converged``, ``truth_in_set``, ``cycles_only``
         (``draws`` and their ``converged``).
     """
     finished = [r for r in rows if "error" not in r]
@@ -335,7 +346,7 @@ def summarise(rows) -> dict:
             "old_layout": len(finished) - len(done), "commits": commits, "quantities": quantities,
             "cannot_fail": cannot_fail, "beyond_prior": beyond,
             "by_chains": by_chains, "allowed": allowed, "step": step, "position": position,
-            "cost": cost, "misses": cause_counts(done),
+            "cost": cost, "misses": cause_counts(done), "choices": printed_choice_counts(done),
             "converged": sum(r["converged"] for r in done),
             "truth_in_set": sum(r["truth_in_set"] for r in done),
             "cycles_only": {"draws": len(only), "converged": sum(r["converged"] for r in only)}}
@@ -371,6 +382,13 @@ def coverage_goals(table) -> list:
                       s["narrower"] if enough else None, high=0, fmt="{:d}",
                       shown=f"{s['narrower']} of {s['intervals']}",
                       target=f"none over >= {MIN_DRAWS} draws"))
+    c = table.get("choices") or {}
+    if c.get("draws"):
+        goals.append(Goal("structural choices printed wrongly (by the set or the weights)",
+                          len(c["wrong"]) if enough else None, high=0, fmt="{:d}",
+                          shown=f"{len(c['wrong'])} of {c['right'] + len(c['wrong'])} decided, "
+                                f"over {c['draws']} draws",
+                          target=f"none over >= {MIN_DRAWS} draws"))
     return goals
 
 
@@ -390,14 +408,15 @@ def drop_old_layout(path) -> int:
 
 def rejudge_record(path, everything=False) -> int:
     """Judge the rows of ``path`` (a ``bench.json``) again (:func:`rejudge_rows`), explain their
-    misses from their draws' directories beside it (:func:`.set_misses.with_miss_causes`) and
+    misses and read their printed choices from their draws' directories beside it
+    (:func:`read_from_draw`) and
     write it back with its table; returns how many rows were judged."""
     path = Path(path)
     if not path.exists():
         return 0
     record = json.loads(path.read_text())
     rows, n = rejudge_rows(record["rows"], everything=everything)
-    rows = [r if "error" in r else with_miss_causes(r, path.parent / f"draw{r['seed']:03d}")
+    rows = [r if "error" in r else read_from_draw(r, path.parent / f"draw{r['seed']:03d}")
             for r in rows]
     if n or rows != record["rows"]:
         write_json(path, {**record, "rows": rows, "table": summarise(rows)})
@@ -440,6 +459,8 @@ def print_table(table) -> None:
               f"{c['wall_seconds']['median']:.0f} [{c['wall_seconds']['max']:.0f}] wall s")
     if causes_text(table["misses"]):
         print(f"  {causes_text(table['misses'])}")
+    if choices_text(table.get("choices")):
+        print(f"  {choices_text(table['choices'])}")
     s = table["step"]
     print(f"  printed intervals narrower than twice the step error: {s['narrower']} of "
           f"{s['intervals']} ({s['widened']} widened, {s['without_step_error']} without a step error)")

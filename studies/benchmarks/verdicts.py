@@ -104,3 +104,83 @@ def undecided_marked(row):
     row["identifiable_within"] = all(v["within"] for v in row["coordinates"].values()
                                      if v["identifiable"])
     return row
+
+
+def printed_choices(discovery, truth) -> dict:
+    """Each structural choice as ``discovery.json``'s report prints it, against the ``truth``
+    structure's name: the set's and the weights' decisions worked out again by this code's rule
+    (:func:`tvcid.discovery.members.set_weights.weighed_choices`) from the run's stored weights,
+    members whose weight is not final and merges, and the run's own stored ones beside them.
+
+    Returns choice -> ``{"value", "by", "verdict"}`` (``verdict``: ``right``, ``wrong`` or
+    ``open``) with ``stored`` (the stored choice's ``value`` and ``verdict``, ``None`` where the
+    run stores none); ``None`` without a set posterior.
+    """
+    from tvcid.discovery.members.set_weights import unsure_members, weighed_choices
+
+    sp = discovery.get("set_posterior") or {}
+    if not sp.get("members"):
+        return None
+    weights = {m["structure"]: m.get("weight", 1.0 / len(sp["members"])) for m in sp["members"]}
+    merged = {s["structure"]: s["merged_into"] for s in discovery["structures"]
+              if s["indistinguishable_from_best"] and s.get("merged_into")}
+    unsure = sp.get("unsure", unsure_members(sp))
+    now = weighed_choices(discovery["decided"], weights, discovery["indistinguishable"], unsure,
+                          merged)
+    true = {c: v if isinstance(v, str) else ("on" if v else "off")
+            for c, v in Structure.parse(truth).to_dict().items()}
+
+    def verdict(choice, value):
+        return "open" if value is None else ("right" if value == true[choice] else "wrong")
+
+    out = {}
+    for c, v in now.items():
+        stored = (sp.get("choices") or {}).get(c)
+        out[c] = {"value": v["value"], "by": v["by"], "verdict": verdict(c, v["value"]),
+                  "stored": None if stored is None else
+                  {"value": stored["value"], "verdict": verdict(c, stored["value"])}}
+    return out
+
+
+def printed_choice_counts(rows) -> dict:
+    """Over the rows with :func:`printed_choices` (``printed_choices``): ``draws``; ``right``,
+    ``open`` and ``wrong`` choices (the wrong ones each ``[seed, choice, printed, by]``), and
+    ``by_weights`` (the right ones the weights decided); ``stored_wrong``: the choices the runs'
+    own stored decisions got wrong, each ``[seed, choice, printed]``."""
+    with_choices = [r for r in rows if r.get("printed_choices")]
+    entries = [(r["seed"], c, v) for r in with_choices for c, v in r["printed_choices"].items()]
+    return {"draws": len(with_choices),
+            "right": sum(v["verdict"] == "right" for _, _, v in entries),
+            "by_weights": sum(v["verdict"] == "right" and v["by"] == "weights"
+                              for _, _, v in entries),
+            "open": sum(v["verdict"] == "open" for _, _, v in entries),
+            "wrong": [[s, c, v["value"], v["by"]] for s, c, v in entries
+                      if v["verdict"] == "wrong"],
+            "stored_wrong": [[s, c, v["stored"]["value"]] for s, c, v in entries
+                             if v["stored"] and v["stored"]["verdict"] == "wrong"]}
+
+
+def with_printed_choices(row, draw_dir):
+    """``row`` with ``printed_choices`` (:func:`printed_choices`) read from
+    ``draw_dir/discover/discovery.json``; unchanged where that file is not there (a row copied
+    without its draw's directory) or the row failed."""
+    import json
+    from pathlib import Path
+
+    path = Path(draw_dir) / "discover" / "discovery.json"
+    if "error" in row or not path.is_file():
+        return row
+    return {**row, "printed_choices": printed_choices(json.loads(path.read_text()),
+                                                      row["structure"])}
+
+
+def choices_text(counts) -> str:
+    """:func:`printed_choice_counts` in words (empty where no row has printed choices)."""
+    if not counts or not counts.get("draws"):
+        return ""
+    wrong = "; ".join(f"draw {s} {c} {v} (by the {by})" for s, c, v, by in counts["wrong"])
+    stored = "; ".join(f"draw {s} {c} {v}" for s, c, v in counts["stored_wrong"])
+    return (f"structural choices as printed over {counts['draws']} draws: {counts['right']} right "
+            f"({counts['by_weights']} of them by the weights), {counts['open']} open, "
+            f"{len(counts['wrong'])} wrong" + (f" ({wrong})" if wrong else "")
+            + (f"; as the sampling commit printed them, wrong: {stored}" if stored else ""))
