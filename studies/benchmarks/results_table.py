@@ -212,9 +212,9 @@ CLAIMS = (
           "block unknown, truths and designs drawn over the generator's ranges (goal 80-97 % for "
           "every printed quantity over >= 30 draws, the truths' median distance from their "
           "interval's median 0.3-0.5 half-widths, no printed interval narrower than twice its "
-          "step error)",
+          "step error, no structural choice printed wrongly)",
           set_coverage, lambda r: r["bench_set_coverage"]["rows"],
-          "python -m tvcid.studies.benchmarks.set_coverage --seed 3000 --draws 10 --jobs 2",
+          "python -m tvcid.studies.benchmarks.set_coverage --seed 3000 --draws 30",
           "bench_set_coverage",
           "tests/test_bench_set_coverage.py::test_the_claim_counts_the_stored_draws_and_judges_none"
           "_under_thirty"),
@@ -226,7 +226,7 @@ CLAIMS = (
           "of a fresh run's on the same recordings in the median, never above it)",
           loop, lambda r: r["bench_loop"]["rows"],
           "python -m tvcid.studies.benchmarks.loop --seed 3000 --draws 10 --reuse "
-          "results/bench_set_coverage",
+          "results/bench_set_coverage --wait-for-reuse",
           "bench_loop",
           "tests/test_bench_loop.py::test_the_loops_claim_states_each_goal_round_and_cost_ratio"),
     Claim("a member's posterior on limit cycles alone (the truth's structure on drawn designs "

@@ -87,7 +87,8 @@ from .verdicts import choices_text, printed_choice_counts, with_printed_choices
 CODE_COMMIT = code_commit()
 #: The files whose code judges a stored row (``--rejudge``): their commit is the judging one.
 JUDGE_FILES = tuple(Path(__file__).with_name(n)
-                    for n in ("set_judge.py", "set_misses.py", "set_coverage.py"))
+                    for n in ("set_judge.py", "set_misses.py", "set_coverage.py", "verdicts.py")) + (
+    Path(__file__).parents[2] / "discovery" / "members" / "set_weights.py",)
 #: The band the share of truths covered must fall in.
 GOAL_BAND = (0.80, 0.97)
 #: The quantities the report prints, each with its goal.
