@@ -350,11 +350,11 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
         Component quantities whose component the set leaves open
         (:func:`left_open_quantities`): whatever the calibrated members' weights say, they print
         "present or absent" (``left_open`` true), since a member on the other side may be one
-        that could not be calibrated. A dict maps each to why: ``"uncalibrated"`` (the
-        default), or ``"weight not final"`` where that side's members are calibrated but their
-        weight is not final
-        (:func:`tvcid.discovery.members.set_weights.unsure_members`); ``left_open`` then holds
-        the reason.
+        that could not be calibrated. A dict maps each to why (:func:`left_open_by_choices`):
+        ``True`` (the default: the other side's structures were not calibrated), or ``"weight
+        not final"`` (the side under the deciding share holds a member whose weight is not
+        final, :func:`tvcid.discovery.members.set_weights.unsure_members`); ``left_open`` then
+        holds it.
 
     Returns
     -------
