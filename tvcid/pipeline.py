@@ -236,13 +236,13 @@ def next_test(record, recs, seed, out, spent=None):
         default_candidates,
         discriminating_tests,
     )
-    from tvcid.discovery.members.set_weights import decided_against, unsure_members
+    from tvcid.discovery.members.set_weights import decided_against, stored_unsure
     from tvcid.discovery.structure.targets import make_target
     from tvcid.models import params_from_dict
 
     weight = record.member_weights()
     sp = record.set_posterior or {}
-    unsure = set(sp.get("unsure", unsure_members(sp)))
+    unsure = set(stored_unsure(sp))
     for s in record.structures:  # a merged member's weight, and its being unsure, its structure's
         if s["indistinguishable_from_best"] and s["merged_into"] and s.get("structure") in weight:
             into = s["merged_into"]

@@ -12,6 +12,7 @@ import math
 
 from tvcid.discovery.members.set_posterior import (decided_absent, partly_present,
                                                printed_present_or_absent)
+from tvcid.discovery.members.set_weights import shown_choice
 from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS
 from tvcid.models.hypotheses import parameter_unit
@@ -342,7 +343,7 @@ def _decided_line(summary, best) -> str:
     table's "present or absent"."""
     choices = (summary.get("set_posterior") or {}).get("choices")
     if not choices:  # no calibration: the set's structures alone
-        choices = {c: {"value": None if v is None else _shown(v), "by": "set" if v is not None
+        choices = {c: {"value": None if v is None else shown_choice(v), "by": "set" if v is not None
                        else "open", "weights": {}} for c, v in summary["decided"].items()}
     decided, open_, not_final = [], [], False
     for c, v in choices.items():
@@ -378,7 +379,7 @@ def _share(w) -> str:
 def _seen(summary, choice) -> list:
     """The values the set's structures take for ``choice``, as shown."""
     members = [s for s in summary["structures"] if s["indistinguishable_from_best"]]
-    return sorted({_shown(Structure.parse(m["structure"]).to_dict()[choice]) for m in members})
+    return sorted({shown_choice(Structure.parse(m["structure"]).to_dict()[choice]) for m in members})
 
 
 def _next_test_headline(nt, n_distinct) -> str:
@@ -410,10 +411,6 @@ def _structural(structure, choice, value) -> str:
         return ""
     reason = prune_reason(dataclasses.replace(Structure.parse(structure), **{choice: True}))
     return "" if reason is None else f" (not by the data: {reason.split(':')[0]})"
-
-
-def _shown(value):
-    return value if isinstance(value, str) else ("on" if value else "off")
 
 
 def _next_test_lines(nt):
@@ -515,10 +512,10 @@ def discovery_report(summary) -> str:
     for choice, value in summary["decided"].items():
         label = CHOICE_LABELS[choice]
         if value is None:
-            seen = sorted({_shown(m["components"][choice]) for m in members})
+            seen = sorted({shown_choice(m["components"][choice]) for m in members})
             lines.append(f"- {label}: **not decided** ({' or '.join(seen)})")
         else:
-            lines.append(f"- {label}: decided, {_shown(value)}")
+            lines.append(f"- {label}: decided, {shown_choice(value)}")
     if all(v is None for v in summary["decided"].values()):
         lines += ["", "The recordings decide no structural choice."]
     lines += _next_test_lines(summary.get("next_test"))

@@ -82,6 +82,7 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     from tvcid.discovery.members.set_weights import (
         DECIDING_SHARE,
         evidence_weights,
+        merged_structures,
         unsure_members,
         weighed_choices,
     )
@@ -212,9 +213,8 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
         "members": [{"structure": m.structure, "converged": m.converged, "posterior": m.summary,
                      "weight": weights[m.structure]} for m in members],
         "weighting": weighting.to_dict()})
-    merged = {s["structure"]: s["merged_into"] for s in record.structures
-              if s["indistinguishable_from_best"] and s.get("merged_into")}
-    choices = weighed_choices(record.decided, weights, record.indistinguishable, unsure, merged)
+    choices = weighed_choices(record.decided, weights, record.indistinguishable, unsure,
+                              merged_structures(record.structures))
     left_open = left_open_by_choices(choices)
     if weighting is not None:
         combined = combine(members, weights=weighting.of(names), seed=seed,

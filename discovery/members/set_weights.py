@@ -40,7 +40,8 @@ from .member_evidence import ImportanceDraws, log_evidence
 from .ranking_shares import RANKING_RULE, ranking_shares
 
 __all__ = ["SetWeights", "evidence_weights", "common_temperature", "weighed_choices",
-           "unsure_members", "decided_against", "EVIDENCE_RULE", "EQUAL_RULE", "UNSURE_NATS"]
+           "unsure_members", "stored_unsure", "decided_against", "merged_structures",
+           "shown_choice", "EVIDENCE_RULE", "EQUAL_RULE", "UNSURE_NATS"]
 
 #: Standard errors of a member's log evidence added before it is judged under the share.
 SE_ALLOWANCE = 2.0
@@ -229,6 +230,26 @@ def unsure_members(set_posterior) -> list:
     return out
 
 
+def stored_unsure(set_posterior) -> list:
+    """The run's own ``set_posterior.unsure``, or :func:`unsure_members` worked out from its
+    stored members and weighting where it stores none."""
+    stored = (set_posterior or {}).get("unsure")
+    return list(stored) if stored is not None else unsure_members(set_posterior)
+
+
+def merged_structures(structures) -> dict:
+    """Structure of the set merged into another -> that member, from the rows of
+    ``discovery.json``'s ``structures`` (``weighed_choices``' ``merged``)."""
+    return {s["structure"]: s["merged_into"] for s in structures
+            if s["indistinguishable_from_best"] and s.get("merged_into")}
+
+
+def shown_choice(value) -> str:
+    """A structural choice's value as the report shows it: a position's name, ``"on"`` or
+    ``"off"`` for a component."""
+    return value if isinstance(value, str) else ("on" if value else "off")
+
+
 def decided_against(weights, unsure=(), share=DECIDING_SHARE) -> list:
     """The members the data decide against: under ``share`` of the weight, their weight final
     (not in ``unsure``, :func:`unsure_members`). ``weights``: member -> weight, or ``None`` (no
@@ -278,9 +299,7 @@ def weighed_choices(decided, weights, set_structures=(), unsure=(), merged=None)
     """
     from tvcid.models.structures import COMPONENT_FIELDS, Structure
 
-    def shown(v):
-        return v if isinstance(v, str) else ("on" if v else "off")
-
+    shown = shown_choice
     merged = dict(merged or {})
     parsed = {n: Structure.parse(n).to_dict()
               for n in set(weights) | set(set_structures) | set(merged.values())}

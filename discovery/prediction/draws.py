@@ -260,14 +260,12 @@ def load_set_weights(directory) -> dict | None:
 
 def load_unsure_members(directory) -> tuple:
     """The members of a ``tvcid discover`` directory's set whose weight is not final
-    (:func:`tvcid.discovery.members.set_weights.unsure_members`): ``discovery.json``'s
-    ``set_posterior.unsure``, or worked out from the stored members and weighting where the run
-    stores none. Empty for a single structure or a ``tvcid fit`` directory."""
-    from tvcid.discovery.members.set_weights import unsure_members
+    (:func:`tvcid.discovery.members.set_weights.stored_unsure`). Empty for a single structure
+    or a ``tvcid fit`` directory."""
+    from tvcid.discovery.members.set_weights import stored_unsure
 
     directory = Path(directory)
     if not _set_members(directory):
         return ()
-    sp = json.loads((directory / "discovery.json").read_text())["set_posterior"]
-    stored = sp.get("unsure")
-    return tuple(stored if stored is not None else unsure_members(sp))
+    return tuple(stored_unsure(json.loads((directory / "discovery.json").read_text())
+                               ["set_posterior"]))

@@ -116,19 +116,20 @@ def printed_choices(discovery, truth) -> dict:
     ``open``) with ``stored`` (the stored choice's ``value`` and ``verdict``, ``None`` where the
     run stores none); ``None`` without a set posterior.
     """
-    from tvcid.discovery.members.set_weights import unsure_members, weighed_choices
+    from tvcid.discovery.members.set_weights import (
+        merged_structures,
+        shown_choice,
+        stored_unsure,
+        weighed_choices,
+    )
 
     sp = discovery.get("set_posterior") or {}
     if not sp.get("members"):
         return None
     weights = {m["structure"]: m.get("weight", 1.0 / len(sp["members"])) for m in sp["members"]}
-    merged = {s["structure"]: s["merged_into"] for s in discovery["structures"]
-              if s["indistinguishable_from_best"] and s.get("merged_into")}
-    unsure = sp.get("unsure", unsure_members(sp))
-    now = weighed_choices(discovery["decided"], weights, discovery["indistinguishable"], unsure,
-                          merged)
-    true = {c: v if isinstance(v, str) else ("on" if v else "off")
-            for c, v in Structure.parse(truth).to_dict().items()}
+    now = weighed_choices(discovery["decided"], weights, discovery["indistinguishable"],
+                          stored_unsure(sp), merged_structures(discovery["structures"]))
+    true = {c: shown_choice(v) for c, v in Structure.parse(truth).to_dict().items()}
 
     def verdict(choice, value):
         return "open" if value is None else ("right" if value == true[choice] else "wrong")
