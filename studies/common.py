@@ -1,4 +1,5 @@
-"""What every study script shares: its command line and the commit its records name."""
+"""What every study script shares: its command line, and the commit and machine its records
+name."""
 from __future__ import annotations
 
 import argparse
@@ -42,3 +43,36 @@ def code_commit(paths=None):
         return commit + ("+dirty" if changed else "")
     except (OSError, subprocess.CalledProcessError):
         return None
+
+
+def machine() -> dict:
+    """The arithmetic this process computes with, which benchmark rows record beside their
+    commit: the processor's model (``cpu``), the widest SIMD target numpy dispatches its
+    element-wise functions to (``numpy_simd``, e.g. ``X86_V3`` for AVX2, ``X86_V4`` for
+    AVX-512) and the processor numba compiles its kernels for (``numba_cpu``).
+
+    Two machines that differ in these can round the same operation differently; a search whose
+    two best structures nearly tie can then rank them the other way round, and the chains that
+    follow differ. On one machine a run is repeated step for step.
+    """
+    import platform
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f
+                        if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+        found = [t for t in __cpu_dispatch__ if __cpu_features__.get(t)]
+        simd = found[-1] if found else None
+    except ImportError:  # numpy's private module moved: the field is then unknown
+        simd = None
+    try:
+        from llvmlite.binding import get_host_cpu_name
+        numba_cpu = get_host_cpu_name()
+    except ImportError:
+        numba_cpu = None
+    return {"cpu": cpu, "numpy_simd": simd, "numba_cpu": numba_cpu}

@@ -164,6 +164,8 @@ def test_quick_loop_on_one_cycle_adds_the_suggested_test_from_the_truth(tmp_path
     assert [t["set_sizes"] for t in table] == [[first["set_size"]], [second["set_size"]]]
     assert table[1]["closed"] == int(second["closed"])
     assert status == 1 and "NOT met" in capsys.readouterr().out
+    # the row names the arithmetic it was computed with, beside its commit
+    assert row["machine"] == loop.MACHINE and row["machine"]["cpu"]
 
 
 def test_members_agree_on_a_test_when_their_difference_is_inside_their_own_spread():

@@ -561,3 +561,17 @@ def test_the_printed_choices_are_judged_against_the_truth_by_this_codes_rule_and
     goal = coverage_goals({**summarise(_mixed_rows(2)), "choices": counts})[-1]
     assert goal.what.startswith("structural choices printed wrongly") and not goal.met
     assert read_from_draw({"seed": 1, "error": "boom"}, tmp_path) == {"seed": 1, "error": "boom"}
+
+
+def test_a_row_names_the_machine_whose_arithmetic_sampled_it():
+    """Beside its commit, a row names the processor and the SIMD target numpy dispatches to on
+    it: the widest of numpy's targets whose features this processor has."""
+    from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+
+    from tvcid.studies.benchmarks.set_coverage import MACHINE
+
+    truth = M002()
+    assert _row(truth, _printed(truth))["machine"] == MACHINE
+    has = [t for t in __cpu_dispatch__ if __cpu_features__[t]]
+    assert MACHINE["numpy_simd"] == (has[-1] if has else None)
+    assert MACHINE["cpu"] and MACHINE["numba_cpu"]

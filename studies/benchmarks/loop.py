@@ -56,7 +56,7 @@ import numpy as np
 from tvcid.models.strict_json import write_json
 from tvcid.run_record import RunCost
 
-from ..common import code_commit
+from ..common import code_commit, machine
 from .discovery import recordings_cost_at_truth
 from .draws import add_draw_options, run_benchmark
 from .goals import Goal
@@ -65,6 +65,7 @@ from .scenarios import design_of, draw_scenario, record_added_test, write_record
 from .verdicts import as_well_as_truth
 
 CODE_COMMIT = code_commit()
+MACHINE = machine()
 #: Rounds of the loop at most (suggested tests added one after the other).
 ROUNDS = 2
 #: Goals: truth in the set at every round (share of the draws), closed after the rounds (share
@@ -267,7 +268,7 @@ def run_draw(seed, out_dir, quick, config=None, ranges="wide", reuse=None, wait=
         rounds[-1].update(resumed=resumed, fresh=fresh_comparison(
             result.summary, fresh.summary, scenario.structure.name, resumed))
     return {"seed": seed, "structure": scenario.structure.name, "design": scenario.to_dict(),
-            "rounds": rounds, "commit": CODE_COMMIT}
+            "rounds": rounds, "commit": CODE_COMMIT, "machine": MACHINE}
 
 
 def _added(run_dir) -> list:
@@ -282,7 +283,7 @@ def guarded_draw(seed, out_dir, quick, ranges="wide", reuse=None, wait=0.0) -> d
         return run_draw(seed, out_dir, quick, ranges=ranges, reuse=reuse, wait=wait)
     except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
         return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "ranges": ranges,
-                "commit": CODE_COMMIT}
+                "commit": CODE_COMMIT, "machine": MACHINE}
 
 
 def _counted_size(round_row) -> int:

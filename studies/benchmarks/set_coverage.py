@@ -74,7 +74,7 @@ from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member
 from tvcid.models.strict_json import write_json
 from tvcid.run_record import RunCost
 
-from ..common import code_commit
+from ..common import code_commit, machine
 from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report
@@ -85,6 +85,7 @@ from .set_misses import cause_counts, causes_text, with_miss_causes
 from .verdicts import choices_text, printed_choice_counts, with_printed_choices
 
 CODE_COMMIT = code_commit()
+MACHINE = machine()
 #: The files whose code judges a stored row (``--rejudge``): their commit is the judging one.
 JUDGE_FILES = tuple(Path(__file__).with_name(n)
                     for n in ("set_judge.py", "set_misses.py", "set_coverage.py", "verdicts.py")) + (
@@ -132,6 +133,7 @@ def coverage_row(seed, truth, structure, summary) -> dict:
         **row_verdicts(quantities),
         "narrower_than_step": [n for n, e in quantities.items() if e["narrower_than_step"]],
         "commit": CODE_COMMIT,
+        "machine": MACHINE,
     }
 
 
@@ -169,7 +171,7 @@ def guarded_draw(seed, out_dir, quick, ranges="wide") -> dict:
         return run_draw(seed, out_dir, quick, ranges=ranges)
     except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
         return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "ranges": ranges,
-                "commit": CODE_COMMIT}
+                "commit": CODE_COMMIT, "machine": MACHINE}
 
 
 def cycles_only(row) -> bool:
