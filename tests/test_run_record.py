@@ -50,6 +50,18 @@ def test_a_runs_totals_count_each_stage_once():
     assert totals["cpu_seconds"] == 0.0 and totals["simulated_seconds"] == 0.0
 
 
+def test_an_adds_refit_counts_in_its_search():
+    """An ``--add``'s search refits every structure (``refit``) instead of the global and nested
+    stages; its kernel steps are the search's, and its CPU ledger's ``discovery`` entry holds
+    them already."""
+    cost = RunCost(cpu={"refit": 1652.0, "ranking": 89.0, "discovery": 1749.0, "mcmc": 1056.0},
+                   simulated_steps={"refit": 6.9e9, "ranking": 3.8e8, "mcmc": 6.3e9,
+                                    "mcmc_start": 7e8, "next_test": 0.0})
+    totals = cost.totals()
+    assert totals["kernel_steps"] == 6.9e9 + 3.8e8 + 6.3e9
+    assert totals["cpu_seconds"] == 1749.0 + 1056.0
+
+
 @pytest.mark.parametrize("content, message", [
     ([], r"^not a discovery\.json \(no 'structures'\)$"),
     ({"format": 2}, r"^not a discovery\.json \(no 'structures'\)$"),
