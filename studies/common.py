@@ -45,6 +45,16 @@ def code_commit(paths=None):
         return None
 
 
+def failure(exc) -> dict:
+    """A draw's failure as its row keeps it: ``error`` (the exception's type and message) and
+    ``traceback`` (its last frames, the place it was raised; a long run's failure is then found
+    without running it again)."""
+    import traceback
+
+    frames = traceback.format_exception(type(exc), exc, exc.__traceback__)
+    return {"error": f"{type(exc).__name__}: {exc}", "traceback": "".join(frames[-8:])}
+
+
 def machine() -> dict:
     """The arithmetic this process computes with, which benchmark rows record beside their
     commit: the processor's model (``cpu``), the widest SIMD target numpy dispatches its

@@ -296,3 +296,17 @@ def test_the_loops_claim_states_each_goal_round_and_cost_ratio():
     assert "the menu can decide in 3 draws, of which closed 3 (3 with every member counted)" in text
     assert "an --add over a fresh run, median [largest]: kernel steps 0.30 [0.30]" in text
     assert text.count("NOT met") == 5  # under ten draws nothing is judged
+
+
+def test_a_failed_draw_keeps_the_frame_it_was_raised_in(monkeypatch):
+    """A draw that raises is a row with the error and the traceback down to its frame."""
+    from tvcid.studies.benchmarks import loop
+
+    def run_draw(seed, *args, **kwargs):
+        return [][seed]
+
+    monkeypatch.setattr(loop, "run_draw", run_draw)
+    row = loop.guarded_draw(3006, "unused", quick=True)
+    assert row["error"] == "IndexError: list index out of range"
+    assert "in run_draw" in row["traceback"] and "return [][seed]" in row["traceback"]
+    assert row["seed"] == 3006 and "rounds" not in row

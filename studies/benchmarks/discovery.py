@@ -65,7 +65,7 @@ from tvcid.discovery.structure.coordinates import SearchSpace
 from tvcid.discovery.structure.search import Objective, local_sd
 from tvcid.models.strict_json import write_json
 
-from ..common import code_commit
+from ..common import code_commit, failure
 from .draws import (
     add_executor_options,
     add_ranges_option,
@@ -194,7 +194,7 @@ def failed_draw(seed, exc, ranges="wide"):
     """The row of a draw whose discovery raised: wrong on every count."""
     scenario = draw_scenario(seed, ranges=ranges)
     return {"seed": seed, "structure": scenario.structure.name, "design": scenario.to_dict(),
-            "error": f"{type(exc).__name__}: {exc}", "winner": None, "right_winner": False,
+            **failure(exc), "winner": None, "right_winner": False,
             "truth_in_set": False, "set_size": 0, "set": [], "right_or_in_small_set": False,
             "coordinates": {}, "identifiable_within": False, "seconds_data": math.nan,
             "seconds_discovery": math.nan, "commit": CODE_COMMIT}

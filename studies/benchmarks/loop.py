@@ -56,7 +56,7 @@ import numpy as np
 from tvcid.models.strict_json import write_json
 from tvcid.run_record import RunCost
 
-from ..common import code_commit, machine
+from ..common import code_commit, failure, machine
 from .discovery import recordings_cost_at_truth
 from .draws import add_draw_options, run_benchmark
 from .goals import Goal
@@ -282,7 +282,7 @@ def guarded_draw(seed, out_dir, quick, ranges="wide", reuse=None, wait=0.0) -> d
     try:
         return run_draw(seed, out_dir, quick, ranges=ranges, reuse=reuse, wait=wait)
     except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
-        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "ranges": ranges,
+        return {"seed": seed, **failure(exc), "ranges": ranges,
                 "commit": CODE_COMMIT, "machine": MACHINE}
 
 

@@ -74,7 +74,7 @@ from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member
 from tvcid.models.strict_json import write_json
 from tvcid.run_record import RunCost
 
-from ..common import code_commit, machine
+from ..common import code_commit, failure, machine
 from .draws import add_draw_options, run_benchmark
 from .goals import Goal
 from .goals import report as goal_report
@@ -170,7 +170,7 @@ def guarded_draw(seed, out_dir, quick, ranges="wide") -> dict:
     try:
         return run_draw(seed, out_dir, quick, ranges=ranges)
     except Exception as exc:  # noqa: BLE001 - one draw's failure is a result, not a crash
-        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}", "ranges": ranges,
+        return {"seed": seed, **failure(exc), "ranges": ranges,
                 "commit": CODE_COMMIT, "machine": MACHINE}
 
 
