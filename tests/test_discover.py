@@ -239,8 +239,11 @@ def test_discover_of_one_structure_samples_it_and_decides_every_choice(straight_
     # the one recording over its settling and window (one run, a few seconds to the record's
     # length), each point of the chain over the features' 10 s window at least
     simulated = straight["simulated_seconds"]
-    assert set(simulated) == {"global", "nested", "ranking", "mcmc", "mcmc_start",
+    assert set(simulated) == {"global", "nested", "ranking", "discovery", "mcmc", "mcmc_start",
                               "mcmc_evidence", "next_test"}
+    search = ("global", "nested", "ranking")
+    for ledger in (simulated, straight["simulated_steps"]):  # the search's whole, one entry
+        assert ledger["discovery"] == pytest.approx(sum(ledger[k] for k in search), rel=1e-12)
     length = straight["targets"][0]["samples"] / straight["targets"][0]["sample_rate"]
     per_set = (simulated["global"] + simulated["nested"] + simulated["ranking"]) / straight["simulations"]
     assert 3.0 < per_set < length + 10.0

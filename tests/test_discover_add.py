@@ -53,6 +53,10 @@ def test_added_recording_gives_the_fresh_runs_ranking_and_parameters(runs):
     assert loop["indistinguishable"] == fresh["indistinguishable"]
     assert abs(best_loop["score"] - best_fresh["score"]) <= 0.2  # the margin's floor, two recordings
     assert "refit" in loop["timings"] and "global" not in loop["timings"]
+    # the --add's search is its refit and ranking, counted whole in every ledger's entry
+    steps = loop["simulated_steps"]
+    assert steps["refit"] > 0 and steps["discovery"] == pytest.approx(
+        steps["refit"] + steps["ranking"], rel=1e-12)
     # least squares from cycle A's optimum, or, where cycle B pulls the refit out of A's basin
     # (A fits worse than at A's optimum), a global search seeded with the refit
     assert best_loop["origin"].startswith(("least squares from the earlier run's optimum",

@@ -18,8 +18,9 @@ DISCOVERY_FORMAT = 2
 #: The JSON key of each of :class:`RunCost`'s ledgers.
 _COST_KEYS = {"wall": "timings", "cpu": "cpu_seconds", "simulated_seconds": "simulated_seconds",
               "simulated_steps": "simulated_steps"}
-#: The structure search's stages, summed by the ledgers' ``discovery`` entry where it has one
-#: (``refit``: an ``--add``'s search, every structure refitted from its earlier optimum).
+#: The structure search's stages, which the ledgers' ``discovery`` entry sums; added up in its
+#: place by a ``discovery.json`` whose simulated ledgers have no such entry (``refit``: an
+#: ``--add``'s search, every structure refitted from its earlier optimum).
 _SEARCH_STAGES = ("sindy", "global", "nested", "refit", "ranking")
 #: The stages after the search: the set's calibration and the next test.
 _AFTER_SEARCH = ("mcmc", "next_test")

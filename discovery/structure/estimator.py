@@ -177,7 +177,8 @@ class StructureDiscovery:
         other processes.
     simulated_seconds_ : dict
         Seconds simulated per stage (``global`` and ``nested``, or ``refit``; ``ranking``), each
-        parameter set's run over every recording it was scored on.
+        parameter set's run over every recording it was scored on; stages only, so that the
+        values add up to the search's.
     simulated_steps_ : dict
         Kernel steps of the same runs per stage (each run's ``t_end / dt``).
     searches_ : dict
