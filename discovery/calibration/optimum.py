@@ -98,7 +98,6 @@ def _quasi_newton(lp, z0, scale, hess=None, maxiter=QN_ITERATIONS):
     (no finite posterior) before any step, else the best point reached.
     """
     h = np.asarray(scale, dtype=float)
-    d = len(z0)
     if hess is None:
         hess = _hessian(lp, z0, h)
     if hess is None:
