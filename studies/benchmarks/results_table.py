@@ -225,8 +225,7 @@ CLAIMS = (
           ">= 80 % of the draws whose menu can decide; an --add's kernel steps at most a third "
           "of a fresh run's on the same recordings in the median, never above it)",
           loop, lambda r: r["bench_loop"]["rows"],
-          "python -m tvcid.studies.benchmarks.loop --seed 3000 --draws 10 --reuse "
-          "results/bench_set_coverage --wait-for-reuse",
+          "python -m tvcid.studies.benchmarks.loop --seed 3000 --draws 10",
           "bench_loop",
           "tests/test_bench_loop.py::test_the_loops_claim_states_each_goal_round_and_cost_ratio"),
     Claim("a member's posterior on limit cycles alone (the truth's structure on drawn designs "
