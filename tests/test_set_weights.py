@@ -21,6 +21,8 @@ from tvcid.discovery.members.set_weights import (
     EVIDENCE_RULE,
     common_temperature,
     evidence_weights,
+    unsure_members,
+    weighed_choices,
 )
 from tvcid.discovery.structure.indistinguishable import DECIDING_SHARE
 
@@ -216,3 +218,52 @@ def test_a_member_whose_weight_is_not_final_is_not_decided_against_unless_far_un
     assert decided_against(None, unsure) == []
     assert unsure_members({**sp, "members": sp["members"][:1]}) == []  # a set of one
     assert unsure_members({**sp, "weighting": {"method": "held-out scores"}}) == []
+
+
+def test_the_weights_are_the_evidences_at_half_the_step_and_the_step_bounds_a_decision():
+    """Two members 4.2 nats apart (data at 0; the second's shape misses by 0.65 sd): a change
+    of the log evidence that halving the step gives both alike moves no weight. One that raises
+    the second by 2 and lowers the first by 1 (their switching events converge differently) puts
+    the weights at the half step, 3 nats closer. One that brings them 1.2 nats closer leaves the
+    second under the deciding share at half the step, but what half the step still leaves (those
+    1.2 nats) lifts its allowance over the share: its weight is not final, and the choice it
+    holds stays open where at the step alone the weights decide it. A member without a measured
+    change takes the others' median and adds nothing to the allowance."""
+    rng = np.random.default_rng(21)
+    y = np.zeros(N_OBS)
+    draws = {"a": _member(y, 0 * PATTERN, rng), "b": _member(y, 0.65 * PATTERN, rng)}
+    plain = evidence_weights(draws)
+    gap = plain.evidence["a"]["log_z"] - plain.evidence["b"]["log_z"]
+    assert gap == pytest.approx(0.5 * N_OBS * 0.65**2, abs=0.1)
+    assert plain.weights["b"] < DECIDING_SHARE
+    common = evidence_weights(draws, step_shifts={"a": (1.3, 0.01), "b": (1.3, 0.01)})
+    assert common.weights["b"] == pytest.approx(plain.weights["b"], rel=1e-9)
+    assert common.upper["b"] == pytest.approx(plain.upper["b"], rel=0.1)
+    assert common.upper["b"] < DECIDING_SHARE
+
+    apart = evidence_weights(draws, step_shifts={"a": (-1.0, 0.01), "b": (2.0, 0.01)})
+    assert apart.weights["b"] == pytest.approx(1 / (1 + math.exp(gap - 3.0)), rel=0.02)
+    assert apart.step_shift["b"] == {"shift": 2.0, "se": 0.01, "measured": True}
+    assert apart.upper["b"] > DECIDING_SHARE
+
+    def stored(w):  # converged members with reliable evidence: only the step can make one unsure
+        d = w.to_dict()
+        d["evidence"] = {n: {**e, "reliable": True} for n, e in d["evidence"].items()}
+        return {"members": [{"structure": n, "weight": w.weights[n], "converged": True}
+                            for n in w.weights], "weighting": d}
+
+    # b under the share at its step and at half of it, but lifted over it by what is unresolved
+    half = evidence_weights(draws, step_shifts={"a": (-0.2, 0.01), "b": (1.0, 0.01)})
+    assert half.weights["b"] < DECIDING_SHARE < half.upper["b"]
+    names = {"a": "dz_error+delay_before_integrator", "b": "dz_error+delay_before_first_integrator"}
+    for w, unsure, by in ((plain, [], "weights"), (half, ["b"], "open")):
+        assert unsure_members(stored(w)) == unsure
+        choice = weighed_choices({"delay_position": None},
+                                 {names[n]: w.weights[n] for n in w.weights}, list(names.values()),
+                                 [names[n] for n in unsure])["delay_position"]
+        assert choice["by"] == by, (choice, w.weights, w.upper)
+
+    partial = evidence_weights(draws, step_shifts={"a": (0.7, 0.01)})
+    assert partial.step_shift["b"] == {"shift": 0.7, "se": 0.0, "measured": False}
+    assert partial.weights["b"] == pytest.approx(plain.weights["b"], rel=1e-9)
+    assert partial.upper["b"] == pytest.approx(plain.upper["b"], rel=1e-9)

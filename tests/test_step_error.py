@@ -14,6 +14,7 @@ from tvcid.discovery.calibration.likelihood.solver import SOLVER_ERROR_FACTOR
 from tvcid.discovery.calibration.runner import ConvergenceWarning
 from tvcid.discovery.calibration.step_error import (
     halved_log_posterior,
+    log_evidence_ratio,
     measure_step_error,
     tilt_shift,
     StepError,
@@ -93,6 +94,21 @@ def test_widened_draws_have_the_widened_interval_s_ends_and_stay_in_the_support(
     assert not again and np.array_equal(same, values)
     flat, spread = widen_draws(np.full(1000, 0.5), 0.01)
     assert spread and np.quantile(flat, (0.05, 0.95)) == pytest.approx([0.49, 0.51], abs=2e-4)
+
+
+def test_the_evidences_ratio_is_the_mean_of_the_likelihoods_ratio_over_the_posterior():
+    """Draws of a standard normal posterior and a half-step change ``D = c + a z``: the
+    evidences' ratio is ``E[exp(D)] = exp(c + a^2 / 2)``, inside three standard errors over 20
+    seeds for a change of a tenth of the width and of the whole width; a constant change is
+    returned exactly, with no error; fewer than two finite changes are an error."""
+    for a in (0.1, 1.0):
+        for seed in range(20):
+            z = np.random.default_rng(seed).standard_normal(400)
+            ratio, se = log_evidence_ratio(2.0 + a * z)
+            assert abs(ratio - (2.0 + a * a / 2)) < 4 * se, (a, seed, ratio, se)
+    assert log_evidence_ratio(np.full(10, -1.5)) == (pytest.approx(-1.5), 0.0)
+    with pytest.raises(ValueError, match="at least 2 finite"):
+        log_evidence_ratio([0.0, np.nan])
 
 
 def test_a_member_is_not_resolved_only_where_the_residual_exceeds_its_spread_beyond_noise():
@@ -234,6 +250,9 @@ def test_a_gain_pinned_tighter_than_the_step_resolves_is_widened_to_its_step_err
 
     optima = _optima_shift(cal)
     assert 0.5 < fb["shift"] / optima[k] < 2.0, (fb["shift"], optima[k])
+
+    assert math.isfinite(error.log_evidence_shift) and error.log_evidence_shift_se >= 0
+    assert error.to_dict()["log_evidence_shift"] == error.log_evidence_shift
 
     per_point = sum(t.simulator.t_end for t in cal.terms_)
     assert 32 * per_point <= error.simulated_seconds <= (32 + 12) * per_point

@@ -166,8 +166,9 @@ def _quantity_row(name, q, capped=False) -> str:
                 f"if present, {interval} | {q['unit']} | {_verdict(q, capped)} |")
     if q.get("left_open") == "weight not final":
         return (f"| {name} | present or absent ({100 * q['present']:.1f} % of the weight present; "
-                f"a member under {100 * DECIDING_SHARE:.0f} % stopped at its cap or has an "
-                f"unreliable evidence, so its weight is not final) | if present, {interval} | "
+                f"a member under {100 * DECIDING_SHARE:.0f} % stopped at its cap, has an "
+                f"unreliable evidence or a weight the step does not resolve, so its weight is "
+                f"not final) | if present, {interval} | "
                 f"{q['unit']} | {_verdict(q, capped)} |")
     if q.get("left_open"):  # the members without it could not be calibrated
         return (f"| {name} | present or absent (the set leaves it open; only members with it "
@@ -366,8 +367,9 @@ def _decided_line(summary, best) -> str:
                 if v["weights"] else value for value, w in seen.items()))
     return ("Decided: " + (", ".join(decided) or "no structural choice") + ". Not decided: "
             + ("; ".join(open_) or "nothing") + "."
-            + (" A weight not final is a member's whose chain stopped at its cap or whose "
-               "evidence is unreliable: the data do not yet decide against it." if not_final
+            + (" A weight not final is a member's whose chain stopped at its cap, whose "
+               "evidence is unreliable, or whose weight halving the simulation step would lift "
+               "over the share: the data do not yet decide against it." if not_final
                else ""))
 
 

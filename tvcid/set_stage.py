@@ -57,7 +57,8 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     screening is written to ``discovery.json`` (``set_screening``), so a resumed run screens the
     same members. Each member's step error is
     measured (:func:`tvcid.discovery.calibration.step_error.measure_step_error`) and its evidence
-    estimated again from its final chain; the members are combined by those weights
+    estimated again from its final chain, taken at half the step by the change the step error
+    measures; the members are combined by those weights
     (:func:`tvcid.discovery.members.set_posterior.combine`), and the members beyond the cap named
     with their share of the weight by the ranking. A member whose chain cannot start (no point
     about its fit where every recording's likelihood is finite) is left out and named in
@@ -162,7 +163,7 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     runs = executor.map(calibrate_member_task, todo, *([x] * m for x in shared), caps,
                         [show] * m, [out.resolve()] * m, weigh, [False] * m,
                         [SCREENING if r["structure"] in screened else None for r in todo])
-    members, draws = [], {}
+    members, draws, step_shifts = [], {}, {}
     failed = [{"structure": name, "reason": why} for name, why in first_failed.items()]
     for row, run in zip(todo, runs):
         account(run)
@@ -192,6 +193,10 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
             row["structure"], run.quantities, kept, float(ratio),
             log_prob=run.posterior.log_prob, prior_quantities=run.prior_quantities,
             step_error=run.step_error))
+        step = kept.get("step_error") or {}
+        if step.get("log_evidence_shift") is not None:
+            step_shifts[row["structure"]] = (step["log_evidence_shift"],
+                                             step["log_evidence_shift_se"])
         d = run.draws if run.draws is not None else first_draws.get(row["structure"])
         if d is not None:
             draws[row["structure"]] = d
@@ -205,7 +210,7 @@ def calibrate_set(record, recs, fixed, seed, quick, max_steps, progress, out, ex
     if len(members) > 1:
         weighting = evidence_weights({m: draws[m] for m in names},
                                      rows=[r for r in calibrated if r["structure"] in names],
-                                     seed=seed)
+                                     seed=seed, step_shifts=step_shifts)
         weights = weighting.weights
     else:
         weighting, weights = None, {names[0]: 1.0}

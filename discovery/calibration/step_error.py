@@ -47,6 +47,11 @@ the band-pass loop's do not fall (its unlocked 9-10 Hz oscillation is resolved b
 that for it the halving's move is a floor. :func:`widen_interval` widens a 90 % interval narrower
 than ``2 e`` to at least ``q50 +- e``.
 
+The same points give the member's log evidence at half the step
+(:func:`log_evidence_ratio`: ``Z_half / Z_full = E_post[exp(D)]``), which the set's weights take
+(:mod:`tvcid.discovery.members.set_weights`): structures whose switching events converge
+differently can differ in evidence by what the step leaves unresolved.
+
 Cost: on that member (converged after 430 steps, 8.8e5 simulated seconds with its start), the
 default 80 points (8 per parameter) and the set-up cost 5,664 simulated seconds, 0.6 % of the
 chain's (1.5 % of its RK4 steps: a halved step costs twice per simulated second), and 5-7 s.
@@ -71,6 +76,7 @@ from .priors import SIGMA
 __all__ = [
     "StepError",
     "halved_log_posterior",
+    "log_evidence_ratio",
     "measure_step_error",
     "tilt_shift",
     "widen_interval",
@@ -282,6 +288,12 @@ class StepError:
         Effective sample size of the importance weights ``exp(D)`` over the points, as a fraction
         of them: near 1 the move is well under the posterior's width; near ``1 / n_points`` it is
         beyond it (the tilt still measures it).
+    log_evidence_shift : float
+        How far the member's log evidence moves when the step is halved (nats):
+        ``log mean exp(D)`` over the points, the ratio of the two steps' evidences read from the
+        posterior's draws (``Z_half / Z_full = E_post[exp(D)]``); ``log_evidence_shift_se`` its
+        standard error. Two members whose evidences differ by less than their shifts' difference
+        differ by what their step resolves, not by what the recordings tell.
     log_prob_sd : float
         The sd of the chain's log posterior over its draws (nats): how much the posterior's own
         draws differ in density. Where ``residual_sd`` exceeds it beyond its own noise, halving
@@ -298,6 +310,8 @@ class StepError:
     n_failed: int = 0
     residual_sd: float = math.nan
     ess: float = math.nan
+    log_evidence_shift: float = math.nan
+    log_evidence_shift_se: float = math.nan
     log_prob_sd: float = math.nan
     simulated_seconds: float = 0.0
     simulated_steps: float = 0.0
@@ -337,9 +351,28 @@ class StepError:
                 "steps": self.steps, "n_points": self.n_points, "n_failed": self.n_failed,
                 "residual_sd": self.residual_sd, "log_prob_sd": self.log_prob_sd,
                 "resolved": self.resolved, "ess": self.ess,
+                "log_evidence_shift": self.log_evidence_shift,
+                "log_evidence_shift_se": self.log_evidence_shift_se,
                 "simulated_seconds": self.simulated_seconds, "simulated_steps": self.simulated_steps,
                 "rule": f"step error = {SOLVER_ERROR_FACTOR:g} x (the median's move when the step "
                         "is halved + its standard error)"}
+
+
+def log_evidence_ratio(delta) -> tuple:
+    """``log(Z_half / Z_full)`` and its standard error from the change ``delta`` of the log
+    posterior (half step minus full) at draws of the full-step posterior.
+
+    ``Z_half / Z_full = E_post[exp(delta)]``: the half-step posterior's normalising constant over
+    the full-step one's is the mean of the likelihoods' ratio under the full-step posterior,
+    whatever the size of the change (importance sampling with the posterior as proposal). The
+    standard error is the mean's, carried to its log (delta method).
+    """
+    delta = np.asarray(delta, dtype=float)
+    if delta.size < 2 or not np.all(np.isfinite(delta)):
+        raise ValueError(f"log_evidence_ratio needs at least 2 finite changes, not {delta.size}")
+    w = np.exp(delta - delta.max())
+    return (float(delta.max() + math.log(w.mean())),
+            float(np.std(w, ddof=1) / (w.mean() * math.sqrt(w.size))))
 
 
 def _median_shifts(values_at, z, shift, cov, rng):
@@ -433,6 +466,7 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
     shift, cov, residual_sd = tilt_shift(z_all, points[ok], delta)
     w = np.exp(delta - delta.max())
     ess = float(w.sum() ** 2 / (w @ w)) / delta.size
+    evidence_shift, evidence_shift_se = log_evidence_ratio(delta)
 
     names = list(posterior.names)
     priors = lp0.priors
@@ -458,6 +492,7 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
         steps={t.name: [float(t0.simulator.dt), float(t.simulator.dt)]
                for t0, t in zip(lp0.terms, lp.terms)},
         n_points=int(ok.sum()), n_failed=int(m - ok.sum()), residual_sd=residual_sd, ess=ess,
+        log_evidence_shift=evidence_shift, log_evidence_shift_se=evidence_shift_se,
         log_prob_sd=_finite_sd(posterior.log_prob),
         simulated_seconds=lp.simulated_seconds + own.simulated_seconds,
         simulated_steps=lp.simulated_steps + own.simulated_steps)

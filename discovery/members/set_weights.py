@@ -22,6 +22,17 @@ component the recordings pin away from 0 gains the weight its fit earns. Two mem
 alike get about equal weights; a member that fits worse by a few units of its noise gets a weight
 near 0.
 
+**At half the step.** A member's likelihood is its kernel's at a fixed step, and two structures
+whose switching events fall differently converge differently as the step shrinks: their evidences
+can differ by what the step leaves unresolved, not by what the recordings tell
+(``docs/methods/calibration.md``, "Weights", measures it on two delay positions). Each member's step-error measurement
+(:func:`tvcid.discovery.calibration.step_error.measure_step_error`) gives its log evidence's change
+when the step is halved (``log_evidence_shift``, exact in expectation), and the weights are taken
+from the evidences at half the step. What half the step still leaves, at first order the change
+halving made, is part of the allowance: between two members, the difference of their shifts.
+A member whose weight that allowance lifts to the deciding share is not final
+(:func:`unsure_members`): the step, not the data, would decide against it.
+
 Beside the weights, the result keeps the members' shares by the ranking's held-out scores
 (:func:`.ranking_shares.ranking_shares`) and equal weights, as comparisons the report prints;
 neither is used as the weights.
@@ -56,9 +67,9 @@ UNSURE_NATS = 20.0
 EQUAL_RULE = "equal weights: 1/n for each of the n calibrated members"
 #: The weights' rule (:func:`evidence_weights`).
 EVIDENCE_RULE = ("posterior probability of each structure: its evidence (the likelihood averaged "
-                 "over its prior, by importance sampling from its chain) over the members' sum, "
-                 "each recording's likelihood at the smallest discrepancy factor any member needs "
-                 "there")
+                 "over its prior, by importance sampling from its chain, taken at half the "
+                 "simulation step) over the members' sum, each recording's likelihood at the "
+                 "smallest discrepancy factor any member needs there")
 
 
 @dataclass
@@ -76,7 +87,8 @@ class SetWeights:
         How ``weights`` are made, in words.
     upper : dict
         Member -> its weight with its log evidence raised, and every other's lowered, by
-        ``SE_ALLOWANCE`` standard errors: what the estimate's noise allows at most.
+        ``SE_ALLOWANCE`` standard errors, and each gap to another member widened by the
+        difference of their step shifts: what the estimate's noise and the step allow at most.
     evidence : dict
         Member -> its :class:`.member_evidence.Evidence` as a dict (``log_z``, ``se``, ``ess``,
         ``pareto_k``, ``n``, ``temperature``, ``reliable``).
@@ -87,6 +99,10 @@ class SetWeights:
     held_out : dict or None
         Member -> its share by the ranking's held-out scores; ``held_out_rule`` states it.
     notes : list of str
+    step_shift : dict
+        Member -> ``{"shift", "se"}``: its log evidence's change when the step is halved, added
+        to its ``evidence`` for the weights (a member whose step was not measured, a screened
+        one, takes the others' median shift, ``"measured"`` false); empty where none was given.
     """
 
     weights: dict
@@ -100,6 +116,7 @@ class SetWeights:
     held_out: dict | None = None
     held_out_rule: str = RANKING_RULE
     notes: list = field(default_factory=list)
+    step_shift: dict = field(default_factory=dict)
 
     def of(self, names) -> list:
         """The weights of ``names``, in that order (``combine``'s ``weights`` argument)."""
@@ -112,7 +129,8 @@ class SetWeights:
     def to_dict(self) -> dict:
         return {"weights": dict(self.weights), "method": self.method, "rule": self.rule,
                 "upper": dict(self.upper), "evidence": dict(self.evidence),
-                "temperature": dict(self.temperature), "equal": dict(self.equal),
+                "temperature": dict(self.temperature), "step_shift": dict(self.step_shift),
+                "equal": dict(self.equal),
                 "equal_rule": self.equal_rule,
                 "held_out": None if self.held_out is None else dict(self.held_out),
                 "held_out_rule": self.held_out_rule, "notes": list(self.notes)}
@@ -133,7 +151,7 @@ def common_temperature(draws) -> dict:
             for r in records}
 
 
-def evidence_weights(draws, rows=None, seed=0) -> SetWeights:
+def evidence_weights(draws, rows=None, seed=0, step_shifts=None) -> SetWeights:
     """The members' posterior probabilities from their evidence.
 
     Parameters
@@ -146,6 +164,12 @@ def evidence_weights(draws, rows=None, seed=0) -> SetWeights:
         ``margin``): their held-out-score shares are kept for comparison.
     seed : int
         Seeds the held-out-score shares' draws.
+    step_shifts : dict, optional
+        Member -> ``(shift, se)``: its log evidence's change when the step is halved
+        (:attr:`tvcid.discovery.calibration.step_error.StepError.log_evidence_shift`). Given,
+        the weights are the evidences' at half the step, and each pair's allowance is widened by
+        the difference of their shifts (the module's docstring); a member left out takes the
+        others' median shift and no allowance for it.
 
     Returns
     -------
@@ -181,16 +205,47 @@ def evidence_weights(draws, rows=None, seed=0) -> SetWeights:
                           RANKING_RULE if held else EQUAL_RULE, dict(weights),
                           {n: e.to_dict() for n, e in evidence.items()}, temperature, equal,
                           held_out=held, notes=notes)
+    shifts = _step_shifts(names, step_shifts)
+    shift = np.array([shifts[n]["shift"] for n in names]) if shifts else np.zeros(len(names))
+    log_z = log_z + shift
     weights = _normalised(log_z)
     se = np.array([evidence[n].se if math.isfinite(evidence[n].se) else 0.0 for n in names])
-    upper = {}
-    for i, n in enumerate(names):
-        shifted = np.where(np.isfinite(log_z), log_z - SE_ALLOWANCE * se, log_z)
-        shifted[i] = log_z[i] + SE_ALLOWANCE * se[i] if math.isfinite(log_z[i]) else -math.inf
-        upper[n] = float(_normalised(shifted)[i]) if np.any(np.isfinite(shifted)) else 0.0
+    allowance = SE_ALLOWANCE * (se[:, None] + se[None, :])
+    if shifts:
+        measured = np.array([shifts[n]["measured"] for n in names])
+        step_se = np.array([shifts[n]["se"] for n in names])
+        both = measured[:, None] & measured[None, :]
+        allowance = allowance + np.where(
+            both, np.abs(shift[:, None] - shift[None, :])
+            + SE_ALLOWANCE * (step_se[:, None] + step_se[None, :]), 0.0)
+    upper = {n: _upper(log_z, allowance, i) for i, n in enumerate(names)}
     return SetWeights({n: float(w) for n, w in zip(names, weights)}, "evidence", EVIDENCE_RULE,
                       upper, {n: e.to_dict() for n, e in evidence.items()}, temperature, equal,
-                      held_out=held, notes=notes)
+                      held_out=held, notes=notes, step_shift=shifts)
+
+
+def _step_shifts(names, step_shifts) -> dict:
+    """Member -> ``{"shift", "se", "measured"}`` from ``evidence_weights``' ``step_shifts``; a
+    member without a finite one takes the measured members' median shift; empty where no member
+    has one."""
+    given = {n: (float(v[0]), float(v[1])) for n, v in (step_shifts or {}).items()
+             if n in names and math.isfinite(float(v[0]))}
+    if not given:
+        return {}
+    median = float(np.median([v[0] for v in given.values()]))
+    return {n: {"shift": given[n][0], "se": given[n][1] if math.isfinite(given[n][1]) else 0.0,
+                "measured": True} if n in given
+            else {"shift": median, "se": 0.0, "measured": False} for n in names}
+
+
+def _upper(log_z, allowance, i) -> float:
+    """Member ``i``'s weight with each gap to another member narrowed by ``allowance[i, k]``
+    (``log_z`` ``-inf`` for a member without evidence)."""
+    if not math.isfinite(log_z[i]):
+        return 0.0
+    others = [k for k in range(len(log_z)) if k != i and math.isfinite(log_z[k])]
+    return float(1.0 / (1.0 + sum(math.exp(min(log_z[k] - log_z[i] - allowance[i, k], 700.0))
+                                  for k in others)))
 
 
 def _normalised(log_z) -> np.ndarray:
@@ -204,11 +259,13 @@ def _normalised(log_z) -> np.ndarray:
 def unsure_members(set_posterior) -> list:
     """The calibrated members whose weight is not final, so that the data cannot yet decide
     against them: each member of ``set_posterior`` (``discovery.json``'s, or :func:`combine`'s
-    dict with its ``weighting``) whose chain stopped at its cap (not converged) or whose
-    evidence is not reliable (:attr:`.member_evidence.Evidence.reliable`), unless its weight
-    even at its allowance (:attr:`SetWeights.upper`) is under :data:`DECIDING_SHARE` by
-    :data:`UNSURE_NATS`. A member screened by its weight (``tvcid.set_stage``) is not: the
-    screening decided against it by its own rule, with the same margin for an unreliable run.
+    dict with its ``weighting``) under :data:`DECIDING_SHARE` whose weight at its allowance
+    (:attr:`SetWeights.upper`: the evidence's noise and the step) reaches that share, and each
+    whose chain stopped at its cap (not converged) or whose evidence is not reliable
+    (:attr:`.member_evidence.Evidence.reliable`), unless its weight even at its allowance is
+    under the share by :data:`UNSURE_NATS`. A member screened by its weight
+    (``tvcid.set_stage``) is not: the screening decided against it by its own rule, with the
+    same margin for an unreliable run.
 
     A set of one member, or one without evidence weights, has none. The members' order is kept.
     """
@@ -224,8 +281,10 @@ def unsure_members(set_posterior) -> list:
         if (m.get("posterior") or {}).get("screened"):
             continue
         unreliable = not (evidence.get(name) or {}).get("reliable", False)
-        if ((not m.get("converged") or unreliable)
-                and upper.get(name, m.get("weight", 1.0)) >= floor):
+        weight = m.get("weight", 1.0)
+        at_most = upper.get(name, weight)
+        if (((not m.get("converged") or unreliable) and at_most >= floor)
+                or weight < DECIDING_SHARE <= at_most):
             out.append(name)
     return out
 
