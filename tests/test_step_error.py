@@ -18,10 +18,8 @@ from tvcid.discovery.calibration.step_error import (
     measure_step_error,
     tilt_shift,
     StepError,
-    widen_draws,
-    widen_interval,
-    widen_quantiles,
 )
+from tvcid.discovery.calibration.widening import widen_draws, widen_interval, widen_quantiles
 from tvcid.models import M000, OpenLoop, hypothesis, simulate
 from tvcid.models.recording import recording_from_trajectory, save_recording
 

@@ -124,7 +124,8 @@ def _member_task(row, recs, offsets, fixed, seed, quick, max_steps, progress, ou
     """:func:`calibrate_member_task`'s work, untimed."""
     from tvcid.discovery.calibration.pinned import pinned_combinations
     from tvcid.discovery.calibration.start import NoFiniteStartError
-    from tvcid.discovery.calibration.step_error import measure_step_error, widen_quantiles
+    from tvcid.discovery.calibration.step_error import measure_step_error
+    from tvcid.discovery.calibration.widening import widen_quantiles
     from tvcid.discovery.members.member_evidence import member_importance_draws
     from tvcid.discovery.members.set_posterior import not_pinned, prior_quantities
     from tvcid.models.quantities import member_quantities

@@ -5,8 +5,8 @@ zone, backlash, square edges, a held controller) RK4 converges at first order, a
 recordings pin a quantity tightly its 90 % interval can be narrower than the step resolves: M000's
 open-loop square recorded with 2e-7 rad of noise pins the feedback gain to 1.2e-6 (90 %), and
 halving the step (6.25e-5 s, the step refinement's cap) moves it by 4.9e-6
-(``tests/test_step_error.py``). This module measures that move for a fitted member and widens
-the intervals it makes meaningless.
+(``tests/test_step_error.py``). This module measures that move for a fitted member;
+:mod:`.widening` widens the intervals it makes meaningless.
 
 The measurement (:func:`measure_step_error`). Every likelihood term of the calibration is built
 again at half the step it simulates at, as its own set-up builds it (:func:`halved_log_posterior`:
@@ -44,8 +44,8 @@ the subsample cannot tell from its noise counts up to that noise. On M000's memb
 parameters, four records) the delay's and the backlash's moves halve with the step (2.4 and 2.1
 times smaller from ``dt / 2`` to ``dt / 4``), the linear block's fall faster (11-60 times), and
 the band-pass loop's do not fall (its unlocked 9-10 Hz oscillation is resolved by no step), so
-that for it the halving's move is a floor. :func:`widen_interval` widens a 90 % interval narrower
-than ``2 e`` to at least ``q50 +- e``.
+that for it the halving's move is a floor. :func:`.widening.widen_interval` widens a 90 % interval
+narrower than ``2 e`` to at least ``q50 +- e``.
 
 The same points give the member's log evidence at half the step
 (:func:`log_evidence_ratio`: ``Z_half / Z_full = E_post[exp(D)]``), which the set's weights take
@@ -79,9 +79,6 @@ __all__ = [
     "log_evidence_ratio",
     "measure_step_error",
     "tilt_shift",
-    "widen_interval",
-    "widen_draws",
-    "widen_quantiles",
     "STEP_ERROR_POINTS_PER_PARAMETER",
     "STEP_ERROR_MIN_POINTS",
 ]
@@ -270,7 +267,7 @@ class StepError:
     parameters : dict
         Sampled parameter -> ``shift`` (of the median, natural units, half step minus full), ``se``
         (its standard error from the regression's residuals) and ``error``
-        (``SOLVER_ERROR_FACTOR * (|shift| + se)``, the step error :func:`widen_interval` takes).
+        (``SOLVER_ERROR_FACTOR * (|shift| + se)``, the step error :func:`.widening.widen_interval` takes).
     quantities : dict
         The same for the member's combined quantities
         (:func:`tvcid.models.quantities.member_quantities`); empty when not asked for.
@@ -496,110 +493,3 @@ def measure_step_error(posterior, n_points=None, seed=0, quantities=True, params
         log_prob_sd=_finite_sd(posterior.log_prob),
         simulated_seconds=lp.simulated_seconds + own.simulated_seconds,
         simulated_steps=lp.simulated_steps + own.simulated_steps)
-
-
-# -- what the report prints ----------------------------------------------------------------------
-def widen_interval(q05, q50, q95, error, bounds=None):
-    """A 90 % interval widened to what the simulation step resolves.
-
-    Rule: where the interval is narrower than ``2 error`` (``q95 - q05 < 2 error``), it becomes
-    ``[min(q05, q50 - error), max(q95, q50 + error)]``: at least the median plus or minus the
-    step error; an interval at least that wide is kept as it is. A widened end stops at the
-    quantity's ``bounds`` (a dead zone, a delay: not below 0), never inside the sampled end.
-
-    Parameters
-    ----------
-    q05, q50, q95 : float
-    error : float or None
-        The quantity's step error (:attr:`StepError.errors`); ``None`` or NaN: not measured,
-        nothing changes.
-    bounds : (float, float), optional
-        Where the quantity can lie (the prior's support); ``None`` for either end: unbounded.
-
-    Returns
-    -------
-    low, high : float
-    widened : bool
-    """
-    if error is None or not math.isfinite(float(error)):
-        return q05, q95, False
-    e = float(error)
-    if e < 0:
-        raise ValueError(f"a step error is a size (got {e})")
-    if not q95 - q05 < 2.0 * e:
-        return q05, q95, False
-    low, high = min(q05, q50 - e), max(q95, q50 + e)
-    floor, ceiling = bounds if bounds is not None else (None, None)
-    if floor is not None:
-        low = min(q05, max(low, float(floor)))
-    if ceiling is not None:
-        high = max(q95, min(high, float(ceiling)))
-    return low, high, bool(low < q05 or high > q95)
-
-
-def widen_draws(values, error, bounds=None):
-    """A member's draws of one quantity widened as :func:`widen_interval` widens its interval.
-
-    Each side of the median is stretched about it, linearly, so that the draws' 5 % and 95 %
-    quantiles become the widened interval's ends; draws already wide enough are returned as they
-    are. The stretched draws are clipped to ``bounds``. Mixing members' draws widened each by
-    its own step error (:func:`tvcid.discovery.members.set_posterior.combine`) carries each
-    member's error at its weight, where widening the mixture by the largest error would let one
-    member that the step does not resolve widen every other member's answer.
-
-    Parameters
-    ----------
-    values : array_like
-    error : float or None
-    bounds : (float, float), optional
-
-    Returns
-    -------
-    draws : ndarray
-    widened : bool
-    """
-    v = np.asarray(values, dtype=float)
-    ok = np.isfinite(v)
-    if error is None or not math.isfinite(float(error)) or not ok.any():
-        return v, False
-    q05, q50, q95 = np.quantile(v[ok], (0.05, 0.5, 0.95))
-    low, high, widened = widen_interval(q05, q50, q95, error, bounds)
-    if not widened:
-        return v, False
-    out = v.copy()
-    if q95 == q05:  # no spread at all: the draws spread evenly, by rank, so that 90 % span the ends
-        u = (np.argsort(np.argsort(v[ok], kind="stable"), kind="stable") + 0.5) / ok.sum()
-        out[ok] = low + (high - low) * (u - 0.05) / 0.9
-    else:  # a side without spread (q05 or q95 at the median) is left as it is
-        for side, end, q in ((ok & (v < q50), low, q05), (ok & (v > q50), high, q95)):
-            if end != q and q != q50:
-                out[side] = q50 + (v[side] - q50) * (end - q50) / (q - q50)
-    if bounds is not None:
-        floor, ceiling = bounds
-        out[ok] = np.clip(out[ok], -np.inf if floor is None else floor,
-                          np.inf if ceiling is None else ceiling)
-    return out, True
-
-
-def widen_quantiles(quantiles: dict, errors: dict, bounds: dict | None = None) -> dict:
-    """:func:`widen_interval` over a table of quantities.
-
-    ``quantiles``: name -> a dict with ``q05``, ``q50`` and ``q95`` (a posterior summary's
-    ``parameters``, a set posterior's ``quantities``); ``errors``: name -> step error;
-    ``bounds``: name -> where it can lie (the priors' supports). Returns a copy in which every
-    entry with an error also has ``step_error`` and ``widened``, and, where widened, its
-    ``q05``/``q95`` replaced and the original ones kept as ``q05_sampled`` and
-    ``q95_sampled``."""
-    out = {}
-    for name, q in quantiles.items():
-        q = dict(q)
-        e = errors.get(name)
-        if e is not None and None not in (q.get("q05"), q.get("q50"), q.get("q95")):
-            low, high, widened = widen_interval(q["q05"], q["q50"], q["q95"], e,
-                                                (bounds or {}).get(name))
-            q["step_error"], q["widened"] = float(e), widened
-            if widened:
-                q["q05_sampled"], q["q95_sampled"] = q["q05"], q["q95"]
-                q["q05"], q["q95"] = float(low), float(high)
-        out[name] = q
-    return out

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tvcid.discovery.calibration.profile_range import QuantityCoordinate, allowed_range
-from tvcid.discovery.calibration.step_error import widen_draws
+from tvcid.discovery.calibration.widening import widen_draws
 from tvcid.models.quantities import COMPONENT_QUANTITIES, QUANTITY_UNITS, member_quantities
 
 from ..structure.indistinguishable import DECIDING_SHARE
@@ -372,7 +372,7 @@ def combine(members, weights=None, n_draws=4000, seed=0, criterion=None,
         ceiling]`` of the members' priors, mapped to the quantity), ``step_error`` (the
         members' step errors averaged by their weights: a draw's expected error), ``widened``
         (some member's draws were widened to its own step error before the mixing,
-        :func:`tvcid.discovery.calibration.step_error.widen_draws`: a member's interval narrower than
+        :func:`tvcid.discovery.calibration.widening.widen_draws`: a member's interval narrower than
         twice its error becomes at least its median +- the error, within the quantity's
         support, ``support``: ``[floor, ceiling]``, ``None`` for an open end) with
         ``step_error_widened`` (the largest error that widened one) and the
