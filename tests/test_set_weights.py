@@ -196,7 +196,8 @@ def test_a_member_whose_weight_is_not_final_is_not_decided_against_unless_far_un
     """A member whose chain stopped at its cap, or whose evidence is unreliable, is unsure: the
     data decide against it only 20 nats under the share even at its allowance. A converged
     member with reliable evidence, or one screened by its weight, is decided against under the
-    share, whatever its evidence; no member over it is."""
+    share, whatever its evidence, unless its allowance (the evidence's noise and the step)
+    lifts it to the share; no member over it is."""
     import math
 
     from tvcid.discovery.members.set_weights import decided_against, unsure_members
@@ -210,12 +211,14 @@ def test_a_member_whose_weight_is_not_final_is_not_decided_against_unless_far_un
         ("screened", 0.01, 0.02, False, True, False),    # decided by the screening's rule
         ("hopeless", far / 2, far, False, False, False),
         ("rest", 0.075 - far / 2, 0.1, False, False, True),
+        ("lifted", 0.01, 0.06, False, True, True),         # screened, its step unresolved
     ])
     unsure = unsure_members(sp)
-    assert unsure == ["capped", "unreliable", "rest"]
+    assert unsure == ["capped", "unreliable", "rest", "lifted"]
     weights = {m["structure"]: m["weight"] for m in sp["members"]}
     assert decided_against(weights, unsure) == ["settled", "screened", "hopeless"]
-    assert decided_against(weights) == ["capped", "unreliable", "settled", "screened", "hopeless"]
+    assert decided_against(weights) == ["capped", "unreliable", "settled", "screened", "hopeless",
+                                        "lifted"]
     assert decided_against(None, unsure) == []
     assert unsure_members({**sp, "members": sp["members"][:1]}) == []  # a set of one
     assert unsure_members({**sp, "weighting": {"method": "held-out scores"}}) == []

@@ -264,8 +264,9 @@ def unsure_members(set_posterior) -> list:
     whose chain stopped at its cap (not converged) or whose evidence is not reliable
     (:attr:`.member_evidence.Evidence.reliable`), unless its weight even at its allowance is
     under the share by :data:`UNSURE_NATS`. A member screened by its weight
-    (``tvcid.set_stage``) is not: the screening decided against it by its own rule, with the
-    same margin for an unreliable run.
+    (``tvcid.set_stage``) is not unsure for its short chain or its evidence: the screening
+    decided against it by its own rule, with the same margin for an unreliable run; the
+    screening did not know its step, so the allowance's clause holds for it too.
 
     A set of one member, or one without evidence weights, has none. The members' order is kept.
     """
@@ -278,12 +279,11 @@ def unsure_members(set_posterior) -> list:
     out = []
     for m in members:
         name = m["structure"]
-        if (m.get("posterior") or {}).get("screened"):
-            continue
+        screened = bool((m.get("posterior") or {}).get("screened"))
         unreliable = not (evidence.get(name) or {}).get("reliable", False)
         weight = m.get("weight", 1.0)
         at_most = upper.get(name, weight)
-        if (((not m.get("converged") or unreliable) and at_most >= floor)
+        if ((not screened and (not m.get("converged") or unreliable) and at_most >= floor)
                 or weight < DECIDING_SHARE <= at_most):
             out.append(name)
     return out
