@@ -178,6 +178,8 @@ def test_a_member_whose_weight_is_not_final_keeps_its_choice_open_and_its_compon
     assert "absent (the members with it" not in row
     assert "band-pass loop off (99 %) or on (1.0 %, weight not final)" in text
     assert "A weight not final is a member's whose chain stopped at its cap" in text
+    assert "whose weight halving the simulation step would lift over the share" in text
+    assert "a weight the step does not resolve, so its weight is not final" in row
 
 
 def test_a_merged_structure_is_spoken_for_by_its_member_where_its_additions_are_decided_off():
