@@ -267,7 +267,8 @@ class StepError:
     parameters : dict
         Sampled parameter -> ``shift`` (of the median, natural units, half step minus full), ``se``
         (its standard error from the regression's residuals) and ``error``
-        (``SOLVER_ERROR_FACTOR * (|shift| + se)``, the step error :func:`.widening.widen_interval` takes).
+        (``SOLVER_ERROR_FACTOR * (|shift| + se)``, the step error
+        :func:`.widening.widen_interval` takes).
     quantities : dict
         The same for the member's combined quantities
         (:func:`tvcid.models.quantities.member_quantities`); empty when not asked for.

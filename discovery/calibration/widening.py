@@ -27,8 +27,8 @@ def widen_interval(q05, q50, q95, error, bounds=None):
     ----------
     q05, q50, q95 : float
     error : float or None
-        The quantity's step error (:attr:`.step_error.StepError.errors`); ``None`` or NaN: not measured,
-        nothing changes.
+        The quantity's step error (:attr:`.step_error.StepError.errors`); ``None`` or NaN: not
+        measured, nothing changes.
     bounds : (float, float), optional
         Where the quantity can lie (the prior's support); ``None`` for either end: unbounded.
 

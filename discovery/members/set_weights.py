@@ -25,12 +25,12 @@ near 0.
 **At half the step.** A member's likelihood is its kernel's at a fixed step, and two structures
 whose switching events fall differently converge differently as the step shrinks: their evidences
 can differ by what the step leaves unresolved, not by what the recordings tell
-(``docs/methods/calibration.md``, "Weights", measures it on two delay positions). Each member's step-error measurement
-(:func:`tvcid.discovery.calibration.step_error.measure_step_error`) gives its log evidence's change
-when the step is halved (``log_evidence_shift``, exact in expectation), and the weights are taken
-from the evidences at half the step. What half the step still leaves, at first order the change
-halving made, is part of the allowance: between two members, the difference of their shifts.
-A member whose weight that allowance lifts to the deciding share is not final
+(``docs/methods/calibration.md``, "Weights", measures it on two delay positions). Each member's
+step-error measurement (:func:`tvcid.discovery.calibration.step_error.measure_step_error`) gives its
+log evidence's change when the step is halved (``log_evidence_shift``, exact in expectation), and
+the weights are taken from the evidences at half the step. What half the step still leaves, at first
+order the change halving made, is part of the allowance: between two members, the difference of
+their shifts. A member whose weight that allowance lifts to the deciding share is not final
 (:func:`unsure_members`): the step, not the data, would decide against it.
 
 Beside the weights, the result keeps the members' shares by the ranking's held-out scores
@@ -101,8 +101,8 @@ class SetWeights:
     notes : list of str
     step_shift : dict
         Member -> ``{"shift", "se"}``: its log evidence's change when the step is halved, added
-        to its ``evidence`` for the weights (a member whose step was not measured, a screened
-        one, takes the others' median shift, ``"measured"`` false); empty where none was given.
+        to its ``evidence`` for the weights (a member without a measured one takes the others'
+        median shift, ``"measured"`` false); empty where none was given.
     """
 
     weights: dict
